@@ -1,0 +1,86 @@
+"""YAML configuration validated by pydantic models; errors name file, key and value.
+
+Every configurable component (sensor profile, scenario, region) defines one
+:class:`ConfigModel` subclass whose field descriptions give unit and range;
+:func:`load_yaml` reads a file into it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pydantic
+import yaml
+
+
+class ConfigModel(pydantic.BaseModel):
+    """Base of all configuration schemas: unknown keys are errors, instances are immutable."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+M = TypeVar("M", bound=pydantic.BaseModel)
+
+
+class ConfigError(ValueError):
+    """A configuration file that cannot be read or does not match its schema."""
+
+
+def _key_path(loc: tuple[Any, ...]) -> str:
+    return ".".join(str(part) for part in loc) or "<top level>"
+
+
+def _lookup(data: Any, loc: tuple[Any, ...]) -> Any:
+    for part in loc:
+        try:
+            data = data[part]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return data
+
+
+def format_validation_error(source: str, error: pydantic.ValidationError, data: Any) -> str:
+    """One line per problem: ``source: key 'a.b': value 3: reason``."""
+    lines = []
+    for item in error.errors():
+        loc = tuple(item["loc"])
+        key = _key_path(loc)
+        if item["type"] == "extra_forbidden":
+            lines.append(f"{source}: unknown key '{key}'")
+        elif item["type"] == "missing":
+            lines.append(f"{source}: missing key '{key}'")
+        else:
+            lines.append(f"{source}: key '{key}': value {_lookup(data, loc)!r}: {item['msg']}")
+    return "\n".join(lines)
+
+
+def validate(data: Any, model: type[M], source: str = "<data>") -> M:
+    """Validate a parsed mapping against ``model``; raise :class:`ConfigError` naming the key."""
+    try:
+        return model.model_validate(data)
+    except pydantic.ValidationError as exc:
+        raise ConfigError(format_validation_error(source, exc, data)) from None
+
+
+def load_yaml(path: str | Path, model: type[M]) -> M:
+    """Read ``path`` and validate it against ``model``."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ConfigError(f"{path}:{where}: invalid YAML: {getattr(exc, 'problem', exc)}") from None
+    if data is None:
+        data = {}
+    return validate(data, model, str(path))
+
+
+def dump_yaml(config: pydantic.BaseModel) -> str:
+    """The configuration as YAML (defaults included), e.g. for ``dump-config``."""
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

@@ -1,0 +1,12 @@
+"""Topic and frame names shared by every node, CLI and test (REP-105 frames)."""
+
+TOPIC_POINTS = "/lidar/points"
+TOPIC_POINTS_FILTERED = "/lidar/points/filtered"
+TOPIC_POINTS_REMOVED = "/lidar/points/removed"
+TOPIC_TF = "/tf"
+TOPIC_TF_STATIC = "/tf_static"
+TOPIC_CLOCK = "/clock"
+
+FRAME_MAP = "map"
+FRAME_BASE_LINK = "base_link"
+FRAME_LIDAR = "lidar"

@@ -1,0 +1,30 @@
+"""ament_python package: the virtual LiDAR library, its ROS 2 nodes and the CLI."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "lidar_weather_sim"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
+        (f"share/{package_name}", ["package.xml"]),
+        # The CLI on PATH (colcon adds <prefix>/bin); nodes live in lib/<package> for ros2 run.
+        ("bin", glob("bin/*")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="lidar_weather_sim developers",
+    maintainer_email="dev@lidar-weather-sim.invalid",
+    description="Virtual automotive LiDAR in real weather",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "pattern_node = lidar_weather_sim.ros.pattern_node:main",
+            "lidar-weather-sim = lidar_weather_sim.cli:main",
+        ],
+    },
+)
