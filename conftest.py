@@ -85,3 +85,38 @@ def processes(tmp_path):
 def cli():
     """Command prefix that runs the lidar-weather-sim CLI with this interpreter."""
     return [sys.executable, "-m", "lidar_weather_sim.cli"]
+
+
+class RosHarness:
+    """An rclpy context, node and executor inside the test process."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("pytest_harness", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, predicate, timeout_s: float) -> bool:
+        """Spin until ``predicate()`` is true or ``timeout_s`` seconds pass; returns predicate()."""
+        import time
+
+        deadline = time.monotonic() + timeout_s
+        while not predicate() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+        return bool(predicate())
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.fixture
+def ros():
+    harness = RosHarness()
+    yield harness
+    harness.close()

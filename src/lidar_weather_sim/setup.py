@@ -1,9 +1,20 @@
 """ament_python package: the virtual LiDAR library, its ROS 2 nodes and the CLI."""
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = "lidar_weather_sim"
+
+
+def tree(top: str) -> list[tuple[str, list[str]]]:
+    """data_files entries installing the workspace directory ``../../<top>`` to share/<package>/<top>."""
+    root = Path("../..")
+    entries = {}
+    for path in sorted((root / top).rglob("*")):
+        if path.is_file():
+            entries.setdefault(f"share/{package_name}/{path.parent.relative_to(root)}", []).append(str(path))
+    return sorted(entries.items())
 
 setup(
     name=package_name,
@@ -14,6 +25,9 @@ setup(
         (f"share/{package_name}", ["package.xml"]),
         # The CLI on PATH (colcon adds <prefix>/bin); nodes live in lib/<package> for ros2 run.
         ("bin", glob("bin/*")),
+        *tree("config"),
+        *tree("maps"),
+        *tree("launch"),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
