@@ -120,3 +120,12 @@ def ros():
     harness = RosHarness()
     yield harness
     harness.close()
+
+
+@pytest.fixture(scope="session")
+def thesis_tables() -> dict:
+    """The thesis' measured values (../shared/data/thesis_tables.yaml beside the workspace)."""
+    import yaml
+
+    path = Path(os.environ.get("LWS_THESIS_TABLES", ROOT.parent / "shared" / "data" / "thesis_tables.yaml"))
+    return yaml.safe_load(path.read_text())

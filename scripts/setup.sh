@@ -51,11 +51,23 @@ if [[ ! -f "$venv/.cmake-fix.stamp" ]]; then
   py_inc=$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
   np_inc=$("$venv/bin/python" -c 'import numpy; print(numpy.get_include())')
   say "rewriting /opt/python include paths -> $py_inc, $np_inc"
-  grep -rlZ --include='*.cmake' '/opt/python/cp3' "$venv/share" 2>/dev/null |
+  { grep -rlZ --include='*.cmake' '/opt/python/cp3' "$venv/share" 2>/dev/null || true; } |
     xargs -0 -r sed -i -E \
       -e "s#/opt/python/cp3[0-9]+-cp3[0-9]+/lib/python3\.[0-9]+/site-packages/numpy/_core/include#$np_inc#g" \
       -e "s#/opt/python/cp3[0-9]+-cp3[0-9]+/include/python3\.[0-9]+#$py_inc#g"
   touch "$venv/.cmake-fix.stamp"
+fi
+
+# --- 3b. sensor profiles generated from measured calibrations ------------------
+ouster_sdist="$venv/cache/ouster_sdk-1.0.1.tar.gz"
+if [[ ! -f "$ouster_sdist" ]]; then
+  say "downloading the ouster-sdk 1.0.1 sdist (OS1-128 beam angles of its test recordings)"
+  mkdir -p "$venv/cache"
+  "$venv/bin/pip" download --quiet --no-deps --no-binary ouster-sdk ouster-sdk==1.0.1 -d "$venv/cache"
+fi
+if [[ ! -f config/sensors/os1_128_2048.yaml || scripts/make_sensor_profiles.py -nt config/sensors/os1_128_2048.yaml ]]; then
+  say "generating Velodyne and Ouster profiles in config/sensors/"
+  "$venv/bin/python" scripts/make_sensor_profiles.py "$ouster_sdist" config/sensors >/dev/null
 fi
 
 # --- 4/5. colcon builds -----------------------------------------------------
