@@ -1,0 +1,162 @@
+"""Scenario player: poses of the ego, its sensor and the actors over simulated time.
+
+Movers follow OpenDRIVE lane centres at their speed; a lane change blends the
+lateral position between the two lane centres with a smoothstep over its
+duration. base_link is the ego's origin on the road surface (REP-105), the
+sensor is mounted on it with the scenario's mount pose. All poses are in the
+map frame: translations in m, quaternions x, y, z, w. The ego speed can be
+commanded at run time (closed loop); actors keep their scenario speed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidar_weather_sim.opendrive import RoadNetwork
+from lidar_weather_sim.scenario import Mount, Mover, Scenario
+
+
+def yaw_quaternions(yaw: np.ndarray) -> np.ndarray:
+    """(N, 4) x, y, z, w quaternions of rotations about z by ``yaw`` (rad)."""
+    half = 0.5 * np.asarray(yaw, dtype=np.float64)
+    return np.stack([np.zeros_like(half), np.zeros_like(half), np.sin(half), np.cos(half)], axis=-1)
+
+
+def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """3x3 rotation R = Rz(yaw) Ry(pitch) Rx(roll) (rad, REP-103 fixed-axis roll-pitch-yaw)."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def matrix_quaternion(m: np.ndarray) -> np.ndarray:
+    """x, y, z, w quaternion of a 3x3 rotation matrix."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(m).as_quat()
+
+
+def mount_matrix(mount: Mount) -> np.ndarray:
+    """4x4 sensor-to-base_link transform of a mount."""
+    m = np.eye(4)
+    m[:3, :3] = rpy_matrix(*np.deg2rad([mount.roll_deg, mount.pitch_deg, mount.yaw_deg]))
+    m[:3, 3] = [mount.x_m, mount.y_m, mount.z_m]
+    return m
+
+
+class MoverTrack:
+    """Position of one mover along its road over time (s in m, t in s)."""
+
+    def __init__(self, mover: Mover, network: RoadNetwork) -> None:
+        self.mover = mover
+        self.network = network
+        self.length = network.road_length(mover.road)
+        # lanes driven against the reference line (left lanes in right-hand traffic) move to smaller s
+        along = network.lane_pose(mover.road, mover.lane, mover.s_m)[3]
+        reference = network.lane_pose(mover.road, mover.lane, mover.s_m, along_reference=True)[3]
+        self.direction = 1.0 if np.cos(along - reference) > 0 else -1.0
+        # speed segments (start time s, start position m, speed m/s); commands append segments
+        self._segments = [(0.0, mover.s_m, mover.speed_m_s)]
+
+    def command_speed(self, time_s: float, speed_m_s: float) -> None:
+        """From ``time_s`` on, move at ``speed_m_s`` (m/s)."""
+        t0, s0, v0 = self._segments[-1]
+        if time_s < t0:
+            raise ValueError(f"speed command at {time_s:.3f} s is older than the last one ({t0:.3f} s)")
+        self._segments.append((time_s, s0 + self.direction * v0 * (time_s - t0), max(0.0, speed_m_s)))
+
+    def _segment_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        table = np.array(self._segments)
+        k = np.clip(np.searchsorted(table[:, 0], times, side="right") - 1, 0, None)
+        return table[k, 0], table[k, 1], table[k, 2]
+
+    def s(self, times: np.ndarray) -> np.ndarray:
+        """Position along the road (m) at ``times`` (s); stops at the road's end."""
+        t0, s0, v = self._segment_at(times)
+        return np.clip(s0 + self.direction * v * (times - t0), 0.0, self.length)
+
+    def speeds(self, times: np.ndarray) -> np.ndarray:
+        """Speed (m/s) at ``times`` (s)."""
+        return self._segment_at(times)[2]
+
+    def poses(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (N, 3) m and headings (N,) rad in the map frame at ``times`` (s)."""
+        times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        s = self.s(times)
+        road = self.mover.road
+        x, y, z, heading = self.network.lane_pose(road, self.mover.lane, s)
+        pos = np.stack([x, y, z], axis=-1)
+        for change in self.mover.lane_changes:
+            u = np.clip((times - change.at_s) / change.duration_s, 0.0, 1.0)
+            if not np.any(u > 0):
+                continue
+            w = u * u * (3.0 - 2.0 * u)
+            tx, ty, tz, _ = self.network.lane_pose(road, change.to_lane, s)
+            target = np.stack([tx, ty, tz], axis=-1)
+            lateral = target - pos
+            pos = pos + w[:, None] * lateral
+            # heading turns towards the target lane while the lateral speed is non-zero
+            dw_dt = 6.0 * u * (1.0 - u) / change.duration_s
+            speed = self.speeds(times)
+            left = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)
+            lateral_speed = dw_dt * np.einsum("nk,nk->n", lateral[:, :2], left)
+            heading = heading + np.arctan2(lateral_speed, np.maximum(speed, 1e-3))
+        return pos, heading
+
+
+class ScenarioPlayer:
+    """Implements the simulator's PoseSource for a scenario."""
+
+    def __init__(self, scenario: Scenario, network: RoadNetwork) -> None:
+        self.scenario = scenario
+        self.ego = MoverTrack(scenario.ego, network)
+        self.actors = {a.id: (a, MoverTrack(a, network)) for a in scenario.actors}
+        self.mount = mount_matrix(scenario.sensor.mount)
+        self._mount_quaternion = matrix_quaternion(self.mount[:3, :3])
+
+    def base_link_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """base_link in map: translations (N, 3) m, quaternions (N, 4)."""
+        pos, heading = self.ego.poses(times_s)
+        return pos, yaw_quaternions(heading)
+
+    def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor frame in map at each time (rolling shutter: one pose per firing time)."""
+        pos, heading = self.ego.poses(times_s)
+        c, s = np.cos(heading), np.sin(heading)
+        mx, my, mz = self.mount[:3, 3]
+        translation = pos + np.stack([c * mx - s * my, s * mx + c * my, np.full_like(c, mz)], axis=-1)
+        yaw_q = yaw_quaternions(heading)
+        return translation, _quaternion_product(yaw_q, self._mount_quaternion[None, :])
+
+    def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
+        """Body-to-map 4x4 of every actor present at ``time_s``."""
+        out = {}
+        for actor_id, (actor, track) in self.actors.items():
+            if time_s < actor.appear_s:
+                continue
+            pos, heading = track.poses(np.array([time_s]))
+            m = np.eye(4)
+            m[:3, :3] = rpy_matrix(0.0, 0.0, float(heading[0]))
+            m[:3, 3] = pos[0]
+            out[actor_id] = m
+        return out
+
+
+def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b of (N, 4) x, y, z, w quaternions (broadcasting)."""
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        axis=-1,
+    )

@@ -1,0 +1,145 @@
+"""Scenario files (``config/scenarios/*.yaml``): map, ego, actors, sensor, weather, regions.
+
+The weather block follows OpenSCENARIO's Weather concepts in snake_case with SI
+unit suffixes (``fog.visual_range_m``, ``precipitation.intensity_mm_h``,
+``sun.irradiance_w_m2`` - the thesis' unit, not OpenSCENARIO's lux,
+``wind.speed_m_s``). Positions on roads use OpenDRIVE road ids, lane ids
+(negative = right of the reference line) and s (m along the road).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from lidar_weather_sim.config import ConfigModel, load_yaml
+from lidar_weather_sim.points import Label
+
+
+class LaneChange(ConfigModel):
+    at_s: float = Field(ge=0, description="Simulated time the lane change starts (s)")
+    to_lane: int = Field(description="Target OpenDRIVE lane id")
+    duration_s: float = Field(4.0, gt=0, description="Duration of the lateral move (s)")
+
+
+class Size(ConfigModel):
+    length_m: float = Field(4.7, gt=0)
+    width_m: float = Field(1.85, gt=0)
+    height_m: float = Field(1.45, gt=0)
+
+
+class Mover(ConfigModel):
+    road: str = Field("1", description="OpenDRIVE road id")
+    lane: int = Field(description="OpenDRIVE lane id at the start")
+    s_m: float = Field(0.0, ge=0, description="Start position along the road (m)")
+    speed_m_s: float = Field(0.0, ge=0, description="Speed along the lane (m/s)")
+    lane_changes: list[LaneChange] = Field(default_factory=list)
+    size: Size = Field(default_factory=Size)
+
+
+class Actor(Mover):
+    id: int = Field(ge=100, le=2**31, description="Object id of its points (ids below 100 belong to the map)")
+    type: Literal["vehicle", "box"] = "vehicle"
+    label: Literal["vehicle", "obstacle"] = "vehicle"
+    appear_s: float = Field(0.0, ge=0, description="Present from this simulated time on (s)")
+    emits_spray: bool = Field(False, description="Wheels throw spray (spray region)")
+
+    @property
+    def label_code(self) -> Label:
+        return Label.VEHICLE if self.label == "vehicle" else Label.OBSTACLE
+
+
+class Mount(ConfigModel):
+    """Sensor pose in base_link (m, deg; REP-103, base_link on the ground below the rear axle)."""
+
+    x_m: float = 3.7
+    y_m: float = 0.0
+    z_m: float = 0.5
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    yaw_deg: float = 0.0
+
+
+class SensorSetup(ConfigModel):
+    profile: str = Field("scala4", description="Name in config/sensors or a path")
+    mount: Mount = Field(default_factory=Mount)
+
+
+class Fog(ConfigModel):
+    visual_range_m: float = Field(100000.0, gt=0, description="Meteorological visual range (m)")
+
+
+class Precipitation(ConfigModel):
+    type: Literal["dry", "rain", "snow"] = "dry"
+    intensity_mm_h: float = Field(0.0, ge=0, le=300, description="Precipitation rate (mm/h)")
+
+    @model_validator(mode="after")
+    def _dry(self) -> "Precipitation":
+        if self.type == "dry" and self.intensity_mm_h > 0:
+            raise ValueError(f"precipitation type 'dry' with intensity_mm_h {self.intensity_mm_h} > 0")
+        return self
+
+
+class Sun(ConfigModel):
+    irradiance_w_m2: float = Field(0.0, ge=0, le=1400, description="Global solar irradiance (W/m^2), 0 at night")
+    azimuth_deg: float = Field(180.0, ge=0, le=360, description="Sun azimuth from north, clockwise (deg)")
+    elevation_deg: float = Field(30.0, ge=-90, le=90, description="Sun elevation above the horizon (deg)")
+
+
+class Wind(ConfigModel):
+    speed_m_s: float = Field(0.0, ge=0, description="Wind speed (m/s)")
+    direction_deg: float = Field(0.0, ge=0, le=360, description="Direction the wind blows from, from north (deg)")
+
+
+class Weather(ConfigModel):
+    fog: Fog = Field(default_factory=Fog)
+    precipitation: Precipitation = Field(default_factory=Precipitation)
+    sun: Sun = Field(default_factory=Sun)
+    wind: Wind = Field(default_factory=Wind)
+
+
+class Scenario(ConfigModel):
+    name: str
+    description: str = ""
+    map: str = Field(description="OpenDRIVE file in maps/ (or a path)")
+    static_meshes: list[str] = Field(default_factory=list, description="Extra meshes in maps/ (glTF/OBJ/PLY)")
+    duration_s: float = Field(10.0, gt=0, description="Length of `lidar-weather-sim run` (s)")
+    seed: int = 0
+    ego: Mover
+    sensor: SensorSetup = Field(default_factory=SensorSetup)
+    actors: list[Actor] = Field(default_factory=list)
+    weather: Weather = Field(default_factory=Weather)
+    regions: list[str] = Field(default_factory=list, description="Region plugins, in order")
+    region_params: dict[str, dict] = Field(default_factory=dict, description="Parameters per region plugin")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "Scenario":
+        ids = [a.id for a in self.actors]
+        if len(ids) != len(set(ids)):
+            raise ValueError(f"actor ids must be unique, got {ids}")
+        unused = sorted(set(self.region_params) - set(self.regions))
+        if unused:
+            raise ValueError(f"region_params for regions not in 'regions': {unused}")
+        return self
+
+
+def scenarios_dir() -> Path:
+    from lidar_weather_sim.paths import config_dir
+
+    return config_dir() / "scenarios"
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A scenario by name (``config/scenarios/<name>.yaml``) or by path."""
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        candidate = scenarios_dir() / f"{name_or_path}.yaml"
+        if not candidate.exists():
+            from lidar_weather_sim.config import ConfigError
+
+            known = sorted(p.stem for p in scenarios_dir().glob("*.yaml"))
+            raise ConfigError(f"unknown scenario '{name_or_path}' (known: {', '.join(known)})")
+        path = candidate
+    return load_yaml(path, Scenario)

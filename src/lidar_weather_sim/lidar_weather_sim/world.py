@@ -1,0 +1,56 @@
+"""A scenario made runnable: its scene (roads, meshes, actor bodies), player and sensor profile."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from lidar_weather_sim.mesh import box_mesh
+from lidar_weather_sim.paths import maps_dir
+from lidar_weather_sim.player import ScenarioPlayer
+from lidar_weather_sim.regions import REGISTRY, Region, RegionContext
+from lidar_weather_sim.scenario import Scenario
+from lidar_weather_sim.scene import Scene, load_static_mesh, vehicle_mesh
+from lidar_weather_sim.sensor_profile import SensorProfile, load_profile
+
+
+def _map_path(name: str) -> Path:
+    path = Path(name)
+    return path if path.is_absolute() or path.exists() else maps_dir() / name
+
+
+@dataclass
+class World:
+    scenario: Scenario
+    profile: SensorProfile
+    scene: Scene
+    player: ScenarioPlayer
+
+    @classmethod
+    def build(cls, scenario: Scenario, profile: str | SensorProfile | None = None) -> "World":
+        """Scene, player and profile of ``scenario`` (``profile`` overrides the scenario's sensor)."""
+        if not isinstance(profile, SensorProfile):
+            profile = load_profile(profile or scenario.sensor.profile)
+        scene = Scene.from_xodr(_map_path(scenario.map))
+        for mesh_name in scenario.static_meshes:
+            scene.add_static(
+                load_static_mesh(_map_path(mesh_name), scene.materials.index("concrete"), scene.next_object_id()),
+                mesh_name,
+            )
+        for actor in scenario.actors:
+            size = actor.size
+            if actor.type == "vehicle":
+                mesh = vehicle_mesh(size.length_m, size.width_m, size.height_m, actor.id, scene.materials)
+            else:
+                mesh = box_mesh((size.length_m, size.width_m, size.height_m), scene.materials.index("car_paint"), actor.id)
+            scene.add_actor(actor.id, mesh, f"actor {actor.id}", actor.label_code)
+        return cls(scenario, profile, scene, ScenarioPlayer(scenario, scene.roads))
+
+    def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None) -> list[tuple[str, Region]]:
+        """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``."""
+        context = RegionContext(self.profile, self.scenario.weather, self.scene.materials)
+        names = self.scenario.regions if names is None else names
+        merged = {**self.scenario.region_params}
+        for name, values in (params or {}).items():
+            merged[name] = {**merged.get(name, {}), **values}
+        return [(name, REGISTRY.create(name, merged.get(name), context)) for name in names]
