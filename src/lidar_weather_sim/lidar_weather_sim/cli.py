@@ -27,6 +27,28 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from lidar_weather_sim.offline import run_scenario
+    from lidar_weather_sim.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    out = args.out or f"{scenario.name}_run"
+    with tqdm(unit="frame", desc=scenario.name, disable=args.frames is not None and args.frames < 20) as bar:
+
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        report = run_scenario(
+            scenario, out, frames=args.frames, seed=args.seed, profile=args.profile, overwrite=args.overwrite,
+            progress=progress,
+        )  # fmt: skip
+    print(f"wrote {report.frames} frames ({report.points} points, {report.simulated_s:.2f} s simulated) to {report.output}")
+    return 0
+
+
 def _cmd_listen(args: argparse.Namespace) -> int:
     from lidar_weather_sim.ros.cloud_listener import listen
 
@@ -62,6 +84,15 @@ def build_parser() -> argparse.ArgumentParser:
     recover = commands.add_parser("recover", help="rebuild the index of an MCAP bag whose writer was killed")
     recover.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
     recover.set_defaults(func=_cmd_recover)
+
+    run = commands.add_parser("run", help="simulate a scenario offline, as fast as possible, into an MCAP bag")
+    run.add_argument("scenario", metavar="SCENARIO", help="name in config/scenarios or a YAML path")
+    run.add_argument("--frames", type=int, help="frames to simulate (default: the scenario's duration)")
+    run.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    run.add_argument("--profile", help="sensor profile overriding the scenario's (name or YAML path)")
+    run.add_argument("--out", help="output rosbag2 directory (default: <scenario>_run)")
+    run.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    run.set_defaults(func=_cmd_run)
 
     listen = commands.add_parser("listen", help="print a summary line per PointCloud2 received (like ros2 topic echo)")
     listen.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")

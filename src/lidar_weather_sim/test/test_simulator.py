@@ -187,3 +187,21 @@ def test_time_going_backwards_is_an_error():
     sim.advance(1.0, Pose())
     with pytest.raises(ValueError, match="time went backwards"):
         sim.advance(0.5, Pose())
+
+
+def test_scala4_sun_calibration_reproduces_the_table_2_first_echo_ratio(thesis_tables):
+    from lidar_weather_sim.rooftop import RooftopPose, rooftop_scene
+    from lidar_weather_sim.sensor_profile import load_profile
+
+    table = thesis_tables["background_radiation_clear"]
+    profile = load_profile("scala4")
+
+    def first_echoes(sun_w_m2):
+        sim = LidarSimulator(profile, rooftop_scene(), sun_irradiance_w_m2=sun_w_m2, seed=1)
+        frames = sim.advance(0.0, RooftopPose()) + sim.advance(4 * profile.period_s, RooftopPose())
+        return np.mean([np.sum(f.points["echo"] == 1) for f in frames]), np.mean([f.points["epw"].mean() for f in frames])
+
+    night, night_epw = first_echoes(0.0)
+    day, day_epw = first_echoes(table["mean_irradiance_w_m2"]["clear"])
+    assert day / night == pytest.approx(table["day"]["n_e1"][0] / table["night"]["n_e1"][0], abs=0.03)
+    assert day_epw < night_epw

@@ -1,0 +1,101 @@
+"""Scenario files: schema, shipped scenarios, the player's poses."""
+
+import numpy as np
+import pydantic
+import pytest
+import yaml
+
+from lidar_weather_sim.config import ConfigError, load_yaml
+from lidar_weather_sim.opendrive import RoadNetwork
+from lidar_weather_sim.paths import maps_dir
+from lidar_weather_sim.player import ScenarioPlayer
+from lidar_weather_sim.scenario import Scenario, load_scenario, scenarios_dir
+
+
+def test_every_shipped_scenario_validates():
+    names = sorted(p.stem for p in scenarios_dir().glob("*.yaml"))
+    assert {"highway_clear", "curved_clear", "example_all_keys"} <= set(names)
+    for name in names:
+        assert load_scenario(name).name == name
+
+
+def _keys(model: type[pydantic.BaseModel], prefix="") -> set[str]:
+    out = set()
+    for name, field in model.model_fields.items():
+        out.add(prefix + name)
+        ann = field.annotation
+        inner = getattr(ann, "__args__", (ann,))
+        for t in inner:
+            if isinstance(t, type) and issubclass(t, pydantic.BaseModel):
+                out |= _keys(t, prefix + name + ".")
+    return out
+
+
+def _used(data, prefix="") -> set[str]:
+    out = set()
+    if isinstance(data, dict):
+        for k, v in data.items():
+            out.add(prefix + k)
+            out |= _used(v, prefix + k + ".")
+    elif isinstance(data, list):
+        for item in data:
+            out |= _used(item, prefix)
+    return out
+
+
+def test_example_scenario_uses_every_key():
+    data = yaml.safe_load((scenarios_dir() / "example_all_keys.yaml").read_text())
+    assert _keys(Scenario) - _used(data) == set()
+
+
+def test_highway_clear_is_the_thesis_highway_setup():
+    s = load_scenario("highway_clear")
+    assert s.ego.speed_m_s * 3.6 == pytest.approx(89.0, abs=0.1)
+    lead = s.actors[0]
+    network = RoadNetwork.from_xodr(maps_dir() / s.map)
+    player = ScenarioPlayer(s, network)
+    ego_xy = player.base_link_poses(np.array([0.0]))[0][0]
+    lead_xy = player.actor_poses(0.0)[lead.id][:3, 3]
+    assert lead_xy[0] - ego_xy[0] == pytest.approx(17.5, abs=0.01)
+    assert lead_xy[1] - ego_xy[1] == pytest.approx(3.75, abs=0.01)  # one lane to the left (thesis: ~3.6 m)
+
+
+def test_player_moves_the_ego_along_its_lane_and_through_a_lane_change():
+    s = load_scenario("example_all_keys")
+    player = ScenarioPlayer(s, RoadNetwork.from_xodr(maps_dir() / s.map))
+    t = np.array([0.0, 1.0, 2.5, 4.0])
+    pos, _ = player.base_link_poses(t)
+    np.testing.assert_allclose(np.diff(pos[:, 0]), 25.0 * np.diff(t), atol=1e-6)
+    assert pos[0, 1] == pytest.approx(-9.375) and pos[1, 1] == pytest.approx(-9.375)
+    assert pos[2, 1] == pytest.approx(-7.5)  # halfway through the 3 s lane change to lane -2
+    assert pos[3, 1] == pytest.approx(-5.625)
+    sensor, _ = player.sensor_poses(np.array([0.0]))
+    np.testing.assert_allclose(sensor[0], pos[0] + [3.7, 0.0, 0.5], atol=1e-9)
+    assert 200 not in player.actor_poses(1.0) and 200 in player.actor_poses(2.0)
+
+
+def test_speed_command_changes_the_ego_speed_from_then_on():
+    s = load_scenario("highway_clear")
+    player = ScenarioPlayer(s, RoadNetwork.from_xodr(maps_dir() / s.map))
+    player.ego.command_speed(1.0, 10.0)
+    x = player.base_link_poses(np.array([0.0, 1.0, 2.0]))[0][:, 0]
+    assert x[1] - x[0] == pytest.approx(24.72) and x[2] - x[1] == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize(
+    "patch, message",
+    [
+        ({"weather": {"precipitation": {"type": "dry", "intensity_mm_h": 3.0}}}, "precipitation type 'dry'"),
+        ({"weather": {"fog": {"visual_range_km": 3}}}, "unknown key 'weather.fog.visual_range_km'"),
+        ({"actors": [{"id": 5, "lane": -1}]}, "key 'actors.0.id': value 5"),
+        ({"region_params": {"spray": {}}}, "region_params for regions not in 'regions'"),
+    ],
+)
+def test_bad_scenarios_name_the_key(tmp_path, patch, message):
+    data = yaml.safe_load((scenarios_dir() / "highway_clear.yaml").read_text())
+    data.update(patch)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_yaml(path, Scenario)
+    assert message in str(err.value) and str(path) in str(err.value)

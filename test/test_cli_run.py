@@ -1,0 +1,41 @@
+"""`lidar-weather-sim run`: a scenario into an MCAP bag with /clock, /tf, /tf_static and clouds."""
+
+import subprocess
+
+import numpy as np
+import yaml
+
+from lidar_weather_sim.bags import bag_info, read_clouds, read_messages
+from lidar_weather_sim.paths import config_dir
+
+
+def test_run_writes_a_complete_recording(tmp_path, cli):
+    out = tmp_path / "run"
+    result = subprocess.run([*cli, "run", "highway_clear", "--frames", "12", "--out", str(out)],
+                            capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "wrote 12 frames" in result.stdout
+    info = bag_info(out)
+    topics = {t.name: t for t in info.topics}
+    assert set(topics) == {"/clock", "/tf", "/tf_static", "/lidar/points"}
+    assert info.storage == "mcap" and topics["/lidar/points"].count == 12 and topics["/tf_static"].count == 1
+    clouds = list(read_clouds(out))
+    stamps = np.array([c.stamp_ns for c in clouds])
+    np.testing.assert_array_equal(np.diff(stamps), 40_000_000)  # scala4: a scan every 40 ms
+    assert all(c.frame_id == "lidar" and len(c.points) > 500 for c in clouds)
+    assert {2} <= set(np.unique(np.concatenate([c.points["label"] for c in clouds])))
+    tf = [m for m in read_messages(out, ["/tf"])]
+    xs = [t.transform.translation.x for m in tf for t in m.msg.transforms if t.child_frame_id == "base_link"]
+    np.testing.assert_allclose(np.diff(xs), 24.72 * 0.01, atol=1e-6)
+
+
+def test_run_with_a_bad_scenario_fails_with_one_line(tmp_path, cli):
+    data = yaml.safe_load((config_dir() / "scenarios" / "highway_clear.yaml").read_text())
+    data["ego"]["speed_m_s"] = -3
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    result = subprocess.run([*cli, "run", str(bad), "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "key 'ego.speed_m_s': value -3" in lines[0] and str(bad) in lines[0]
+    assert not (tmp_path / "o").exists()
