@@ -4,76 +4,13 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.echo import FWHM_TO_SIGMA
-from lidar_weather_sim.materials import MaterialTable
-from lidar_weather_sim.mesh import TriangleMesh, box_mesh
+from lidar_weather_sim.mesh import box_mesh
 from lidar_weather_sim.points import Label
-from lidar_weather_sim.scene import Scene
-from lidar_weather_sim.sensor_profile import SensorProfile
 from lidar_weather_sim.simulator import LidarSimulator
-
-MATERIALS = MaterialTable.default()
-
-
-def test_profile(**changes) -> SensorProfile:
-    """One horizontal beam, 81 columns over +-10 deg, no divergence, no noise, 10 Hz."""
-    base = {
-        "name": "test",
-        "beams": [{"elevation_deg": 0.0}],
-        "scan": {"frame_rate_hz": 10.0, "azimuth_min_deg": -10.0, "azimuth_max_deg": 10.0, "columns": 81,
-                 "direction": "cw", "sweep_fraction": 0.5},
-        "range": {"min_m": 0.0, "max_m": 200.0, "resolution_m": 0.1, "noise_sigma_m": 0.0},
-        "optics": {"divergence_h_mrad": 0.0, "divergence_v_mrad": 0.0},
-        "pulse": {"fwhm_m": 0.6},
-        "detection": {"max_echoes": 3, "power_constant": 1.0e5, "noise_mean": 1.0, "noise_sigma": 1.0,
-                      "threshold_sigma": 3.0},
-    }  # fmt: skip
-    for key, value in changes.items():
-        section, _, field = key.partition("__")
-        if field:
-            base[section] = {**base[section], field: value}
-        else:
-            base[section] = value
-    return SensorProfile.model_validate(base)
-
-
-def wall(x_m: float, material: str, object_id: int, half_width: float = 50.0, tilt_deg: float = 0.0) -> TriangleMesh:
-    """Vertical wall through (x_m, 0), facing -x, rotated by ``tilt_deg`` about z; 20 m tall."""
-    c, s = np.cos(np.deg2rad(tilt_deg)), np.sin(np.deg2rad(tilt_deg))
-    ys = np.array([-half_width, half_width])
-    corners = [(x_m - s * y, c * y, z) for z in (-10.0, 10.0) for y in ys]
-    return TriangleMesh(np.array(corners), np.array([[0, 2, 1], [1, 2, 3]]), MATERIALS.index(material), object_id)
-
-
-def scene_of(*meshes: TriangleMesh) -> Scene:
-    return Scene(MATERIALS, TriangleMesh.concatenate(list(meshes)))
-
-
-class Pose:
-    """Sensor at (x0 + v t, 0, 0), facing +x: a pose source for tests."""
-
-    def __init__(self, speed_m_s: float = 0.0, x0: float = 0.0) -> None:
-        self.speed, self.x0 = speed_m_s, x0
-
-    def sensor_poses(self, times):
-        times = np.asarray(times, dtype=np.float64)
-        t = np.zeros((len(times), 3))
-        t[:, 0] = self.x0 + self.speed * times
-        q = np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1))
-        return t, q
-
-    def actor_poses(self, time_s):
-        return {}
-
-
-def one_frame(sim: LidarSimulator, pose=None, start_s: float = 0.0):
-    pose = pose or Pose()
-    frames = sim.advance(start_s, pose) + sim.advance(start_s + sim.profile.period_s, pose)
-    assert len(frames) == 1
-    return frames[0]
-
+from lidar_weather_sim.testing import MATERIALS, LinearPose, one_frame, scene_of, simple_profile, wall
 
 def test_flat_wall_ranges_follow_the_geometry():
-    sim = LidarSimulator(test_profile(), scene_of(wall(20.0, "concrete", 7)), backend="open3d")
+    sim = LidarSimulator(simple_profile(), scene_of(wall(20.0, "concrete", 7)), backend="open3d")
     points = one_frame(sim).points
     assert len(points) == 81
     expected = 20.0 / np.cos(points["azimuth"].astype(np.float64))
@@ -89,20 +26,20 @@ def _central_point(points):
 
 def test_intensity_follows_reflectivity_and_incidence_angle():
     span = 255.0 / np.log(1.0e4)  # intensity per e-fold of received power
-    dark = _central_point(one_frame(LidarSimulator(test_profile(), scene_of(wall(20, "tyre", 1)))).points)
-    bright = _central_point(one_frame(LidarSimulator(test_profile(), scene_of(wall(20, "license_plate", 1)))).points)
+    dark = _central_point(one_frame(LidarSimulator(simple_profile(), scene_of(wall(20, "tyre", 1)))).points)
+    bright = _central_point(one_frame(LidarSimulator(simple_profile(), scene_of(wall(20, "license_plate", 1)))).points)
     ratio = MATERIALS["license_plate"].reflectivity * (1 - MATERIALS["license_plate"].retro_share) + \
         MATERIALS["license_plate"].retro_share * MATERIALS["license_plate"].reflectivity * 100.0  # fmt: skip
     ratio /= MATERIALS["tyre"].reflectivity
     assert int(bright["intensity"]) - int(dark["intensity"]) == pytest.approx(span * np.log(ratio), abs=1.0)
-    straight = _central_point(one_frame(LidarSimulator(test_profile(), scene_of(wall(20, "concrete", 1)))).points)
-    tilted = _central_point(one_frame(LidarSimulator(test_profile(), scene_of(wall(20, "concrete", 1, tilt_deg=60)))).points)
+    straight = _central_point(one_frame(LidarSimulator(simple_profile(), scene_of(wall(20, "concrete", 1)))).points)
+    tilted = _central_point(one_frame(LidarSimulator(simple_profile(), scene_of(wall(20, "concrete", 1, tilt_deg=60)))).points)
     assert int(straight["intensity"]) - int(tilted["intensity"]) == pytest.approx(span * np.log(2.0), abs=1.0)
 
 
 @pytest.mark.parametrize("distance_m, material", [(10.0, "concrete"), (30.0, "concrete"), (30.0, "license_plate")])
 def test_epw_matches_the_closed_form_of_the_gaussian_pulse(distance_m, material):
-    profile = test_profile()
+    profile = simple_profile()
     point = _central_point(one_frame(LidarSimulator(profile, scene_of(wall(distance_m, material, 1)))).points)
     m = MATERIALS[material]
     reflectance = m.reflectivity * ((1 - m.retro_share) * 1.0 + m.retro_share * 100.0)
@@ -114,7 +51,7 @@ def test_epw_matches_the_closed_form_of_the_gaussian_pulse(distance_m, material)
 
 def test_thin_pole_in_front_of_a_wall_gives_two_echoes_the_far_one_weaker():
     # 3 sub-rays across a 10 mrad beam: at 10 m they are 3.3 cm apart, a 3 cm pole takes the middle one.
-    profile = test_profile(optics__divergence_h_mrad=10.0, optics__subrays_h=3)
+    profile = simple_profile(optics__divergence_h_mrad=10.0, optics__subrays_h=3)
     pole = box_mesh((0.03, 0.03, 5.0), MATERIALS.index("guard_rail"), 3, z_bottom=-2.0)
     pole = pole.transformed(np.array([[1, 0, 0, 10.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
     sim = LidarSimulator(profile, scene_of(pole, wall(25.0, "concrete", 9)))
@@ -129,7 +66,7 @@ def test_thin_pole_in_front_of_a_wall_gives_two_echoes_the_far_one_weaker():
 
 
 def test_background_light_removes_weak_echoes_and_shortens_epw():
-    profile = test_profile(detection__sun_noise_per_w_m2=0.01, scan__columns=401)
+    profile = simple_profile(detection__sun_noise_per_w_m2=0.01, scan__columns=401)
     # a wall at 35 m turned by 60 deg: incidence 50-70 deg across the field of view, echoes from
     # 4x the dark threshold down to 2x; sunlight (mu 1 -> 9, threshold 4 -> 12) removes the weaker half
     far_wall = wall(35.0, "concrete", 1, tilt_deg=60.0, half_width=300.0)
@@ -145,7 +82,7 @@ def test_background_light_removes_weak_echoes_and_shortens_epw():
 
 
 def test_same_seed_same_cloud_other_seed_other_noise():
-    profile = test_profile(range__noise_sigma_m=0.05, detection__false_alarms_per_beam=0.2)
+    profile = simple_profile(range__noise_sigma_m=0.05, detection__false_alarms_per_beam=0.2)
     scene = scene_of(wall(20.0, "concrete", 1))
     a = one_frame(LidarSimulator(profile, scene, seed=5)).points
     b = one_frame(LidarSimulator(profile, scene, seed=5)).points
@@ -159,9 +96,9 @@ def test_same_seed_same_cloud_other_seed_other_noise():
 
 def test_rolling_shutter_every_point_matches_the_pose_at_its_own_time():
     # 25 m/s towards a wall at x = 60 m: over the 50 ms sweep the sensor moves 1.25 m.
-    profile = test_profile(range__resolution_m=0.01, pulse__fwhm_m=0.3)
+    profile = simple_profile(range__resolution_m=0.01, pulse__fwhm_m=0.3)
     sim = LidarSimulator(profile, scene_of(wall(60.0, "concrete", 1)))
-    pose = Pose(speed_m_s=25.0)
+    pose = LinearPose(speed_m_s=25.0)
     frames = []
     for k in range(0, 21):
         frames += sim.advance(0.005 * k, pose)
@@ -174,8 +111,8 @@ def test_rolling_shutter_every_point_matches_the_pose_at_its_own_time():
 
 
 def test_frames_complete_when_the_sweep_completes():
-    sim = LidarSimulator(test_profile(), scene_of(wall(20.0, "concrete", 1)))
-    pose = Pose()
+    sim = LidarSimulator(simple_profile(), scene_of(wall(20.0, "concrete", 1)))
+    pose = LinearPose()
     counts = [len(sim.advance(0.01 * k, pose)) for k in range(0, 101)]  # 1 s at 100 Hz
     # frames start every 0.1 s at t = 0, 0.1, ...; a sweep (0.05 s) ends at k*0.1 + 0.05 - one column step
     assert sum(counts) == 10
@@ -183,10 +120,10 @@ def test_frames_complete_when_the_sweep_completes():
 
 
 def test_time_going_backwards_is_an_error():
-    sim = LidarSimulator(test_profile(), scene_of(wall(20.0, "concrete", 1)))
-    sim.advance(1.0, Pose())
+    sim = LidarSimulator(simple_profile(), scene_of(wall(20.0, "concrete", 1)))
+    sim.advance(1.0, LinearPose())
     with pytest.raises(ValueError, match="time went backwards"):
-        sim.advance(0.5, Pose())
+        sim.advance(0.5, LinearPose())
 
 
 def test_scala4_sun_calibration_reproduces_the_table_2_first_echo_ratio(thesis_tables):
