@@ -13,6 +13,11 @@ export ROS_LOG_DIR="$root/log/ros"
 echo "== lidar-weather-sim --help"
 lidar-weather-sim --help
 echo
+out="$root/log/demo/highway_clear"
+echo "== simulate 2 s of the thesis' highway set-up (scala4, 25 Hz) into $out"
+lidar-weather-sim run highway_clear --frames 50 --out "$out" --overwrite
+lidar-weather-sim info "$out" | head -12
+echo
 echo "== process 1: pattern_node publishes a synthetic sweep on /lidar/points at 10 Hz"
 lidar-weather-sim pattern --rate 10 --count 100 &
 publisher=$!
