@@ -1,4 +1,6 @@
 """ament_python package weather_filter."""
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = "weather_filter"
@@ -10,11 +12,20 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
+        # The CLI on PATH (colcon adds <prefix>/bin); the node lives in lib/<package> for ros2 run.
+        ("bin", glob("bin/*")),
     ],
+    package_data={package_name: ["models/*.joblib"]},
+    include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=False,
     maintainer="lidar_weather_sim developers",
     maintainer_email="dev@lidar-weather-sim.invalid",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={
+        "console_scripts": [
+            "weather-filter = weather_filter.cli:main",
+            "weather_filter_node = weather_filter.ros.weather_filter_node:main",
+        ],
+    },
 )

@@ -1,0 +1,116 @@
+"""Learned filter, paper-4 features, evaluation metrics and the weather-filter CLI (no ROS)."""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim.points import Label
+from weather_filter.evaluate import evaluate_frames
+from weather_filter.features import FEATURE_NAMES, PointFeatures
+from weather_filter.filters import PointFilter, make_filter
+from weather_filter.learned import DEFAULT_MODEL, LearnedFilter
+from weather_filter.synthetic import highway_frame
+
+
+def test_features_shape_and_counts():
+    pts = highway_frame("rain", seed=1)
+    feats = PointFeatures()
+    out = feats(pts)
+    assert out.shape == (len(pts), len(FEATURE_NAMES))
+    assert np.isfinite(out).all()
+    i = FEATURE_NAMES.index
+    assert (out[:, i("n_small")] >= 1).all() and (out[:, i("n_middle")] >= out[:, i("n_small")]).all()
+    assert (out[:, i("d_radial")] == 0).all()  # first frame: no previous frame
+    assert (feats(highway_frame("rain", seed=1, frame=1))[:, i("d_radial")] >= 0).all()
+
+
+def test_packaged_model_is_versioned_and_loads():
+    assert DEFAULT_MODEL.name == "weather_point_mlp_v1.joblib" and DEFAULT_MODEL.exists()
+    filt = make_filter("learned")
+    assert isinstance(filt, LearnedFilter)
+    assert filt.bundle["command"].startswith("weather-filter train")
+
+
+def test_learned_filter_keeps_a_box_inside_a_spray_cloud():
+    pts = highway_frame("rain", seed=1234, frame=7, obstacle_in_spray=True)
+    box = pts["label"] == Label.OBSTACLE
+    spray = pts["label"] == Label.SPRAY
+    assert box.sum() > 10 and spray.sum() > 10
+    remove = make_filter("learned")(pts).remove
+    assert not remove[box].any()
+    assert remove[spray].mean() > 0.9
+
+
+class _RemoveWeatherAndOneSolid(PointFilter):
+    name = "oracle"
+
+    def remove_mask(self, points):
+        remove = points["label"] >= 10
+        remove[np.flatnonzero(points["label"] == Label.VEHICLE)[:1]] = True
+        return remove
+
+
+def test_evaluation_keys_and_definitions():
+    pts = highway_frame("rain", seed=2)
+    pts["label"][:5] = Label.UNKNOWN  # label 0 counts neither way
+    result = evaluate_frames(_RemoveWeatherAndOneSolid(), [pts, pts])
+    assert list(result) == ["method", "frames", "weather_precision", "weather_recall", "weather_f1", "object_recall",
+                            "object_recall_roi", "per_label", "ms_per_frame_mean", "ms_per_frame_p95"]
+    n_weather = int((pts["label"] >= 10).sum()) * 2
+    n_solid = int(np.isin(pts["label"], [1, 2, 3]).sum()) * 2
+    assert result["frames"] == 2
+    assert result["weather_recall"] == 1.0
+    assert result["weather_precision"] == pytest.approx(n_weather / (n_weather + 2))
+    assert result["object_recall"] == pytest.approx(1 - 2 / n_solid)
+    assert 0 <= result["weather_f1"] <= 1
+    assert result["per_label"]["11"] == {"name": "rain", "points": int((pts["label"] == 11).sum()) * 2,
+                                         "removed": int((pts["label"] == 11).sum()) * 2, "removed_fraction": 1.0}
+    assert result["per_label"]["0"]["removed"] == 0
+
+
+def test_object_recall_roi_uses_the_corridor():
+    pts = highway_frame(None, seed=2, spray=False)
+    pts["label"][:] = Label.VEHICLE
+    pts["x"][:3], pts["y"][:3] = [10.0, 4.0, 10.0], [0.0, 0.0, 2.0]  # inside, too close, too wide
+
+    class RemoveFirstThree(PointFilter):
+        name = "first3"
+
+        def remove_mask(self, points):
+            m = np.zeros(len(points), bool)
+            m[:3] = True
+            return m
+
+    result = evaluate_frames(RemoveFirstThree(), [pts])
+    roi = (np.abs(pts["y"]) <= 1.75) & (pts["x"] >= 5) & (pts["x"] <= 60)
+    assert result["object_recall_roi"] == pytest.approx(1 - 1 / roi.sum())
+
+
+def test_unlabelled_frames_report_removed_fraction():
+    from lidar_weather_sim.points import strip_ground_truth
+
+    pts = strip_ground_truth(highway_frame("rain", seed=3))
+    result = evaluate_frames(make_filter("dror"), [pts])
+    assert "weather_precision" not in result and 0 <= result["removed_fraction"] <= 1
+
+
+def test_eval_cli_on_a_labelled_bag(tmp_path):
+    import subprocess
+
+    from lidar_weather_sim.bags import BagWriter
+
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        for i in range(3):
+            writer.write_cloud("/lidar/points", highway_frame("snow", frame=i, seed=8), stamp_ns=i * 40_000_000, frame_id="lidar")
+    out = tmp_path / "r.json"
+    proc = subprocess.run([sys.executable, "-m", "weather_filter.cli", "eval", str(bag), "--method", "echo", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(out.read_text())
+    assert result["method"] == "echo" and result["frames"] == 3
+    assert result["object_recall"] == 1.0 and result["weather_precision"] == 1.0
+    bad = subprocess.run([sys.executable, "-m", "weather_filter.cli", "eval", str(tmp_path / "nope")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "bag not found" in bad.stderr

@@ -1,0 +1,284 @@
+"""Weather-detection filters: structured point array in, boolean *remove* mask out.
+
+Every filter derives from :class:`PointFilter`, which checks the fields a
+filter needs and times it; a filter implements only :meth:`PointFilter.remove_mask`
+(array in, mask out, True = weather/artefact to remove). No ROS import here:
+message conversion lives in :mod:`weather_filter.ros.weather_filter_node`.
+
+Neighbour queries use :class:`scipy.spatial.cKDTree` (vectorised, no per-point
+Python loops). Ranges are horizontal (``hypot(x, y)``, sensor frame) unless
+noted.
+
+| Method  | Needs                  | Reference                                          |
+|---------|------------------------|----------------------------------------------------|
+| ``dror``  | x, y, z                | Charron, Phillips, Waslander 2018 (CRV)            |
+| ``dsor``  | x, y, z                | Kurup & Bos 2021 (arXiv:2109.07078)                |
+| ``lior``  | x, y, z, intensity, epw| LIOR-style: Park et al. 2020 (IEEE RA-L), plus EPW |
+| ``echo``  | + echo, channel        | multi-echo structure of the beam (this project)    |
+| ``learned`` | + echo, channel, epw | paper 4 per-point features, scikit-learn MLP       |
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, fields as dc_fields
+from typing import ClassVar
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+GEOMETRY_FIELDS = frozenset({"x", "y", "z"})
+
+
+class MissingFieldsError(ValueError):
+    """The cloud lacks a field the filter needs (the node falls back to a geometry-only filter)."""
+
+
+@dataclass(frozen=True)
+class FilterResult:
+    """``remove``: True for points the filter removes; ``elapsed_s``: wall time of the filter."""
+
+    remove: np.ndarray
+    elapsed_s: float
+
+
+class PointFilter(ABC):
+    """Base of all filters: field check and timing; subclasses implement :meth:`remove_mask`."""
+
+    name: ClassVar[str]
+    required_fields: ClassVar[frozenset[str]] = GEOMETRY_FIELDS
+
+    def missing_fields(self, points: np.ndarray) -> list[str]:
+        names = set(points.dtype.names or ())
+        return sorted(self.required_fields - names)
+
+    def __call__(self, points: np.ndarray) -> FilterResult:
+        missing = self.missing_fields(points)
+        if missing:
+            raise MissingFieldsError(f"filter '{self.name}' needs field(s) {', '.join(missing)}")
+        start = time.perf_counter()
+        remove = np.zeros(0, bool) if len(points) == 0 else np.asarray(self.remove_mask(points), dtype=bool)
+        return FilterResult(remove, time.perf_counter() - start)
+
+    @abstractmethod
+    def remove_mask(self, points: np.ndarray) -> np.ndarray:
+        """Boolean mask over ``points``: True where the point is removed."""
+
+    def reset(self) -> None:
+        """Forget state carried between frames (only stateful filters override)."""
+
+
+def xyz(points: np.ndarray) -> np.ndarray:
+    """(N, 3) float64 coordinates."""
+    return np.column_stack([points["x"], points["y"], points["z"]]).astype(np.float64)
+
+
+def horizontal_range(points: np.ndarray) -> np.ndarray:
+    return np.hypot(points["x"].astype(np.float64), points["y"].astype(np.float64))
+
+
+def neighbour_counts(tree: cKDTree, query: np.ndarray, radius: np.ndarray | float) -> np.ndarray:
+    """Number of tree points within ``radius`` (scalar or per query point) of each query point, self included."""
+    return np.asarray(tree.query_ball_point(query, r=radius, return_length=True, workers=-1), dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class DRORParams:
+    """Charron et al. 2018 defaults. ``azimuth_resolution_deg``: horizontal step of the sensor (scala4 0.25 deg);
+    ``multiplier`` (beta) and ``min_search_radius_m`` (SR_min), ``min_neighbours`` (k_min, self excluded)."""
+
+    azimuth_resolution_deg: float = 0.25
+    multiplier: float = 3.0
+    min_search_radius_m: float = 0.04
+    min_neighbours: int = 3
+
+
+class DRORFilter(PointFilter):
+    """Dynamic radius outlier removal: search radius SR = max(SR_min, beta * alpha * r), r the horizontal range;
+    a point with fewer than k_min neighbours inside SR is removed."""
+
+    name = "dror"
+
+    def __init__(self, params: DRORParams = DRORParams()) -> None:
+        self.params = params
+
+    def remove_mask(self, points: np.ndarray) -> np.ndarray:
+        p = self.params
+        coords = xyz(points)
+        radius = np.maximum(p.min_search_radius_m, p.multiplier * np.radians(p.azimuth_resolution_deg) * horizontal_range(points))
+        counts = neighbour_counts(cKDTree(coords), coords, radius) - 1
+        return counts < p.min_neighbours
+
+
+@dataclass(frozen=True)
+class DSORParams:
+    """Kurup & Bos 2021 defaults: k nearest neighbours, global std multiplier s, range multiplier r."""
+
+    neighbours: int = 4
+    std_multiplier: float = 0.01
+    range_multiplier: float = 0.05
+
+
+class DSORFilter(PointFilter):
+    """Dynamic statistical outlier removal: mean distance d_i to the k nearest neighbours; global threshold
+    T = mean(d) + s * std(d); a point is removed if d_i > T * r * range_i (range_i horizontal, as in the
+    authors' PCL implementation)."""
+
+    name = "dsor"
+
+    def __init__(self, params: DSORParams = DSORParams()) -> None:
+        self.params = params
+
+    def remove_mask(self, points: np.ndarray) -> np.ndarray:
+        p = self.params
+        coords = xyz(points)
+        k = min(p.neighbours + 1, len(points))
+        if k < 2:
+            return np.zeros(len(points), bool)
+        dist, _ = cKDTree(coords).query(coords, k=k, workers=-1)
+        mean_d = dist[:, 1:].mean(axis=1)
+        threshold = mean_d.mean() + p.std_multiplier * mean_d.std()
+        return mean_d > threshold * p.range_multiplier * horizontal_range(points)
+
+
+@dataclass(frozen=True)
+class LIORParams:
+    """Candidates: intensity below ``intensity_threshold`` (0-255) *and*, when the cloud has EPW, EPW below
+    ``epw_threshold_m``; within ``max_range_m`` (weather returns are near-field). A candidate is removed if it
+    has fewer than ``min_neighbours`` (self excluded) inside a DROR-style radius
+    max(``min_search_radius_m``, ``multiplier`` * ``azimuth_resolution_deg`` * r)."""
+
+    intensity_threshold: float = 60.0
+    epw_threshold_m: float = 0.9
+    max_range_m: float = 40.0
+    azimuth_resolution_deg: float = 0.25
+    multiplier: float = 3.0
+    min_search_radius_m: float = 0.2
+    min_neighbours: int = 3
+
+
+class LIORFilter(PointFilter):
+    """Low-intensity outlier removal (Park et al. 2020) with an EPW term: weak (low intensity, short pulse)
+    points that are also isolated are weather. The intensity and EPW thresholds replace LIOR's
+    range-dependent intensity curve because this sensor's intensity is already range-compensated
+    only by the target's reflectance, not by weather. Without an EPW field only intensity is used."""
+
+    name = "lior"
+    required_fields = GEOMETRY_FIELDS | {"intensity"}
+
+    def __init__(self, params: LIORParams = LIORParams()) -> None:
+        self.params = params
+
+    def candidates(self, points: np.ndarray, r: np.ndarray) -> np.ndarray:
+        p = self.params
+        weak = points["intensity"].astype(np.float64) < p.intensity_threshold
+        if "epw" in points.dtype.names:
+            weak &= points["epw"] < p.epw_threshold_m
+        return weak & (r <= p.max_range_m)
+
+    def isolated(self, points: np.ndarray, r: np.ndarray, subset: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
+        """Boolean over ``subset`` indices: fewer than k_min neighbours in the dynamic radius."""
+        p = self.params
+        if tree is None:
+            tree = cKDTree(xyz(points))
+        radius = np.maximum(p.min_search_radius_m, p.multiplier * np.radians(p.azimuth_resolution_deg) * r[subset])
+        return neighbour_counts(tree, xyz(points[subset]), radius) - 1 < p.min_neighbours
+
+    def remove_mask(self, points: np.ndarray) -> np.ndarray:
+        r = horizontal_range(points)
+        remove = np.zeros(len(points), bool)
+        idx = np.flatnonzero(self.candidates(points, r))
+        if len(idx):
+            remove[idx] = self.isolated(points, r, idx)
+        return remove
+
+
+@dataclass(frozen=True)
+class EchoParams:
+    """Weak-first-echo rule: echo 1 of a beam that has a later echo, with intensity below
+    ``weak_intensity`` and EPW below ``weak_epw_m``, within ``max_range_m``, and with fewer than
+    ``max_neighbours_for_weather`` (self excluded) neighbours in ``neighbour_radius_m``. Single-echo weak
+    isolated points are handled by the embedded LIOR stage (``lior``)."""
+
+    weak_intensity: float = 80.0
+    weak_epw_m: float = 1.0
+    max_range_m: float = 40.0
+    neighbour_radius_m: float = 0.3
+    max_neighbours_for_weather: int = 3
+    lior: LIORParams = LIORParams()
+
+
+class EchoAwareFilter(PointFilter):
+    """Multi-echo aware: weather returns tend to be weak first echoes followed by a second echo from the same
+    beam (the beam goes on to a solid target). Beams are grouped by (channel, time_stamp); a weak, sparsely
+    surrounded first echo of a multi-echo beam is removed, as is any weak isolated point (LIOR stage)."""
+
+    name = "echo"
+    required_fields = GEOMETRY_FIELDS | {"intensity", "echo", "channel", "epw"}
+
+    def __init__(self, params: EchoParams = EchoParams()) -> None:
+        self.params = params
+        self._lior = LIORFilter(params.lior)
+
+    @staticmethod
+    def beam_has_later_echo(points: np.ndarray) -> np.ndarray:
+        """True for points whose beam (channel, firing time or azimuth) has an echo with a higher number."""
+        channel = points["channel"].astype(np.int64)
+        if "time_stamp" in points.dtype.names:
+            shot = points["time_stamp"].astype(np.int64)
+        else:
+            shot = np.round(np.degrees(np.arctan2(points["y"], points["x"])) * 100).astype(np.int64)
+        key = (channel << 40) ^ (shot & ((1 << 40) - 1))
+        _, inverse = np.unique(key, return_inverse=True)
+        max_echo = np.zeros(inverse.max() + 1, np.int64)
+        np.maximum.at(max_echo, inverse, points["echo"].astype(np.int64))
+        return max_echo[inverse] > points["echo"]
+
+    def remove_mask(self, points: np.ndarray) -> np.ndarray:
+        p = self.params
+        r = horizontal_range(points)
+        tree = cKDTree(xyz(points))
+        weak_first = (
+            (points["echo"] == 1)
+            & (points["intensity"].astype(np.float64) < p.weak_intensity)
+            & (points["epw"] < p.weak_epw_m)
+            & (r <= p.max_range_m)
+        )
+        weak_first &= self.beam_has_later_echo(points)
+        remove = np.zeros(len(points), bool)
+        idx = np.flatnonzero(weak_first)
+        if len(idx):
+            others = np.flatnonzero(~weak_first)
+            if len(others):
+                counts = neighbour_counts(cKDTree(xyz(points[others])), xyz(points[idx]), p.neighbour_radius_m)
+                remove[idx] = counts < p.max_neighbours_for_weather
+            else:
+                remove[idx] = True
+        idx = np.flatnonzero(self._lior.candidates(points, r) & ~remove)
+        if len(idx):
+            remove[idx] = self._lior.isolated(points, r, idx, tree)
+        return remove
+
+
+#: Geometry-only filters usable on any cloud with x, y, z.
+GEOMETRY_METHODS = ("dror", "dsor")
+METHODS = ("dror", "dsor", "lior", "echo", "learned")
+
+
+def make_filter(method: str, **overrides) -> PointFilter:
+    """A filter by method name; ``overrides`` replace fields of its parameter dataclass."""
+    simple = {"dror": (DRORFilter, DRORParams), "dsor": (DSORFilter, DSORParams), "lior": (LIORFilter, LIORParams),
+              "echo": (EchoAwareFilter, EchoParams)}  # fmt: skip
+    if method in simple:
+        cls, params_cls = simple[method]
+        known = {f.name for f in dc_fields(params_cls)}
+        unknown = set(overrides) - known
+        if unknown:
+            raise ValueError(f"filter '{method}' has no parameter(s) {', '.join(sorted(unknown))}")
+        return cls(params_cls(**overrides))
+    if method == "learned":
+        from weather_filter.learned import LearnedFilter
+
+        return LearnedFilter.load(**overrides)
+    raise ValueError(f"unknown filter method '{method}' (choose from {', '.join(METHODS)})")

@@ -1,0 +1,134 @@
+"""``weather_filter_node``: removes weather detections from a PointCloud2 stream.
+
+Subscribes ``/lidar/points`` (remap it), publishes ``/lidar/points/filtered``
+and ``/lidar/points/removed`` (same fields as the input, SensorDataQoS) and a
+``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` per frame (points in/out
+per label when the cloud has ``label``, filter time, method, weather class when
+the per-frame classifier is available). A malformed cloud is logged once per
+cause and skipped. A cloud lacking the fields of ``method`` (EPW, echo...) is
+filtered with ``fallback_method`` (geometry only), with a warning once.
+
+Parameters: ``method`` (dror|dsor|lior|echo|learned), ``fallback_method``
+(dror|dsor), ``model_path`` (learned filter; empty = packaged model).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+
+from lidar_weather_sim.cloud_codec import CloudFormatError
+from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TOPIC_POINTS_REMOVED
+from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
+
+from weather_filter.filters import GEOMETRY_METHODS, METHODS, make_filter
+
+
+class WeatherFilterNode(Node):
+    def __init__(self) -> None:
+        super().__init__("weather_filter_node")
+        ro = dict(read_only=True)
+        self.declare_parameter("method", "echo", ParameterDescriptor(description=f"filter: {'|'.join(METHODS)}", **ro))
+        self.declare_parameter(
+            "fallback_method", "dror",
+            ParameterDescriptor(description=f"geometry-only filter for clouds without the method's fields: {'|'.join(GEOMETRY_METHODS)}", **ro),
+        )  # fmt: skip
+        self.declare_parameter("model_path", "", ParameterDescriptor(description="learned model file (empty: packaged)", **ro))
+        method = self.get_parameter("method").value
+        fallback = self.get_parameter("fallback_method").value
+        if fallback not in GEOMETRY_METHODS:
+            raise ValueError(f"fallback_method must be one of {GEOMETRY_METHODS}, not {fallback!r}")
+        extra = {"model_path": self.get_parameter("model_path").value or None} if method == "learned" else {}
+        self._filter = make_filter(method, **extra)
+        self._fallback = make_filter(fallback)
+        self._logged: set[str] = set()
+        self._weather = None
+        self.frames = 0
+        self._pub_filtered = self.create_publisher(PointCloud2, TOPIC_POINTS_FILTERED, qos_profile_sensor_data)
+        self._pub_removed = self.create_publisher(PointCloud2, TOPIC_POINTS_REMOVED, qos_profile_sensor_data)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(PointCloud2, TOPIC_POINTS, self._on_cloud, qos_profile_sensor_data)
+        self.get_logger().info(f"filtering {TOPIC_POINTS} with '{method}' (fallback '{fallback}')")
+
+    def _once(self, key: str, text: str, level: str = "warning") -> None:
+        # rclpy forbids one call site logging at several severities: one call per level
+        if key in self._logged:
+            return
+        self._logged.add(key)
+        logger = self.get_logger()
+        if level == "error":
+            logger.error(text)
+        elif level == "info":
+            logger.info(text)
+        else:
+            logger.warning(text)
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        try:
+            points = msg_to_cloud(msg).points
+        except CloudFormatError as exc:
+            self._once(f"malformed:{exc}", f"skipped malformed cloud: {exc}", "error")
+            return
+        filt = self._filter
+        missing = filt.missing_fields(points)
+        if missing:
+            self._once(f"missing:{missing}", f"cloud lacks {', '.join(missing)}: using geometry-only '{self._fallback.name}'")
+            filt = self._fallback
+            if filt.missing_fields(points):
+                self._once("nogeom", "cloud lacks x, y or z: skipped", "error")
+                return
+        try:
+            result = filt(points)
+        except Exception as exc:  # never crash on one frame
+            self._once(f"error:{type(exc).__name__}", f"filter '{filt.name}' failed, frame skipped: {exc!r}", "error")
+            return
+        stamp_ns, frame_id = stamp_to_ns(msg.header.stamp), msg.header.frame_id
+        self._pub_filtered.publish(cloud_to_msg(points[~result.remove], stamp_ns, frame_id)[0])
+        self._pub_removed.publish(cloud_to_msg(points[result.remove], stamp_ns, frame_id)[0])
+        self._pub_diag.publish(self._diagnostics(msg, points, result, filt.name))
+        self.frames += 1
+
+    def _weather_status(self, points: np.ndarray) -> list[KeyValue]:
+        if self._weather is None:
+            self._once("noweather", "per-frame weather classification unavailable (no trained KNN / "
+                       "lidar_weather_sim.features): not published", "info")  # fmt: skip
+            return []
+        estimate = self._weather.classify(points)
+        return [KeyValue(key="weather", value=estimate.weather), KeyValue(key="weather_confidence", value=f"{estimate.confidence:.3f}")]
+
+    def _diagnostics(self, msg: PointCloud2, points: np.ndarray, result, name: str) -> DiagnosticArray:
+        values = [
+            KeyValue(key="method", value=name),
+            KeyValue(key="points_in", value=str(len(points))),
+            KeyValue(key="points_out", value=str(int((~result.remove).sum()))),
+            KeyValue(key="points_removed", value=str(int(result.remove.sum()))),
+            KeyValue(key="time_ms", value=f"{result.elapsed_s * 1e3:.3f}"),
+        ]
+        if "label" in points.dtype.names:
+            codes, counts = np.unique(points["label"], return_counts=True)
+            kept = dict(zip(*np.unique(points["label"][~result.remove], return_counts=True)))
+            for code, count in zip(codes.tolist(), counts.tolist()):
+                values.append(KeyValue(key=f"label_{code}_in", value=str(count)))
+                values.append(KeyValue(key=f"label_{code}_out", value=str(int(kept.get(code, 0)))))
+        values += self._weather_status(points)
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name="weather_filter_node: filter",
+                                  hardware_id=msg.header.frame_id, message=f"{name}: removed {int(result.remove.sum())} of {len(points)}", values=values)  # fmt: skip
+        return DiagnosticArray(header=msg.header, status=[status])
+
+
+def main(args: list[str] | None = None) -> None:
+    try:
+        with rclpy.init(args=args):
+            rclpy.spin(WeatherFilterNode())
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+if __name__ == "__main__":
+    main()

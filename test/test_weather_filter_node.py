@@ -1,0 +1,72 @@
+"""weather_filter_node in its own process over DDS: filtered/removed clouds, diagnostics, malformed input."""
+
+import sys
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+
+from lidar_weather_sim.points import Label, strip_ground_truth
+from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud
+from weather_filter.synthetic import highway_frame
+
+NODE = [sys.executable, "-m", "weather_filter.ros.weather_filter_node"]
+
+
+def _wire(ros):
+    got = {"filtered": [], "removed": [], "diag": []}
+    ros.node.create_subscription(PointCloud2, "/lidar/points/filtered", got["filtered"].append, qos_profile_sensor_data)
+    ros.node.create_subscription(PointCloud2, "/lidar/points/removed", got["removed"].append, qos_profile_sensor_data)
+    ros.node.create_subscription(DiagnosticArray, "/diagnostics", got["diag"].append, 10)
+    pub = ros.node.create_publisher(PointCloud2, "/lidar/points", qos_profile_sensor_data)
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0, timeout_s=30), "node did not subscribe"
+    return got, pub
+
+
+def _publish_until(ros, pub, msgs, done, tries=100):
+    for _ in range(tries):  # best-effort QoS: repeat until seen
+        for msg in msgs:
+            pub.publish(msg)
+        ros.spin_until(done, timeout_s=0.2)
+        if done():
+            return True
+    return False
+
+
+def test_node_splits_a_labelled_cloud_and_reports_diagnostics(processes, ros):
+    node = processes.start(*NODE, "--ros-args", "-p", "method:=echo")
+    got, pub = _wire(ros)
+    points = highway_frame("rain", seed=11, obstacle_in_spray=True)
+    msg, _ = cloud_to_msg(points, stamp_ns=123, frame_id="lidar")
+    ok = _publish_until(ros, pub, [msg], lambda: got["filtered"] and got["removed"] and got["diag"])
+    assert ok, processes.output(node)
+    filtered = msg_to_cloud(got["filtered"][-1]).points
+    removed = msg_to_cloud(got["removed"][-1]).points
+    assert filtered.dtype.names == points.dtype.names == removed.dtype.names
+    assert len(filtered) + len(removed) == len(points)
+    assert (removed["label"] >= 10).all() and (filtered["label"] == Label.OBSTACLE).sum() == (points["label"] == Label.OBSTACLE).sum()
+    values = {kv.key: kv.value for kv in got["diag"][-1].status[0].values}
+    assert values["method"] == "echo" and int(values["points_in"]) == len(points)
+    assert int(values["label_11_in"]) == int((points["label"] == Label.RAIN).sum())
+    assert float(values["time_ms"]) > 0
+    assert node.poll() is None
+
+
+def test_node_skips_malformed_clouds_and_falls_back_without_echo_fields(processes, ros):
+    node = processes.start(*NODE, "--ros-args", "-p", "method:=echo")
+    got, pub = _wire(ros)
+    bad, _ = cloud_to_msg(highway_frame("rain"), stamp_ns=1, frame_id="lidar")
+    bad.data = bytes(bad.data)[:-3]
+    plain = strip_ground_truth(highway_frame("rain", seed=4))
+    xyz_only = np.zeros(len(plain), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    for axis in "xyz":
+        xyz_only[axis] = plain[axis]
+    good, _ = cloud_to_msg(xyz_only, stamp_ns=2, frame_id="lidar")
+    assert _publish_until(ros, pub, [bad, bad, good], lambda: bool(got["diag"])), processes.output(node)
+    assert node.poll() is None, "node must keep running after a malformed cloud"
+    values = {kv.key: kv.value for kv in got["diag"][-1].status[0].values}
+    assert values["method"] == "dror"
+    out = processes.output(node)
+    assert out.count("skipped malformed cloud: data length") == 1, out
+    assert "using geometry-only 'dror'" in out
