@@ -38,6 +38,7 @@ setup(
     entry_points={
         "console_scripts": [
             "pattern_node = lidar_weather_sim.ros.pattern_node:main",
+            "lidar_sim_node = lidar_weather_sim.ros.lidar_sim_node:main",
             "lidar-weather-sim = lidar_weather_sim.cli:main",
         ],
     },

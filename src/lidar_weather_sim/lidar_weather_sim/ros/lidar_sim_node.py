@@ -1,0 +1,264 @@
+"""``lidar_sim_node``: the virtual LiDAR on ROS 2 (parameters, topics, QoS, conversion only).
+
+Pose input (``pose_source``): ``scenario`` (built-in player; the node drives
+simulated time and publishes /clock, and with ``publish_tf`` /tf and
+/tf_static), ``tf`` (/tf + /tf_static, fixed_frame -> sensor_frame) or
+``odometry`` (nav_msgs/Odometry of base_frame in fixed_frame, plus the mount
+base_frame -> sensor_frame from /tf_static or ``mount_xyz_m``/``mount_rpy_deg``).
+The map and the actors always come from ``scenario``. Each pose update casts
+the columns swept since the last one; a frame is published on /lidar/points
+(SensorDataQoS, sensor frame, stamp = scan start) when its sweep completes.
+In tf/odometry mode time is taken from the message stamps (bag replay,
+use_sim_time). ``regions``, ``region_params``, ``sun_irradiance_w_m2`` and
+``seed`` may be set at run time: validated on set, used from the next frame.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import rclpy
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import TransformStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Float64
+from tf2_msgs.msg import TFMessage
+
+from lidar_weather_sim.config import ConfigError
+from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP
+from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
+from lidar_weather_sim.player import matrix_quaternion
+from lidar_weather_sim.pose_sources import TfPoseSource, add_odometry, add_tf_message, mount_transform, set_static_mount
+from lidar_weather_sim.ros.conversions import cloud_to_msg
+from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
+from lidar_weather_sim.scenario import load_scenario
+from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
+from lidar_weather_sim.world import World
+
+TOPIC_CMD_SPEED = "/ego/cmd_speed"
+POSE_SOURCES = ("scenario", "tf", "odometry")
+RUNTIME = ("regions", "region_params", "sun_irradiance_w_m2", "seed")
+TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # as tf2_ros
+TF_STATIC_QOS = QoSProfile(depth=100, reliability=TF_QOS.reliability, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)  # matches best-effort and reliable readers
+BACKWARDS_RESTART_S = 1.0  # a stamp this much older than the last one (bag loop, sim reset) restarts the scan
+
+
+def _time(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def _transform(parent: str, child: str, ns: int, t, q) -> TransformStamped:
+    msg = TransformStamped()
+    msg.header.stamp, msg.header.frame_id, msg.child_frame_id = _time(ns), parent, child
+    tr, rot = msg.transform.translation, msg.transform.rotation
+    tr.x, tr.y, tr.z = (float(v) for v in t)
+    rot.x, rot.y, rot.z, rot.w = (float(v) for v in q)
+    return msg
+
+
+class LidarSimNode(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("lidar_sim_node", **kwargs)
+        p = self._p
+        p("scenario", "highway_clear", "Scenario (name or YAML path): map, actors, weather, regions")
+        p("profile", "", "Sensor profile name or YAML path ('' = the scenario's)")
+        mode = p("pose_source", "scenario", "Pose input: scenario (built-in player, drives /clock), tf or odometry")
+        if mode not in POSE_SOURCES:
+            raise ConfigError(f"pose_source '{mode}' is not one of {', '.join(POSE_SOURCES)}")
+        self.world = World.build(load_scenario(p("scenario")), p("profile") or None)
+        scenario, mount = self.world.scenario, self.world.scenario.sensor.mount
+        self.fixed = p("fixed_frame", FRAME_MAP, "Fixed (world) frame of the scene")
+        self.base = p("base_frame", FRAME_BASE_LINK, "Vehicle frame (odometry child; scenario mode /tf)")
+        self.frame = p("sensor_frame", FRAME_LIDAR, "Sensor frame: header.frame_id of the clouds")
+        odom_topic = p("odometry_topic", "/odom", "nav_msgs/Odometry input (pose_source odometry)")
+        xyz = p("mount_xyz_m", [mount.x_m, mount.y_m, mount.z_m], "Odometry: sensor in base (m) if not on /tf_static")
+        rpy = [mount.roll_deg, mount.pitch_deg, mount.yaw_deg]
+        rpy = p("mount_rpy_deg", rpy, "Odometry: mount roll, pitch, yaw (deg) if not on /tf_static")
+        ground_truth = p("ground_truth", True, "Publish the label and object_id fields")
+        backend = p("backend", "", "Ray casting backend: mitsuba, open3d or embree ('' = fastest available)")
+        dt = p("time_step_s", 0.01, "Scenario mode: simulated seconds per tick", (1e-4, 1.0))
+        rtf = p("realtime_factor", 1.0, "Scenario mode: sim / wall-clock speed (0 = flat out)", (0.0, 1e3))
+        publish_tf = p("publish_tf", True, "Scenario mode: publish map->base_link, actor_<id>, base_link->lidar")
+        regions = p("regions", list(scenario.regions), "Region plugins in order (default: the scenario's)", None, False)
+        p("region_params", "", "YAML mapping plugin -> parameters, over the scenario's region_params", None, False)
+        sun = scenario.weather.sun.irradiance_w_m2
+        p("sun_irradiance_w_m2", sun, "Sun irradiance (W/m^2; default: the scenario's weather)", (0.0, 1400.0), False)
+        p("seed", scenario.seed, "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
+        self._settings = self._settings_with({})
+        self.session = SimSession(self.world, self._settings, backend=backend, ground_truth=ground_truth)
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._apply)
+        self._logged: set[str] = set()
+        self._points = self.create_publisher(PointCloud2, TOPIC_POINTS, qos_profile_sensor_data)
+        player = self.world.player
+        if mode == "scenario":
+            self._tick, self._dt, self._t = 0, dt, 0.0
+            self._clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
+            self._tf = self.create_publisher(TFMessage, TOPIC_TF, TF_QOS) if publish_tf else None
+            if publish_tf:
+                self._static = self.create_publisher(TFMessage, TOPIC_TF_STATIC, TF_STATIC_QOS)
+                m = player.mount
+                mount_tf = _transform(self.base, self.frame, 0, m[:3, 3], matrix_quaternion(m[:3, :3]))
+                self._static.publish(TFMessage(transforms=[mount_tf]))
+            self.create_subscription(Float64, TOPIC_CMD_SPEED, self._on_speed, 10)
+            steady = Clock(clock_type=ClockType.STEADY_TIME)  # not sim time: this node drives it
+            self.create_timer(dt / rtf if rtf > 0 else 0.0, self._on_tick, clock=steady)
+        else:
+            self._statics: dict[str, TransformStamped] = {}  # newest /tf_static edge per child, for restarts
+            self._mount = mount_transform(xyz, rpy) if mode == "odometry" else None
+            self.source = TfPoseSource(self._new_buffer(), self.fixed, self.frame, player.actor_poses, -1)
+            self.create_subscription(TFMessage, TOPIC_TF_STATIC, self._on_tf_static, TF_STATIC_QOS)
+            if mode == "tf":
+                self.create_subscription(TFMessage, TOPIC_TF, self._on_tf, TF_QOS)
+            else:
+                self.create_subscription(Odometry, odom_topic, self._on_odometry, 50)
+        self.get_logger().info(
+            f"scenario '{scenario.name}', profile '{self.world.profile.name}', pose source {mode}, "
+            f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
+        )
+
+    # -- parameters --------------------------------------------------------------------
+    def _p(self, name, default=None, description="", value_range=None, read_only=True):
+        """Declare (when given a description) and return a parameter's value."""
+        if description:
+            d = ParameterDescriptor(description=description, read_only=read_only)
+            if isinstance(value_range, tuple) and isinstance(default, int) and not isinstance(default, bool):
+                d.integer_range = [IntegerRange(from_value=value_range[0], to_value=value_range[1], step=1)]
+            elif value_range is not None:
+                d.floating_point_range = [FloatingPointRange(from_value=value_range[0], to_value=value_range[1])]
+            # string arrays: dynamic typing so that `ros2 param set ... regions "[]"` (a bool array) clears them
+            d.dynamic_typing = isinstance(default, list) and all(isinstance(v, str) for v in default)
+            self.declare_parameter(name, default, d)
+        return self.get_parameter(name).value
+
+    def _settings_with(self, changes: dict) -> RuntimeSettings:
+        v = {name: changes.get(name, self.get_parameter(name).value) for name in RUNTIME}
+        if not isinstance(v["regions"], (list, tuple)) or not all(isinstance(r, str) for r in v["regions"]):
+            raise ConfigError(f"regions must be a string array, got {v['regions']!r}")
+        return RuntimeSettings(tuple(v["regions"]), parse_region_params(v["region_params"]),
+                               float(v["sun_irradiance_w_m2"]), int(v["seed"]))  # fmt: skip
+
+    def _validate(self, params) -> SetParametersResult:
+        changes = {q.name: q.value for q in params if q.name in RUNTIME}
+        if changes:
+            try:
+                self.session.build_regions(self._settings_with(changes))
+            except (ConfigError, ValueError, TypeError) as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply(self, params) -> None:
+        changes = {q.name: q.value for q in params if q.name in RUNTIME}
+        if changes:
+            self._settings = self._settings_with(changes)
+            self.session.request(self._settings)
+            listed = ", ".join(f"{k}={v}" for k, v in changes.items())
+            self.get_logger().info(f"from the next frame: {listed}")
+
+    # -- inputs --------------------------------------------------------------------------
+    def _once(self, cause: str, detail: str, note: str = "skipped") -> None:
+        if cause not in self._logged:
+            self._logged.add(cause)
+            self.get_logger().warning(f"{detail} ({note}; logged once per cause)")
+
+    def _on_tf(self, msg: TFMessage) -> None:
+        stamps, problems = add_tf_message(self.source.buffer, msg)
+        for problem in problems:
+            self._once(*problem)
+        if stamps:
+            self._step(stamps)
+
+    def _on_tf_static(self, msg: TFMessage) -> None:
+        self._statics.update({ts.child_frame_id: ts for ts in msg.transforms})
+        for problem in add_tf_message(self.source.buffer, msg, static=True)[1]:
+            self._once(*problem)
+
+    def _new_buffer(self) -> TransformBuffer:
+        """Zero extrapolation tolerance: a pose is ready when it can be interpolated."""
+        buffer = TransformBuffer(cache_time_s=10.0, extrapolation_tolerance_s=0.0)
+        if self._mount is not None:  # odometry: the parameter mount, replaced by a /tf_static one
+            set_static_mount(buffer, self.base, self.frame, self._mount)
+        add_tf_message(buffer, TFMessage(transforms=list(self._statics.values())), static=True)
+        return buffer
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        try:
+            stamp = add_odometry(self.source.buffer, msg, self.fixed, self.base)
+        except ValueError as exc:
+            return self._once(f"odometry: {str(exc).split(':')[0]}", f"odometry: {exc}")
+        self._step([stamp])
+
+    def _on_speed(self, msg: Float64) -> None:
+        try:
+            if not math.isfinite(msg.data):
+                raise ValueError(f"speed {msg.data} is not finite")
+            self.world.player.ego.command_speed(self._t, msg.data)
+        except ValueError as exc:
+            self._once(f"{TOPIC_CMD_SPEED}: {str(exc).split(' ')[0]}", f"{TOPIC_CMD_SPEED}: {exc}")
+
+    # -- time ----------------------------------------------------------------------------
+    def _on_tick(self) -> None:
+        self._tick += 1
+        self._t = t = self._tick * self._dt
+        ns = round(t * 1e9)
+        self._clock.publish(ClockMsg(clock=_time(ns)))
+        if self._tf is not None:
+            player = self.world.player
+            pos, quat = player.base_link_poses([t])
+            transforms = [_transform(self.fixed, self.base, ns, pos[0], quat[0])]
+            for actor_id, m in player.actor_poses(t).items():
+                q = matrix_quaternion(m[:3, :3])
+                transforms.append(_transform(self.fixed, f"actor_{actor_id}", ns, m[:3, 3], q))
+            self._tf.publish(TFMessage(transforms=transforms))
+        self._publish(self.session.advance(t, self.world.player), 0)
+
+    def _step(self, candidates: list[int]) -> None:
+        source = self.source
+        stamp = source.ready_stamp_ns(candidates)
+        if stamp is None:
+            return self._once(*source.why_not_ready(max(candidates)), note="waiting for the sensor pose")
+        if source.time_origin_ns < 0:
+            source.time_origin_ns = stamp  # simulated time 0 (scenario time of the actors)
+        t, last = source.to_time_s(stamp), self.session.last_time_s
+        if last is not None and t <= last:
+            if t > last - BACKWARDS_RESTART_S:
+                return None  # old or repeated stamp
+            self.get_logger().warning(f"time jumped back {last - t:.3f} s: restarting the scan")
+            self.session.restart()
+            self.source.buffer, self.source.time_origin_ns = self._new_buffer(), -1
+            return None
+        try:
+            self._publish(self.session.advance(t, source), source.time_origin_ns)
+        except (TransformError, ValueError) as exc:
+            self._once(f"cast: {type(exc).__name__}", f"cannot cast up to {stamp * 1e-9:.9f} s: {exc}")
+
+    def _publish(self, frames, origin_ns: int) -> None:
+        for frame in frames:
+            msg, _ = cloud_to_msg(frame.points, origin_ns + round(frame.stamp_s * 1e9), self.frame)
+            self._points.publish(msg)
+
+
+def main(args: list[str] | None = None) -> None:
+    try:
+        with rclpy.init(args=args):
+            try:
+                node = LidarSimNode()
+            except ConfigError as exc:
+                print(f"lidar_sim_node: {exc}", file=sys.stderr)
+                sys.exit(2)
+            rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+if __name__ == "__main__":
+    main()
