@@ -81,6 +81,20 @@ def load_yaml(path: str | Path, model: type[M]) -> M:
     return validate(data, model, str(path))
 
 
+def load_named(name_or_path: str | Path, directory: Path, model: type[M], kind: str) -> M:
+    """Load ``directory/<name>.yaml`` or, for a ``.yaml``/``.yml`` argument, that path.
+
+    An unknown name raises :class:`ConfigError` listing the known ``kind`` names.
+    """
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        path = directory / f"{name_or_path}.yaml"
+        if not path.exists():
+            known = sorted(p.stem for p in directory.glob("*.yaml"))
+            raise ConfigError(f"unknown {kind} '{name_or_path}' (known: {', '.join(known)})")
+    return load_yaml(path, model)
+
+
 def dump_yaml(config: pydantic.BaseModel) -> str:
     """The configuration as YAML (defaults included), e.g. for ``dump-config``."""
     return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

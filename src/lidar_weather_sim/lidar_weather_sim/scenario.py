@@ -14,7 +14,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from lidar_weather_sim.config import ConfigModel, load_yaml
+from lidar_weather_sim.config import ConfigModel, load_named
 from lidar_weather_sim.points import Label
 
 
@@ -133,13 +133,4 @@ def scenarios_dir() -> Path:
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
     """A scenario by name (``config/scenarios/<name>.yaml``) or by path."""
-    path = Path(name_or_path)
-    if path.suffix not in (".yaml", ".yml"):
-        candidate = scenarios_dir() / f"{name_or_path}.yaml"
-        if not candidate.exists():
-            from lidar_weather_sim.config import ConfigError
-
-            known = sorted(p.stem for p in scenarios_dir().glob("*.yaml"))
-            raise ConfigError(f"unknown scenario '{name_or_path}' (known: {', '.join(known)})")
-        path = candidate
-    return load_yaml(path, Scenario)
+    return load_named(name_or_path, scenarios_dir(), Scenario, "scenario")

@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from lidar_weather_sim.config import ConfigModel, load_yaml
+from lidar_weather_sim.config import ConfigModel, load_named
 
 
 class Beam(ConfigModel):
@@ -127,12 +127,4 @@ def profiles_dir() -> Path:
 
 def load_profile(name_or_path: str | Path) -> SensorProfile:
     """A profile by name (``config/sensors/<name>.yaml``) or by path."""
-    path = Path(name_or_path)
-    if path.suffix not in (".yaml", ".yml"):
-        path = profiles_dir() / f"{name_or_path}.yaml"
-        if not path.exists():
-            known = sorted(p.stem for p in profiles_dir().glob("*.yaml"))
-            from lidar_weather_sim.config import ConfigError
-
-            raise ConfigError(f"unknown sensor profile '{name_or_path}' (known: {', '.join(known)})")
-    return load_yaml(path, SensorProfile)
+    return load_named(name_or_path, profiles_dir(), SensorProfile, "sensor profile")
