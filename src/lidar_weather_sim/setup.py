@@ -40,6 +40,13 @@ setup(
             "pattern_node = lidar_weather_sim.ros.pattern_node:main",
             "lidar_sim_node = lidar_weather_sim.ros.lidar_sim_node:main",
             "lidar-weather-sim = lidar_weather_sim.cli:main",
+            "bag_player_node = lidar_weather_sim.ros.bag_player_node:main",
+            "recorder_node = lidar_weather_sim.ros.recorder_node:main",
+            "ego_controller_node = lidar_weather_sim.ros.ego_controller_node:main",
+        ],
+        "lidar_weather_sim.regions": [
+            "cover = lidar_weather_sim.regions_cover:CoverRegion",
+            "atmosphere = lidar_weather_sim.regions_atmosphere:AtmosphereRegion",
         ],
     },
 )

@@ -16,5 +16,8 @@ setup(
     maintainer="lidar_weather_sim developers",
     maintainer_email="dev@lidar-weather-sim.invalid",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={
+        "lidar_weather_sim.regions": ["spray = spray_particles.region:SprayRegion"],
+        "console_scripts": ["spray_node = spray_particles.node:main"],
+    },
 )

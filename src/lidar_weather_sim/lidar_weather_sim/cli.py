@@ -28,6 +28,8 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    if args.realtime:
+        return _run_realtime(args)
     from tqdm import tqdm
 
     from lidar_weather_sim.offline import run_scenario
@@ -46,6 +48,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
             progress=progress,
         )  # fmt: skip
     print(f"wrote {report.frames} frames ({report.points} points, {report.simulated_s:.2f} s simulated) to {report.output}")
+    return 0
+
+
+def _run_realtime(args: argparse.Namespace) -> int:
+    """The same scenario live over DDS: lidar_sim_node in scenario mode at real time."""
+    from lidar_weather_sim.ros.lidar_sim_node import main as node_main
+
+    ros_args = ["--ros-args", "-p", f"scenario:={args.scenario}", "-p", "realtime_factor:=1.0",
+                "-p", f"max_frames:={args.frames or 0}"]  # fmt: skip
+    if args.seed is not None:
+        ros_args += ["-p", f"seed:={args.seed}"]
+    if args.profile:
+        ros_args += ["-p", f"profile:={args.profile}"]
+    node_main(ros_args)
     return 0
 
 
@@ -70,6 +86,55 @@ def _cmd_pattern(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_up(args: argparse.Namespace) -> int:
+    """A graph description (config/graphs) as separate processes: what ros2 launch would start."""
+    import tempfile
+    from pathlib import Path
+
+    from lidar_weather_sim.graph import command_line, load_graph, parameter_yaml, parse_assignments, resolve, run
+
+    plans = resolve(load_graph(args.graph), parse_assignments(args.arguments))
+    run_dir = Path(args.run_dir or tempfile.mkdtemp(prefix=f"lws_{args.graph}_"))
+    if args.dry_run:  # the parameter files are written, so the printed commands run as they are
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for plan in plans:
+            (run_dir / f"{plan.name}.params.yaml").write_text(parameter_yaml(plan))
+            print(" ".join(command_line(plan, run_dir / f"{plan.name}.params.yaml")))
+        return 0
+    return run(plans, run_dir, emit=lambda line: print(line, flush=True))
+
+
+def _node_args(pairs: list[tuple[str, object]]) -> list[str]:
+    out = ["--ros-args"]
+    for name, value in pairs:
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        out += ["-p", f"{name}:={text}"]
+    return out
+
+
+def _cmd_play(args: argparse.Namespace) -> int:
+    from lidar_weather_sim.ros.bag_player_node import main as player_main
+
+    topics = f"[{', '.join(args.topics)}]" if args.topics else "['']"
+    player_main(_node_args([("bag", args.bag), ("rate", float(args.rate)), ("publish_clock", not args.no_clock),
+                            ("topics", topics)]))  # fmt: skip
+    return 0
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from lidar_weather_sim.ros.recorder_node import main as recorder_main
+
+    recorder_main(_node_args([("out", args.out), ("topics", f"[{', '.join(args.topics)}]"), ("overwrite", args.overwrite),
+                              ("max_messages", args.count), ("use_sim_time", args.use_sim_time)]))  # fmt: skip
+    return 0
+
+
+def _cmd_closed_loop(args: argparse.Namespace) -> int:
+    from lidar_weather_sim.closed_loop import main as closed_loop_main
+
+    return closed_loop_main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="lidar-weather-sim",
@@ -92,6 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--profile", help="sensor profile overriding the scenario's (name or YAML path)")
     run.add_argument("--out", help="output rosbag2 directory (default: <scenario>_run)")
     run.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    run.add_argument("--realtime", action="store_true",
+                     help="publish live over DDS at real time instead of writing a bag (lidar_sim_node)")
     run.set_defaults(func=_cmd_run)
 
     listen = commands.add_parser("listen", help="print a summary line per PointCloud2 received (like ros2 topic echo)")
@@ -106,6 +173,44 @@ def build_parser() -> argparse.ArgumentParser:
     pattern.add_argument("--count", type=int, default=0, help="stop after this many frames (0 = forever)")
     pattern.add_argument("--frame-id", default="lidar", help="header frame_id")
     pattern.set_defaults(func=_cmd_pattern)
+
+    reproduce = commands.add_parser("reproduce", help="reproduce a thesis experiment in simulation (rooftop: paper 2)")
+    reproduce.add_argument("experiment", choices=["rooftop"], help="rooftop: weather statistics, Tables 2-4, Figs. 5-6")
+    reproduce.add_argument("--frames", type=int, default=30, help="frames per weather and sun condition")
+    reproduce.add_argument("--seed", type=int, default=0, help="random seed")
+    reproduce.add_argument("--out", default="rooftop_reproduction", help="output directory")
+    reproduce.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data beside the workspace)")
+    reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.reproduce", fromlist=["main"]).main(a))
+
+    up = commands.add_parser("up", help="start a graph of config/graphs as separate processes (what ros2 launch starts)")
+    up.add_argument("graph", metavar="GRAPH", help="graph name in config/graphs (sim, replay_compare, closed_loop, pattern) or a path")
+    up.add_argument("arguments", nargs="*", metavar="NAME:=VALUE", help="graph arguments, as for ros2 launch")
+    up.add_argument("--dry-run", action="store_true", help="print the command lines and exit")
+    up.add_argument("--run-dir", help="where the resolved parameter files go (default: a new temporary directory)")
+    up.set_defaults(func=_cmd_up)
+
+    play = commands.add_parser("play", help="publish a bag's topics with their original timing and /clock")
+    play.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
+    play.add_argument("--topics", nargs="+", help="topics to play (default: all)")
+    play.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
+    play.add_argument("--no-clock", action="store_true", help="do not publish /clock (replay the bag's own /clock)")
+    play.set_defaults(func=_cmd_play)
+
+    record = commands.add_parser("record", help="record topics to an MCAP bag until Ctrl-C")
+    record.add_argument("out", metavar="BAG", help="output rosbag2 directory")
+    record.add_argument("--topics", nargs="+", default=[TOPIC_POINTS], help=f"topics (default {TOPIC_POINTS})")
+    record.add_argument("--count", type=int, default=0, help="stop after this many messages (0 = until Ctrl-C)")
+    record.add_argument("--overwrite", action="store_true", help="replace an existing bag")
+    record.add_argument("--use-sim-time", action="store_true", help="log times from /clock")
+    record.set_defaults(func=_cmd_record)
+
+    closed = commands.add_parser("closed-loop", help="adaptive cruise demo over DDS: speed traces with/without filter, report")
+    closed.add_argument("--scenario", default="highway_spray", help="scenario name or YAML path")
+    closed.add_argument("--seconds", type=float, default=6.0, help="simulated seconds per run")
+    closed.add_argument("--box-at", type=float, default=3.0, help="box variant: the box appears at this time (s)")
+    closed.add_argument("--out", default="closed_loop_report", help="report directory (report.md, speed.png, traces)")
+    closed.add_argument("--realtime-factor", type=float, default=1.0, help="sim / wall-clock speed")
+    closed.set_defaults(func=_cmd_closed_loop)
     return parser
 
 

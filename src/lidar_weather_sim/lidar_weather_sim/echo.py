@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from lidar_weather_sim import workers
+
 FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 #: Power returned by a retro-reflective surface relative to a Lambertian one of the
 #: same albedo at normal incidence. Retro-reflective sheeting has R_A ~ 30-250
@@ -102,10 +104,13 @@ def detect_echoes(
     fwhm_m: float,
     resolution_m: float,
     max_echoes: int,
+    scratch=None,
 ) -> Echoes:
     """Echoes of candidate returns of the beams of a batch (fastest when grouped by beam).
 
-    Candidates with zero amplitude or non-finite range are ignored.
+    Candidates with zero amplitude or non-finite range are ignored. With ``scratch``
+    (:class:`lidar_weather_sim.workers.Scratch`) the echoes are views of its arrays,
+    valid until its next use.
     """
     if len(beam) > 1 and np.any(beam[1:] < beam[:-1]):
         order = np.argsort(beam, kind="stable")
@@ -120,6 +125,7 @@ def detect_echoes(
         float(fwhm_m) * FWHM_TO_SIGMA,
         float(resolution_m),
         int(max_echoes),
+        scratch,
     )
     return Echoes(*out)
 
@@ -235,27 +241,76 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
     return written
 
 
-@numba.njit(cache=True)
-def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes):
+#: Candidates per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.workers`):
+#: chunks are cut where the beam changes, every beam is computed the same way.
+CHUNK_CANDIDATES = 8192
+
+
+def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None):
     n = len(beam)
-    idx = np.empty(n, np.int64)
-    mr = np.empty(n)
-    ma = np.empty(n)
-    ml = np.empty(n, np.uint8)
-    mo = np.empty(n, np.uint32)
     cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
-    eb = np.empty(cap, np.int64)
-    ee = np.empty(cap, np.uint8)
-    er = np.empty(cap)
-    ea = np.empty(cap)
-    ew = np.empty(cap)
-    el = np.empty(cap, np.uint8)
-    eo = np.empty(cap, np.uint32)
+    new = workers.allocator(scratch)
+    out = tuple(new(f"echo_{k}", cap, dtype) for k, dtype in
+                enumerate((np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)))  # fmt: skip
+    cuts = workers.bounds(n, CHUNK_CANDIDATES)
+    if len(cuts) > 2:
+        cuts = _beam_starts(beam, cuts)
+    counts = np.array(workers.run_chunks(
+        lambda c: _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, cuts[c], cuts[c + 1], *out),
+        len(cuts) - 1,
+    ), np.int64)  # fmt: skip
+    count = _compact(out, cuts, counts)
+    return tuple(x[:count] for x in out)
+
+
+@numba.njit(cache=True)
+def _beam_starts(beam, cuts):
+    """``cuts`` moved forward to where the beam changes (dropping empty chunks)."""
+    out = np.empty(len(cuts), np.int64)
+    out[0] = 0
+    k = 1
+    n = len(beam)
+    for c in range(1, len(cuts) - 1):
+        p = max(cuts[c], out[k - 1])
+        while 0 < p < n and beam[p] == beam[p - 1]:
+            p += 1
+        if out[k - 1] < p < n:
+            out[k] = p
+            k += 1
+    out[k] = n
+    return out[: k + 1]
+
+
+@numba.njit(cache=True)
+def _compact(out, cuts, counts):
+    """Move each chunk's echoes (written from its first candidate's index on) together; returns the count."""
+    eb, ee, er, ea, ew, el, eo = out
     count = 0
-    i = 0
-    while i < n:
+    for c in range(len(cuts) - 1):
+        src = cuts[c]
+        if src != count:
+            for k in range(counts[c]):
+                eb[count + k], ee[count + k], er[count + k] = eb[src + k], ee[src + k], er[src + k]
+                ea[count + k], ew[count + k] = ea[src + k], ew[src + k]
+                el[count + k], eo[count + k] = el[src + k], eo[src + k]
+        count += counts[c]
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb, ee, er, ea, ew, el, eo):
+    """Echoes of the beams of candidates lo..hi (whole beams), written from index lo on; returns how many."""
+    size = hi - lo
+    idx = np.empty(size, np.int64)
+    mr = np.empty(size)
+    ma = np.empty(size)
+    ml = np.empty(size, np.uint8)
+    mo = np.empty(size, np.uint32)
+    count = lo
+    i = lo
+    while i < hi:
         j = i
-        while j < n and beam[j] == beam[i]:
+        while j < hi and beam[j] == beam[i]:
             j += 1
         m = _sort_and_merge(r, a, lab, obj, i, j, resolution, idx, mr, ma, ml, mo)
         found = 0
@@ -272,4 +327,4 @@ def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes):
             found += got
             c0 = c1
         i = j
-    return eb[:count], ee[:count], er[:count], ea[:count], ew[:count], el[:count], eo[:count]
+    return count - lo

@@ -62,6 +62,7 @@ class MoverTrack:
         self.direction = 1.0 if np.cos(along - reference) > 0 else -1.0
         # speed segments (start time s, start position m, speed m/s); commands append segments
         self._segments = [(0.0, mover.s_m, mover.speed_m_s)]
+        self._table: np.ndarray | None = None  # the segments as an array, rebuilt after a command
 
     def command_speed(self, time_s: float, speed_m_s: float) -> None:
         """From ``time_s`` on, move at ``speed_m_s`` (m/s)."""
@@ -69,9 +70,12 @@ class MoverTrack:
         if time_s < t0:
             raise ValueError(f"speed command at {time_s:.3f} s is older than the last one ({t0:.3f} s)")
         self._segments.append((time_s, s0 + self.direction * v0 * (time_s - t0), max(0.0, speed_m_s)))
+        self._table = None
 
     def _segment_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        table = np.array(self._segments)
+        table = self._table
+        if table is None:
+            table = self._table = np.array(self._segments)
         k = np.clip(np.searchsorted(table[:, 0], times, side="right") - 1, 0, None)
         return table[k, 0], table[k, 1], table[k, 2]
 
@@ -114,6 +118,7 @@ class ScenarioPlayer:
 
     def __init__(self, scenario: Scenario, network: RoadNetwork) -> None:
         self.scenario = scenario
+        self.network = network
         self.ego = MoverTrack(scenario.ego, network)
         self.actors = {a.id: (a, MoverTrack(a, network)) for a in scenario.actors}
         self.mount = mount_matrix(scenario.sensor.mount)
@@ -135,16 +140,56 @@ class ScenarioPlayer:
 
     def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
         """Body-to-map 4x4 of every actor present at ``time_s``."""
-        out = {}
+        return self.actor_poses_at([time_s])[0]
+
+    def actor_poses_at(self, times_s) -> list[dict[int, np.ndarray]]:
+        """``actor_poses`` at each of ``times_s``, evaluated together: one lane-pose call per
+        road and lane for the actors that do not change lanes (the same values, elementwise)."""
+        times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
+        found = []  # (actor id, indices into times, positions (k, 3), headings (k,)), in actor order
+        lanes: dict[tuple[str, int], list[int]] = {}
         for actor_id, (actor, track) in self.actors.items():
-            if time_s < actor.appear_s:
+            present = np.flatnonzero(times >= actor.appear_s)
+            if not len(present):
                 continue
-            pos, heading = track.poses(np.array([time_s]))
-            m = np.eye(4)
-            m[:3, :3] = rpy_matrix(0.0, 0.0, float(heading[0]))
-            m[:3, 3] = pos[0]
-            out[actor_id] = m
+            if actor.lane_changes:
+                found.append([actor_id, present, *track.poses(times[present])])
+            else:
+                lanes.setdefault((actor.road, actor.lane), []).append(len(found))
+                found.append([actor_id, present, track.s(times[present]), None])
+        for (road, lane), members in lanes.items():
+            s = np.concatenate([found[m][2] for m in members])
+            x, y, z, heading = self.network.lane_pose(road, lane, s)
+            pos = np.stack([x, y, z], axis=-1)
+            k = 0
+            for m in members:
+                n = len(found[m][1])
+                found[m][2:] = pos[k : k + n], heading[k : k + n]
+                k += n
+        out: list[dict[int, np.ndarray]] = [{} for _ in times]
+        if not found:
+            return out
+        matrices = np.zeros((sum(len(f[1]) for f in found), 4, 4))
+        matrices[:, :3, :3] = _yaw_matrices(np.concatenate([f[3] for f in found]))
+        matrices[:, :3, 3] = np.concatenate([f[2] for f in found])
+        matrices[:, 3, 3] = 1.0
+        k = 0
+        for actor_id, present, _, _ in found:
+            for t in present:
+                out[t][actor_id] = matrices[k]
+                k += 1
         return out
+
+
+def _yaw_matrices(yaw: np.ndarray) -> np.ndarray:
+    """``rpy_matrix(0, 0, yaw)`` for each yaw: (N, 3, 3), the same expressions elementwise."""
+    cr, sr, cp, sp = np.cos(0.0), np.sin(0.0), np.cos(0.0), np.sin(0.0)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    m = np.empty((len(yaw), 3, 3))
+    m[:, 0, 0], m[:, 0, 1], m[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    m[:, 1, 0], m[:, 1, 1], m[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    m[:, 2, 0], m[:, 2, 1], m[:, 2, 2] = -sp, cp * sr, cp * cr
+    return m
 
 
 def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:

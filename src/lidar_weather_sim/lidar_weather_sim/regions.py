@@ -45,11 +45,14 @@ ENTRY_POINT_GROUP = "lidar_weather_sim.regions"
 @dataclass(frozen=True)
 class RegionContext:
     """What a region may know about the set-up: the sensor profile, the weather block of the
-    scenario (may be None), and the scene's materials table (may be None)."""
+    scenario (may be None), the scene's materials table (may be None), the scenario's actors
+    and a source of their poses over simulated time (may be None)."""
 
     profile: Any
     weather: Any = None
     materials: Any = None
+    actors: Any = None  # the scenario's actors (list of scenario.Actor), for emitting regions (spray)
+    pose_source: Any = None  # anything with actor_poses(t) -> {actor id: 4x4 body-to-world}, e.g. the player
 
 
 @dataclass
@@ -87,7 +90,10 @@ class Scatterers:
 
     ``beam``/``subray`` index the batch; ``range_m`` along the ray (m);
     ``reflectance`` effective (as for a surface hit: P = C w rho / R^2);
-    ``occlusion`` share of the sub-ray's light blocked from there on (0-1).
+    ``occlusion`` share of the sub-ray's light blocked from there on (0-1);
+    ``bypass_overlap`` (optional, bool) marks returns that reach the receiver by
+    another path than the biaxial overlap (multipath inside the sensor cover):
+    the echo stage uses O(R) = 1 for them.
     """
 
     beam: np.ndarray
@@ -97,13 +103,19 @@ class Scatterers:
     occlusion: np.ndarray
     label: np.ndarray
     object_id: np.ndarray
+    bypass_overlap: np.ndarray | None = None
 
     @classmethod
     def concatenate(cls, parts: list["Scatterers"]) -> "Scatterers | None":
         parts = [p for p in parts if p is not None and len(p.beam)]
         if not parts:
             return None
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__))
+        if any(p.bypass_overlap is not None for p in parts):
+            parts = [p if p.bypass_overlap is not None else
+                     cls(*(getattr(p, f) for f in list(cls.__dataclass_fields__)[:-1]), np.zeros(len(p.beam), bool))
+                     for p in parts]  # fmt: skip
+        return cls(*(None if getattr(parts[0], f) is None else np.concatenate([getattr(p, f) for p in parts])
+                     for f in cls.__dataclass_fields__))  # fmt: skip
 
 
 @dataclass

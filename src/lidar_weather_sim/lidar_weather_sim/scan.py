@@ -4,7 +4,9 @@ Precomputed once per profile: for every column its firing time within the
 frame (s) and azimuth; for every channel its elevation; for every sub-ray its
 angular offset inside the beam divergence and its share of the beam energy
 (Gaussian beam, divergence = full 1/e^2 width). Directions are unit vectors in
-the sensor frame (REP-103).
+the sensor frame (REP-103). The sub-ray directions of every column are computed
+once per set of active channels (:meth:`ScanPattern.direction_table`) and
+sliced per batch.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ class ColumnBatch:
     columns: np.ndarray  # (C,) column indices
     time_s: np.ndarray  # (C,) firing time after the frame start (s)
     channels: np.ndarray  # (B,) active channel numbers
-    directions: np.ndarray  # (C, B, S, 3) float64 unit vectors, sensor frame
+    directions: np.ndarray  # (C, B, S, 3) float64 unit vectors, sensor frame (read-only)
     weights: np.ndarray  # (S,) share of the beam energy per sub-ray, sums to 1
 
 
@@ -71,6 +73,7 @@ class ScanPattern:
         self.subray_dv = np.tile(dv, len(dh))
         self.subray_weight = np.outer(wh, wv).ravel()
         self.n_subrays = len(self.subray_weight)
+        self._tables: dict[tuple[int, ...], np.ndarray] = {}
 
     def active_channels(self, frame_index: int) -> np.ndarray:
         schedule = self.profile.scan.layer_schedule
@@ -88,15 +91,33 @@ class ScanPattern:
             np.searchsorted(self.column_time_s, t1_s, side="left"),
         )
 
+    def direction_table(self, frame_index: int) -> np.ndarray:
+        """Sensor-frame sub-ray directions of every column for the channels active in frame
+        ``frame_index``: (columns, active channels, sub-rays, 3) float64, read-only, cached."""
+        channels = self.active_channels(frame_index)
+        key = tuple(channels.tolist())
+        table = self._tables.get(key)
+        if table is None:
+            az = (
+                self.column_azimuth[:, None, None]
+                + self.azimuth_offset[channels][None, :, None]
+                + self.subray_dh[None, None, :]
+            )
+            el = np.broadcast_to(self.elevation[channels][None, :, None] + self.subray_dv[None, None, :], az.shape)
+            cos_el = np.cos(el)
+            table = np.stack([cos_el * np.cos(az), cos_el * np.sin(az), np.sin(el)], axis=-1)
+            table.flags.writeable = False
+            self._tables[key] = table
+        return table
+
     def batch(self, frame_index: int, columns: np.ndarray) -> ColumnBatch:
         """Sensor-frame sub-ray directions of ``columns`` of frame ``frame_index``."""
-        channels = self.active_channels(frame_index)
-        az = (
-            self.column_azimuth[columns][:, None, None]
-            + self.azimuth_offset[channels][None, :, None]
-            + self.subray_dh[None, None, :]
+        columns = np.asarray(columns)
+        table = self.direction_table(frame_index)
+        if len(columns) and np.all(np.diff(columns) == 1):
+            directions = table[columns[0] : columns[-1] + 1]  # a view: no copy for a run of columns
+        else:
+            directions = table[columns]
+        return ColumnBatch(
+            columns, self.column_time_s[columns], self.active_channels(frame_index), directions, self.subray_weight
         )
-        el = np.broadcast_to(self.elevation[channels][None, :, None] + self.subray_dv[None, None, :], az.shape)
-        cos_el = np.cos(el)
-        directions = np.stack([cos_el * np.cos(az), cos_el * np.sin(az), np.sin(el)], axis=-1)
-        return ColumnBatch(columns, self.column_time_s[columns], channels, directions, self.subray_weight)

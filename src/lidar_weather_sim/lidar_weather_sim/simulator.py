@@ -7,23 +7,35 @@ regions -> candidate returns with LIDAR-equation amplitudes -> echo decision
 firing time. A frame is returned when its sweep is complete; its stamp is the
 scan start and every point's ``time_stamp`` is its column's firing time after
 that (ns).
+
+Speed (``benchmarks/sim_frame_time.py``): ``advance`` plans its batches first and
+asks the pose source once for all their sensor poses (one per column, exact) and
+actor poses; the sensor-frame sub-ray directions are a table per set of active
+channels; rotation, the LIDAR equation, echo detection and point assembly are numba
+kernels that reproduce the numpy expressions operation for operation (same clouds,
+bit for bit), run in chunks on all cores (:mod:`lidar_weather_sim.workers`); large
+temporaries are reused from batch to batch and each frame's points are written into
+one buffer.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
+import numba
 import numpy as np
 
+from lidar_weather_sim import workers
 from lidar_weather_sim.echo import (
+    MIN_RANGE_M,
+    RETRO_GAIN,
     Threshold,
     detect_echoes,
     overlap_factor,
     peak_amplitude,
-    surface_reflectance,
 )
-from lidar_weather_sim.points import Label, empty_points
+from lidar_weather_sim.points import Label, empty_points, point_dtype
 from lidar_weather_sim.regions import RayBatch, Region, combine, region_rng
 from lidar_weather_sim.scan import ScanPattern
 from lidar_weather_sim.sensor_profile import SensorProfile
@@ -37,7 +49,10 @@ class PoseSource(Protocol):
         """World (fixed-frame) pose of the sensor at each time: translations (N, 3) m, quaternions (N, 4) xyzw."""
 
     def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
-        """Body-to-world 4x4 transform of every actor present at ``time_s``."""
+        """Body-to-world 4x4 transform of every actor present at ``time_s``.
+
+        A pose source may also offer ``actor_poses_at(times_s) -> list[dict]`` (the same for
+        several times at once); the simulator then uses it once per ``advance``."""
 
 
 @dataclass
@@ -66,7 +81,8 @@ class _FrameAccumulator:
     index: int
     start_s: float
     next_column: int = 0
-    parts: list[np.ndarray] = field(default_factory=list)
+    points: np.ndarray | None = None  # room for every echo the frame can have; filled from the start
+    count: int = 0  # points filled
     rays: int = 0
 
 
@@ -107,6 +123,8 @@ class LidarSimulator:
             self._actor_label[actor_id] = label
         self._frame: _FrameAccumulator | None = None
         self._last_time_s: float | None = None
+        self._geo: tuple[np.ndarray, ...] | None = None  # see _point_tables
+        self._scratch = workers.Scratch()  # per-batch temporaries, reused
 
     # -- receiver ----------------------------------------------------------------
     def threshold(self) -> Threshold:
@@ -134,110 +152,152 @@ class LidarSimulator:
         if behind > self.max_catch_up_frames:  # a jump in time: restart the scan instead of casting stale frames
             skipped = behind - 1
             self._frame = _FrameAccumulator(self._frame.index + skipped, self._frame.start_s + skipped * period)
-        frames = []
+        # Plan the batches (the columns fired up to time_s, frame by frame), evaluate the poses of
+        # all of them at once (per-call costs of the pose source), then cast them in order.
+        n_columns = self.pattern.n_columns
+        plans = []  # (accumulator, first column, end column)
+        acc, next_column = self._frame, self._frame.next_column
         while True:
-            acc = self._frame
             last = int(np.searchsorted(self.pattern.column_time_s, time_s - acc.start_s, side="right"))
-            if last > acc.next_column:
-                self._cast(acc, np.arange(acc.next_column, last), poses)
-                acc.next_column = last
-            if acc.next_column < self.pattern.n_columns:
-                return frames
-            frames.append(self._finish(acc))
-            self._frame = _FrameAccumulator(acc.index + 1, acc.start_s + period)
+            if last > next_column:
+                plans.append((acc, next_column, last))
+                next_column = last
+            if next_column < n_columns:
+                break
+            acc, next_column = _FrameAccumulator(acc.index + 1, acc.start_s + period), 0
+        frames = []
+        if plans:
+            times = [p[0].start_s + self.pattern.column_time_s[p[1] : p[2]] for p in plans]
+            translation, rotation = self._sensor_poses(np.concatenate(times), poses)
+            actor_times = [float(t.mean()) for t in times]
+            many = getattr(poses, "actor_poses_at", None)
+            actors = many(actor_times) if many is not None else [poses.actor_poses(t) for t in actor_times]
+            k = 0
+            for (batch_acc, first, end), batch_times, actor_poses in zip(plans, times, actors):
+                self._frame = batch_acc
+                sl = slice(k, k + len(batch_times))
+                self._cast(batch_acc, np.arange(first, end), batch_times, translation[sl], rotation[sl], actor_poses)
+                k += len(batch_times)
+                batch_acc.next_column = end
+                if end >= n_columns:
+                    frames.append(self._finish(batch_acc))
+        self._frame = acc
+        return frames
 
     def _finish(self, acc: _FrameAccumulator) -> Frame:
-        points = np.concatenate(acc.parts) if acc.parts else empty_points(0, self.ground_truth)
+        points = acc.points[: acc.count] if acc.points is not None else empty_points(0, self.ground_truth)
         return Frame(acc.index, acc.start_s, points, acc.rays)
 
     # -- one batch -------------------------------------------------------------------
-    def _cast(self, acc: _FrameAccumulator, columns: np.ndarray, poses: PoseSource) -> None:
+    def _cast(self, acc: _FrameAccumulator, columns: np.ndarray, times: np.ndarray, translation: np.ndarray,
+              rotation: np.ndarray, actor_poses: dict[int, np.ndarray]) -> None:  # fmt: skip
+        """Cast ``columns`` (a run) of frame ``acc`` fired at ``times`` (s) from the sensor poses
+        (translations (C, 3), rotation matrices (C, 3, 3)) with the actors at ``actor_poses``."""
         profile, pattern = self.profile, self.pattern
-        batch = pattern.batch(acc.index, columns)
-        n_cols, n_beams, n_sub = batch.directions.shape[:3]
-        times = acc.start_s + batch.time_s
-        translation, quaternion = poses.sensor_poses(times)
-        rotation = quaternion_matrices(np.asarray(quaternion, dtype=np.float64))
-        world_dirs = np.einsum("cij,cbsj->cbsi", rotation, batch.directions)
-        origins = np.repeat(np.asarray(translation, dtype=np.float64), n_beams, axis=0)  # (N, 3)
+        first = int(columns[0])
+        table = pattern.direction_table(acc.index)
+        if columns[-1] - first + 1 == len(columns):  # a run of columns (always, from advance): a view
+            directions = table[first : first + len(columns)]
+        else:
+            directions = table[columns]
+        n_cols, n_beams, n_sub = directions.shape[:3]
         n = n_cols * n_beams
-        actor_poses = poses.actor_poses(float(times.mean()))
-        hits = self.caster.cast(
-            np.repeat(origins, n_sub, axis=0).astype(np.float32),
-            world_dirs.reshape(-1, 3).astype(np.float32),
-            actor_poses,
-            profile.range.max_m,
-        )
+        origins32, dirs32, dirs64 = _world_rays(directions, rotation, translation, bool(self.regions), self._scratch)
+        # regions get the hits in the ray batch and may keep them: then the caster's arrays must be new
+        hits = self.caster.cast(origins32, dirs32, actor_poses, profile.range.max_m, reuse=not self.regions)
         shape = (n, n_sub)
-        distance = hits.distance.reshape(shape).astype(np.float64)
-        material = hits.material.reshape(shape)
-        label = self._material_label[material]
-        actor = hits.hit_actor.reshape(shape)
-        if (actor >= 0).any():
-            label = np.where(actor >= 0, self._actor_label[np.maximum(actor, 0)], label)
-        ray_batch = RayBatch(
-            frame_index=acc.index,
-            origins=origins,
-            directions=world_dirs.reshape(n, n_sub, 3),
-            sensor_directions=batch.directions.reshape(n, n_sub, 3),
-            channel=np.tile(batch.channels, n_cols),
-            time_s=np.repeat(times, n_beams),
-            weights=batch.weights,
-            distance=distance,
-            normal=hits.normal.reshape(n, n_sub, 3),
-            material=material,
-            object_id=hits.object_id.reshape(shape),
-            label=label,
-        )
-        effects = [
-            region.apply(ray_batch, region_rng(self.seed, acc.index, name, int(columns[0])))
-            for name, region in self.regions
-        ]
-        effect = combine(effects, shape)
-        candidates = self._candidates(ray_batch, effect)
-        candidates = self._add_false_alarms(candidates, n, acc.index, int(columns[0]))
-        threshold = self.threshold()
+        ray_batch = effect = None
+        if self.regions:
+            material = hits.material.reshape(shape)
+            label = self._material_label[material]
+            actor = hits.hit_actor.reshape(shape)
+            if (actor >= 0).any():
+                label = np.where(actor >= 0, self._actor_label[np.maximum(actor, 0)], label)
+            ray_batch = RayBatch(
+                frame_index=acc.index,
+                origins=np.repeat(translation, n_beams, axis=0),
+                directions=dirs64.reshape(n, n_sub, 3),
+                sensor_directions=directions.reshape(n, n_sub, 3),
+                channel=np.tile(pattern.active_channels(acc.index), n_cols),
+                time_s=np.repeat(times, n_beams),
+                weights=pattern.subray_weight,
+                distance=hits.distance.reshape(shape).astype(np.float64),
+                normal=hits.normal.reshape(n, n_sub, 3),
+                material=material,
+                object_id=hits.object_id.reshape(shape),
+                label=label,
+            )
+            batch_time = float(times.mean())  # regions advance in simulated time before they are sampled
+            previous = getattr(self, "_region_time_s", None)
+            for _, region in self.regions:
+                region.step(batch_time if previous is None else previous, batch_time)
+            self._region_time_s = batch_time
+            effects = [
+                region.apply(ray_batch, region_rng(self.seed, acc.index, name, first)) for name, region in self.regions
+            ]
+            effect = combine(effects, shape)
+        candidates = self._candidates(hits, directions, rotation, ray_batch, effect)
+        candidates = self._add_false_alarms(candidates, n, acc.index, first)
         echoes = detect_echoes(
             *candidates,
-            threshold=threshold,
+            threshold=self.threshold(),
             fwhm_m=profile.pulse.fwhm_m,
             resolution_m=profile.range.resolution_m,
             max_echoes=profile.detection.max_echoes,
+            scratch=self._scratch,
         )
-        acc.parts.append(self._points(echoes, batch, columns, acc, int(columns[0])))
+        self._points(echoes, columns, n_beams, acc, first)
         acc.rays += n * n_sub
 
-    def _candidates(self, rays: RayBatch, effect) -> tuple[np.ndarray, ...]:
-        """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers."""
+    def _sensor_poses(self, times: np.ndarray, poses: PoseSource) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor translation (C, 3) and rotation matrices (C, 3, 3), float64, at each column time."""
+        translation, quaternion = poses.sensor_poses(times)
+        translation = np.ascontiguousarray(translation, dtype=np.float64)
+        return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64))
+
+    def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect) -> tuple[np.ndarray, ...]:
+        """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers.
+
+        ``rays`` and ``effect`` are None without regions (no scaling, offset or losses)."""
         profile = self.profile
-        n, n_sub = rays.shape
+        n_cols, n_beams, n_sub = directions.shape[:3]
+        n = n_cols * n_beams
         C = profile.detection.power_constant
         optics = profile.optics
-        hit = np.isfinite(rays.distance)
-        mat = np.where(rays.material >= 0, rays.material, -1)
-        cos_inc = np.abs(np.einsum("nsk,nsk->ns", rays.normal, rays.directions))
-        refl = surface_reflectance(self._reflectivity[mat], self._retro[mat], cos_inc) * effect.reflectance_scale
-        rng_m = np.where(hit, rays.distance + effect.range_offset_m, np.inf)
-        one_way = effect.transmission
-        alpha = effect.extinction_per_m
-        amp = peak_amplitude(
-            C, rays.weights[None, :], refl, rng_m, one_way**2 * np.exp(-2.0 * alpha * np.where(hit, rng_m, 0.0)),
-            overlap_factor(rng_m, optics.overlap_start_m, optics.overlap_full_m),
-        )
-        amp = np.where(hit, amp, 0.0)
+        sc = effect.scatterers if effect is not None else None
+        if effect is not None:
+            hit = np.isfinite(rays.distance)
+            rng_m = np.where(hit, rays.distance + effect.range_offset_m, np.inf)
+            one_way = effect.transmission
+            alpha = effect.extinction_per_m
+            t2 = one_way**2 * np.exp(-2.0 * alpha * np.where(hit, rng_m, 0.0))
+            scale = np.ascontiguousarray(np.broadcast_to(effect.reflectance_scale, (n, n_sub)), np.float64)
+            offset = np.ascontiguousarray(np.broadcast_to(effect.range_offset_m, (n, n_sub)), np.float64)
+            t2 = np.ascontiguousarray(np.broadcast_to(t2, (n, n_sub)), np.float64)
+        else:
+            scale = offset = t2 = np.zeros((1, 1))
+        beam, rng_m, amp, label, obj = _surface_returns(
+            hits.distance, hits.normal, hits.material, hits.hit_actor, hits.object_id, directions, rotation,
+            self._reflectivity, self._retro, self._material_label, self._actor_label, self.pattern.subray_weight,
+            float(C), float(optics.overlap_start_m), float(optics.overlap_full_m), effect is not None, scale, offset,
+            t2, sc is None, self._scratch,
+        )  # fmt: skip
+        if sc is None:
+            return beam, rng_m, amp, label, obj
+        # scatterers: every sub-ray stays a candidate until the occlusion is applied
         beam = np.broadcast_to(np.arange(n)[:, None], shape=(n, n_sub))
         subray = np.broadcast_to(np.arange(n_sub)[None, :], shape=(n, n_sub))
-        cols = [beam.ravel(), subray.ravel(), rng_m.ravel(), amp.ravel(), rays.label.ravel(), rays.object_id.ravel(),
+        cols = [beam.ravel(), subray.ravel(), rng_m, amp, rays.label.ravel(), rays.object_id.ravel(),
                 np.ones(n * n_sub)]  # fmt: skip
-        sc = effect.scatterers
-        if sc is not None:
-            b, s = sc.beam, sc.subray
-            t2 = one_way[b, s] ** 2 * np.exp(-2.0 * alpha[b, s] * sc.range_m)
-            sc_amp = peak_amplitude(C, rays.weights[s], sc.reflectance, sc.range_m, t2,
-                                    overlap_factor(sc.range_m, optics.overlap_start_m, optics.overlap_full_m))  # fmt: skip
-            extra = [b, s, sc.range_m, sc_amp, sc.label, sc.object_id, sc.occlusion]
-            cols = [np.concatenate([a, e]) for a, e in zip(cols, extra)]
-            cols[3] = _occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6])
+        b, s = sc.beam, sc.subray
+        t2 = one_way[b, s] ** 2 * np.exp(-2.0 * alpha[b, s] * sc.range_m)
+        overlap = overlap_factor(sc.range_m, optics.overlap_start_m, optics.overlap_full_m)
+        if sc.bypass_overlap is not None:
+            overlap = np.where(sc.bypass_overlap, 1.0, overlap)
+        sc_amp = peak_amplitude(C, rays.weights[s], sc.reflectance, sc.range_m, t2, overlap)
+        extra = [b, s, sc.range_m, sc_amp, sc.label, sc.object_id, sc.occlusion]
+        cols = [np.concatenate([a, e]) for a, e in zip(cols, extra)]
+        cols[3] = _occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6])
         beam, _, rng_m, amp, label, obj, _ = cols
         keep = amp > 0
         return beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)
@@ -255,54 +315,42 @@ class LidarSimulator:
         extra = (beam, ranges, amp, np.full(len(beam), Label.NOISE, np.uint8), np.zeros(len(beam), np.uint32))
         return tuple(np.concatenate([a, e]) for a, e in zip(candidates, extra))
 
-    def _points(self, echoes, batch, columns, acc: _FrameAccumulator, first_column: int) -> np.ndarray:
-        profile, pattern = self.profile, self.pattern
-        n_beams = len(batch.channels)
+    def _points(self, echoes, columns: np.ndarray, n_beams: int, acc: _FrameAccumulator, first_column: int) -> None:
+        """Append to the frame the points of the echoes at or beyond the minimum range after range
+        noise. Intensity is 0-255, logarithmic in the peak amplitude above the dark threshold
+        (0 = at threshold, 255 = ``intensity_dynamic_range`` times above it)."""
+        profile = self.profile
         rng = region_rng(self.seed, acc.index, "range_noise", first_column)
         ranges = echoes.range_m + rng.normal(0.0, profile.range.noise_sigma_m, len(echoes.range_m))
-        keep = ranges >= max(profile.range.min_m, 0.0)
-        beam = echoes.beam[keep]
-        col = columns[beam // n_beams]
-        channel = batch.channels[beam % n_beams]
-        az = pattern.column_azimuth[col] + pattern.azimuth_offset[channel]
-        el = pattern.elevation[channel]
-        r = ranges[keep]
-        points = empty_points(len(r), self.ground_truth)
-        cos_el = np.cos(el)
-        points["x"] = r * cos_el * np.cos(az)
-        points["y"] = r * cos_el * np.sin(az)
-        points["z"] = r * np.sin(el)
-        points["azimuth"] = np.arctan2(np.sin(az), np.cos(az))
-        points["elevation"] = el
-        points["distance"] = r
-        points["channel"] = channel
-        points["time_stamp"] = np.round(pattern.column_time_s[col] * 1e9).astype(np.uint32)
-        points["echo"] = echoes.echo[keep]
-        points["epw"] = echoes.epw_m[keep]
-        points["intensity"] = self._intensity(echoes.amplitude[keep])
-        points["return_type"] = _return_types(beam, echoes.echo[keep])
-        if self.ground_truth:
-            points["label"] = echoes.label[keep]
-            points["object_id"] = echoes.object_id[keep]
-        return points
+        kept = np.flatnonzero(ranges >= max(profile.range.min_m, 0.0))
+        if acc.points is None:
+            # at most max_echoes per beam: one allocation per frame, no copies (pages never written cost nothing)
+            size = self.pattern.n_columns * len(self.pattern.active_channels(acc.index)) * profile.detection.max_echoes
+            acc.points = np.empty(size, point_dtype(self.ground_truth))
+        points = acc.points[acc.count : acc.count + len(kept)]
+        acc.count += len(kept)
+        if not len(kept):
+            return
+        span = np.log(profile.detection.intensity_dynamic_range)
+        log_ratio = np.log(np.maximum(echoes.amplitude[kept], 1e-12) / self.dark_threshold())
+        geo = self._point_tables()
+        _fill_points(
+            points, kept, ranges, echoes.beam, echoes.echo, echoes.epw_m, log_ratio, float(span),
+            np.ascontiguousarray(columns, np.int64), self.pattern.active_channels(acc.index), n_beams, *geo,
+            echoes.label, echoes.object_id, self.ground_truth, _padding_bytes(points.dtype),
+        )  # fmt: skip
 
-    def _intensity(self, amplitude: np.ndarray) -> np.ndarray:
-        """0-255, logarithmic in the peak amplitude above the dark threshold (0 = at threshold,
-        255 = ``intensity_dynamic_range`` times above it)."""
-        span = np.log(self.profile.detection.intensity_dynamic_range)
-        level = np.log(np.maximum(amplitude, 1e-12) / self.dark_threshold()) / span
-        return np.clip(np.round(255.0 * level), 0, 255).astype(np.uint8)
-
-
-def _return_types(beam: np.ndarray, echo: np.ndarray) -> np.ndarray:
-    """Nebula return type per echo: IDENTICAL when alone, else FIRST / SECOND / LAST."""
-    if not len(beam):
-        return np.zeros(0, np.uint8)
-    last = np.ones(len(beam), bool)
-    last[:-1] = beam[1:] != beam[:-1]
-    first = echo == 1
-    out = np.where(first, RETURN_FIRST, np.where(last, RETURN_LAST, RETURN_SECOND))
-    return np.where(first & last, RETURN_IDENTICAL, out).astype(np.uint8)
+    def _point_tables(self) -> tuple[np.ndarray, ...]:
+        """Per (column, channel): cos and sin of the azimuth, the wrapped azimuth; per channel: cos
+        and sin of the elevation, the elevation; per column: the time stamp (ns). Built once."""
+        if self._geo is None:
+            pattern = self.pattern
+            az = pattern.column_azimuth[:, None] + pattern.azimuth_offset[None, :]
+            cos_az, sin_az = np.cos(az), np.sin(az)
+            el = np.ascontiguousarray(pattern.elevation, dtype=np.float64)
+            stamp = np.round(pattern.column_time_s * 1e9).astype(np.uint32)
+            self._geo = (cos_az, sin_az, np.arctan2(sin_az, cos_az), np.cos(el), np.sin(el), el, stamp)
+        return self._geo
 
 
 def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray) -> np.ndarray:
@@ -319,3 +367,220 @@ def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlus
     out = np.empty_like(amplitude)
     out[order] = amplitude[order] * np.exp(before)
     return out
+
+
+# -- kernels ---------------------------------------------------------------------------
+# They reproduce the numpy expressions they replace operation for operation (numpy's
+# einsum adds three products as (p0 + p2) + p1), so the clouds are bit for bit the same.
+
+
+#: Rays per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.workers`).
+CHUNK_RAYS = 32768
+
+
+def _world_rays(directions, rotation, translation, want64, scratch=None):
+    """Sensor-frame sub-ray directions (C, B, S, 3) rotated by each column's rotation (C, 3, 3):
+    float32 origins and directions (C*B*S, 3) for the caster (in ``scratch`` if given), and the
+    float64 directions (C*B*S, 3) if ``want64`` (else an empty array)."""
+    n_cols, n_beams, n_sub = directions.shape[:3]
+    m = n_cols * n_beams * n_sub
+    new = workers.allocator(scratch)
+    o32 = new("origins32", (m, 3), np.float32)
+    d32 = new("directions32", (m, 3), np.float32)
+    d64 = np.empty((m if want64 else 0, 3))
+    cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
+    workers.run_chunks(lambda c: _world_rays_run(directions, rotation, translation, cuts[c], cuts[c + 1], want64,
+                                                 o32, d32, d64), len(cuts) - 1)  # fmt: skip
+    return o32, d32, d64
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_rays_run(directions, rotation, translation, c0, c1, want64, o32, d32, d64):
+    """Columns c0..c1 of :func:`_world_rays`."""
+    n_beams, n_sub = directions.shape[1:3]
+    k = c0 * n_beams * n_sub
+    for c in range(c0, c1):
+        r = rotation[c]
+        tx, ty, tz = np.float32(translation[c, 0]), np.float32(translation[c, 1]), np.float32(translation[c, 2])
+        for b in range(n_beams):
+            for s in range(n_sub):
+                x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
+                wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
+                wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
+                wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
+                o32[k, 0], o32[k, 1], o32[k, 2] = tx, ty, tz
+                d32[k, 0], d32[k, 1], d32[k, 2] = wx, wy, wz
+                if want64:
+                    d64[k, 0], d64[k, 1], d64[k, 2] = wx, wy, wz
+                k += 1
+
+
+def _surface_returns(distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro,
+                     material_label, actor_label, weights, power, overlap_start, overlap_full, effects, scale,
+                     offset, two_way, compact, scratch=None):  # fmt: skip
+    """Range and peak amplitude (LIDAR equation) of every sub-ray's scene hit.
+
+    ``compact``: the candidates with amplitude > 0 as (beam, range, amplitude, label,
+    object id), beam-major (in ``scratch`` if given). Else range (inf for a miss) and
+    amplitude (0 for a miss) of every sub-ray, flat (the other outputs empty). With
+    ``effects`` the regions' reflectance scale, range offset and two-way transmission
+    (N, S) apply.
+    """
+    n_cols, n_beams, n_sub = directions.shape[:3]
+    m = n_cols * n_beams * n_sub
+    size = m if compact else 0
+    new = workers.allocator(scratch if compact else None)
+    out = (new("cand_beam", size, np.int64), new("cand_range", m, np.float64), new("cand_amp", m, np.float64),
+           new("cand_label", size, np.uint8), new("cand_obj", size, np.uint32))  # fmt: skip
+    cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
+    counts = workers.run_chunks(
+        lambda c: _surface_returns_run(
+            distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro, material_label,
+            actor_label, weights, power, overlap_start, overlap_full, effects, scale, offset, two_way, compact,
+            cuts[c], cuts[c + 1], *out,
+        ),
+        len(cuts) - 1,
+    )  # fmt: skip
+    if not compact:
+        return out
+    count = _compact_candidates(out, cuts * (n_beams * n_sub), np.array(counts, np.int64))
+    return tuple(x[:count] for x in out)
+
+
+@numba.njit(cache=True)
+def _compact_candidates(out, starts, counts):
+    """Move each chunk's candidates (written from its first ray's index on) together; returns the count."""
+    beam, rng, amp, label, obj = out
+    count = 0
+    for c in range(len(counts)):
+        src = starts[c]
+        if src != count:
+            for k in range(counts[c]):
+                beam[count + k], rng[count + k], amp[count + k] = beam[src + k], rng[src + k], amp[src + k]
+                label[count + k], obj[count + k] = label[src + k], obj[src + k]
+        count += counts[c]
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _surface_returns_run(distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro,
+                         material_label, actor_label, weights, power, overlap_start, overlap_full, effects, scale,
+                         offset, two_way, compact, c0, c1, out_beam, out_rng, out_amp, out_label, out_obj):  # fmt: skip
+    """Columns c0..c1 of :func:`_surface_returns`; compact candidates are written from the chunk's
+    first ray index on. Returns how many."""
+    n_beams, n_sub = directions.shape[1:3]
+    no_material = len(reflectivity) - 1
+    smooth = overlap_full > overlap_start
+    width = overlap_full - overlap_start
+    k = c0 * n_beams * n_sub
+    count = k
+    for c in range(c0, c1):
+        r = rotation[c]
+        for b in range(n_beams):
+            beam = c * n_beams + b
+            for s in range(n_sub):
+                dist = np.float64(distance[k])
+                if not np.isfinite(dist):
+                    if not compact:
+                        out_rng[k] = np.inf
+                        out_amp[k] = 0.0
+                    k += 1
+                    continue
+                x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
+                wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
+                wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
+                wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
+                cos_inc = abs((np.float64(normal[k, 0]) * wx + np.float64(normal[k, 2]) * wz)
+                              + np.float64(normal[k, 1]) * wy)  # fmt: skip
+                cos_inc = min(max(cos_inc, 0.0), 1.0)
+                mat = material[k] if material[k] >= 0 else no_material
+                refl = reflectivity[mat] * ((1.0 - retro[mat]) * cos_inc + retro[mat] * RETRO_GAIN)
+                rng = dist
+                if effects:
+                    refl = refl * scale[beam, s]
+                    rng = dist + offset[beam, s]
+                rr = max(rng, MIN_RANGE_M)
+                amp = power * weights[s] * refl / (rr * rr)
+                if effects:
+                    amp = amp * two_way[beam, s]
+                if smooth:
+                    u = min(max((rng - overlap_start) / width, 0.0), 1.0)
+                    amp = amp * (u * u * (3.0 - 2.0 * u))
+                else:
+                    amp = amp * (1.0 if rng >= overlap_start else 0.0)
+                if not compact:
+                    out_rng[k] = rng
+                    out_amp[k] = amp
+                elif amp > 0:
+                    out_beam[count] = beam
+                    out_rng[count] = rng
+                    out_amp[count] = amp
+                    a = actor[k]
+                    out_label[count] = actor_label[a] if a >= 0 else material_label[mat]
+                    out_obj[count] = object_id[k]
+                    count += 1
+                k += 1
+    return count - c0 * n_beams * n_sub
+
+
+def _padding_bytes(dtype: np.dtype) -> np.ndarray:
+    """Offsets of the bytes of a point that belong to no field (written as zeros)."""
+    used = np.zeros(dtype.itemsize, bool)
+    for base, offset in (dtype.fields[name][:2] for name in dtype.names):
+        used[offset : offset + base.itemsize] = True
+    return np.flatnonzero(~used)
+
+
+def _fill_points(points, kept, *args):
+    """Points of the echoes ``kept`` (ascending) in the sensor frame at their firing time; every
+    byte of ``points`` is written (padding as zeros), so it may come from ``np.empty``."""
+    raw = points.view(np.uint8).reshape(len(points), points.dtype.itemsize)
+    *args, label, object_id, ground_truth, padding = args
+    cuts = workers.bounds(len(kept), CHUNK_RAYS // 4)
+
+    def run(c):
+        _fill_points_run(points, raw, kept, cuts[c], cuts[c + 1], *args, padding)
+        if ground_truth:  # a kernel of its own: numba types every branch, the other layout has no such fields
+            _fill_ground_truth_run(points, kept, cuts[c], cuts[c + 1], label, object_id)
+
+    workers.run_chunks(run, len(cuts) - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_ground_truth_run(points, kept, j0, j1, label, object_id):
+    for j in range(j0, j1):
+        p = points[j]
+        p["label"] = label[kept[j]]
+        p["object_id"] = object_id[kept[j]]
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_ratio, span, columns, channels, n_beams,
+                     cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, padding):  # fmt: skip
+    """Points j0..j1 of :func:`_fill_points` (``raw``: the same memory as bytes, (N, itemsize))."""
+    for j in range(j0, j1):
+        for b in padding:
+            raw[j, b] = 0
+        i = kept[j]
+        bm = beam[i]
+        col = columns[bm // n_beams]
+        ch = channels[bm % n_beams]
+        r = ranges[i]
+        p = points[j]
+        p["x"] = r * cos_el[ch] * cos_az[col, ch]
+        p["y"] = r * cos_el[ch] * sin_az[col, ch]
+        p["z"] = r * sin_el[ch]
+        p["azimuth"] = azimuth[col, ch]
+        p["elevation"] = elevation[ch]
+        p["distance"] = r
+        p["channel"] = ch
+        p["time_stamp"] = stamp[col]
+        p["echo"] = echo[i]
+        p["epw"] = epw[i]
+        p["intensity"] = np.uint8(min(max(np.rint(255.0 * (log_ratio[j] / span)), 0.0), 255.0))
+        # Nebula return type: IDENTICAL when alone, else FIRST / SECOND / LAST (among the kept echoes)
+        last = j + 1 == len(kept) or beam[kept[j + 1]] != bm
+        if echo[i] == 1:
+            p["return_type"] = RETURN_IDENTICAL if last else RETURN_FIRST
+        else:
+            p["return_type"] = RETURN_LAST if last else RETURN_SECOND

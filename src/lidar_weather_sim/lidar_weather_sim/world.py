@@ -48,7 +48,8 @@ class World:
 
     def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None) -> list[tuple[str, Region]]:
         """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``."""
-        context = RegionContext(self.profile, self.scenario.weather, self.scene.materials)
+        context = RegionContext(self.profile, self.scenario.weather, self.scene.materials,
+                                actors=self.scenario.actors, pose_source=self.player)  # fmt: skip
         names = self.scenario.regions if names is None else names
         merged = {**self.scenario.region_params}
         for name, values in (params or {}).items():

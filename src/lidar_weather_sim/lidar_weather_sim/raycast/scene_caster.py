@@ -17,20 +17,29 @@ float32 |v|^2 - (v.d)^2 loses everything below ~2e-4 m^2 at 50 m and misses
 centimetre-sized actors. Surviving rays start at the sphere (origin advanced by
 max(0, v.d - r), exact in float64) before the float32 cast, so small far actors
 keep their precision. Unordered rays make wide cones: still correct, only slower.
+
+The per-ray passes (hit attributes, cones, culling, facing the normals to the
+ray) are numba kernels that reproduce the numpy expressions bit for bit. With
+the Mitsuba backend the rays of every backend call are padded to one of a few
+sizes per octave (far misses): Dr.Jit compiles one kernel per ray count (~12 ms
+each), and culled actor batches would otherwise have a new count on every cast.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
+from lidar_weather_sim import workers
 from lidar_weather_sim.mesh import TriangleMesh
 
 from .backend import MeshCaster, default_backend, make_caster
 
 _BLOCK = 128  # rays per culling block
 _COS_MARGIN = 1e-5  # slack on a block's float32 min cos(angle to its axis); the float64 test decides
+_PAD_BACKENDS = frozenset({"mitsuba"})  # backends that compile a kernel per distinct ray count
 
 
 @dataclass
@@ -95,10 +104,27 @@ class SceneCaster:
         self.backend = backend or default_backend()
         self._static = _Part.build(static, self.backend)
         self._actors = {int(k): _Part.build(m, self.backend) for k, m in actors.items()}
+        self._pad = self.backend in _PAD_BACKENDS
+        self._scratch = workers.Scratch()
 
     @property
     def actor_ids(self) -> list[int]:
         return list(self._actors)
+
+    def _cast_part(self, part: _Part, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``part.caster.cast``; for padding backends the batch is padded to a bucketed size."""
+        n = len(o)
+        size = _padded_size(n) if self._pad else n
+        if size == n:
+            return part.caster.cast(o, d)
+        o_pad = np.empty((size, 3), np.float32)
+        d_pad = np.empty((size, 3), np.float32)
+        o_pad[:n], d_pad[:n] = o, d
+        # far above the part's bounding sphere, pointing away: misses at the root of the BVH
+        o_pad[n:] = (part.centre + np.array([0.0, 0.0, 2.0 * part.radius + 10.0])).astype(np.float32)
+        d_pad[n:] = np.float32([0.0, 0.0, 1.0])
+        dist, tri = part.caster.cast(o_pad, d_pad)
+        return dist[:n], tri[:n]
 
     def cast(
         self,
@@ -106,11 +132,15 @@ class SceneCaster:
         directions: np.ndarray,
         actor_poses: dict[int, np.ndarray],
         max_range_m: float,
+        *,
+        reuse: bool = False,
     ) -> Hits:
         """Cast rays (N, 3) origins (m) and unit directions, map frame.
 
         ``actor_poses`` maps actor id -> 4x4 rigid body->map transform; actors not
         listed are absent from this cast. Hits farther than ``max_range_m`` are misses.
+        ``reuse``: the normals, materials, object ids and actor ids are views of arrays
+        this caster overwrites on its next ``reuse`` cast (saves fresh memory per cast).
         """
         o = np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3)
         d = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
@@ -119,49 +149,57 @@ class SceneCaster:
         unknown = set(actor_poses) - set(self._actors)
         if unknown:
             raise KeyError(f"poses for actors without a mesh: {sorted(unknown)}; known actors: {self.actor_ids}")
-        # Whole-batch work is column-wise on contiguous (3, N) copies and np.take
-        # gathers: numpy's row-wise (N, 3) reductions and masked assignment are 5-20x slower.
-        d_cols = np.ascontiguousarray(d.T)
-        best, tri = self._static.caster.cast(o, d)
-        beyond = best > max_range_m
-        best[beyond], tri[beyond] = np.inf, -1
-        normal = np.take(self._static.normals, tri, axis=0)
-        material = np.take(self._static.material, tri)
-        object_id = np.take(self._static.object_id, tri)
-        hit_actor = np.full(len(o), -1, np.int32)
-
-        if actor_poses and len(o):
-            lo = np.array([o[:, i].min() for i in range(3)], np.float64)
-            hi = np.array([o[:, i].max() for i in range(3)], np.float64)
-            origin_box = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
-            blocks = _RayBlocks(d_cols)
+        best, tri = self._cast_part(self._static, o, d)
+        best = np.ascontiguousarray(best, dtype=np.float32)
+        new = workers.allocator(self._scratch if reuse else None)
+        hit_actor = new("hit_actor", len(o), np.int32)
+        hit_actor.fill(-1)
+        normal, material, object_id, origin_box, axis, half_angle = _static_pass(
+            best, np.ascontiguousarray(tri, dtype=np.int64), np.float32(max_range_m), o, d, self._static,
+            bool(actor_poses) and len(o) > 0, new,
+        )  # fmt: skip
         for actor_id, pose in actor_poses.items():
             if not len(o):
                 break
             part = self._actors[int(actor_id)]
             rot, trans = _rigid(pose, actor_id)
             centre = rot @ part.centre + trans
-            idx, shift, d64 = _cull(o, d, blocks, centre, part.radius, origin_box, best, max_range_m)
+            box_centre, box_radius = origin_box
+            reach_axis = centre - box_centre
+            reach = float(np.linalg.norm(reach_axis))
+            if reach > part.radius + box_radius:
+                # a ray from o hitting the sphere means the same direction from the box centre
+                # hits the sphere grown by box_radius, seen within this half-angle
+                u, angle = reach_axis / reach, float(np.arcsin((part.radius + box_radius) / reach))
+            else:
+                u, angle = np.array([1.0, 0.0, 0.0]), -1.0  # every block is a candidate
+            idx, shift, d64 = _cull(o, d, axis, half_angle, u, angle, _BLOCK, np.asarray(centre, np.float64),
+                                    float(part.radius), best, float(max_range_m))  # fmt: skip
             if not len(idx):
                 continue
             start = o[idx] + shift[:, None] * d64
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
-            dist_b, tri_b = part.caster.cast(((start - trans) @ rot).astype(np.float32), (d64 @ rot).astype(np.float32))
+            dist_b, tri_b = self._cast_part(
+                part, ((start - trans) @ rot).astype(np.float32), (d64 @ rot).astype(np.float32)
+            )
             dist_a = shift + dist_b
             closer = (dist_a < best[idx]) & (dist_a <= max_range_m)
             sel, tri_b = idx[closer], tri_b[closer]
             best[sel] = dist_a[closer]
-            normal[sel] = part.normals[tri_b] @ rot.T.astype(np.float32)
+            normal[sel] = _facing(part.normals[tri_b] @ rot.T.astype(np.float32), d[sel])
             material[sel] = part.material[tri_b]
             object_id[sel] = part.object_id[tri_b]
             hit_actor[sel] = actor_id
-
-        n_cols = normal.T
-        dot = n_cols[0] * d_cols[0]
-        dot += n_cols[1] * d_cols[1]
-        dot += n_cols[2] * d_cols[2]
-        normal[dot > 0] *= -1
         return Hits(best, normal, material, object_id, hit_actor)
+
+
+def _padded_size(n: int) -> int:
+    """``n`` rounded up to a power of two up to 2^14 (casts that small cost the per-call overhead),
+    above that to a multiple of 2^(floor(log2 n) - 3): 8 sizes per octave, <= 12.5 % padding."""
+    if n <= 1 << 14:
+        return max(256, 1 << (int(n) - 1).bit_length())
+    step = 1 << (int(n).bit_length() - 4)
+    return -(-n // step) * step
 
 
 def _rigid(pose: np.ndarray, actor_id: int) -> tuple[np.ndarray, np.ndarray]:
@@ -170,64 +208,180 @@ def _rigid(pose: np.ndarray, actor_id: int) -> tuple[np.ndarray, np.ndarray]:
     if pose.shape != (4, 4):
         raise ValueError(f"actor {actor_id}: pose must be 4x4, got {pose.shape}")
     rot = pose[:3, :3]
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+    if not _is_rotation(np.ascontiguousarray(rot)):
         raise ValueError(f"actor {actor_id}: pose rotation is not a proper rotation")
     return rot, pose[:3, 3]
 
 
-class _RayBlocks:
-    """Consecutive rays in blocks of ``_BLOCK``, each with a bounding cone of its directions."""
-
-    def __init__(self, d_cols: np.ndarray) -> None:
-        """``d_cols``: unit directions as (3, N) float32."""
-        self.n = d_cols.shape[1]
-        self.full = self.n // _BLOCK * _BLOCK  # the last n - full rays are always candidates
-        cols = d_cols[:, : self.full].reshape(3, -1, _BLOCK)
-        axis = cols.sum(axis=2, dtype=np.float64)
-        norm = np.linalg.norm(axis, axis=0)
-        axis = np.divide(axis, norm, out=np.tile([[1.0], [0.0], [0.0]], (1, axis.shape[1])), where=norm > 0)
-        a32 = axis.astype(np.float32)[:, :, None]
-        min_cos = (cols[0] * a32[0] + cols[1] * a32[1] + cols[2] * a32[2]).min(axis=1, initial=1.0)
-        self.axis = axis.T  # (blocks, 3) float64 unit
-        self.half_angle = np.arccos(np.clip(min_cos.astype(np.float64) - _COS_MARGIN, -1.0, 1.0))  # rad
-
-    def rays_within(self, u: np.ndarray, angle: float) -> np.ndarray:
-        """Indices of the rays whose direction may lie within ``angle`` (rad) of unit ``u``."""
-        gap = np.arccos(np.clip(self.axis @ u, -1.0, 1.0))
-        hit = np.flatnonzero(gap <= self.half_angle + angle + 1e-6)
-        return np.concatenate([(hit[:, None] * _BLOCK + np.arange(_BLOCK)).ravel(), np.arange(self.full, self.n)])
+@numba.njit(cache=True)
+def _is_rotation(rot):
+    """``np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) and np.linalg.det(rot) >= 0``, without
+    numpy's per-call overhead (rot is near-orthonormal when it passes: the determinant's sign is clear)."""
+    for i in range(3):
+        for j in range(3):
+            g = rot[0, i] * rot[0, j] + rot[1, i] * rot[1, j] + rot[2, i] * rot[2, j]
+            eye = 1.0 if i == j else 0.0
+            if not abs(g - eye) <= 1e-6 + 1e-5 * eye:
+                return False
+    det = (rot[0, 0] * (rot[1, 1] * rot[2, 2] - rot[1, 2] * rot[2, 1])
+           - rot[0, 1] * (rot[1, 0] * rot[2, 2] - rot[1, 2] * rot[2, 0])
+           + rot[0, 2] * (rot[1, 0] * rot[2, 1] - rot[1, 1] * rot[2, 0]))  # fmt: skip
+    return det >= 0
 
 
-def _cull(
-    o: np.ndarray,
-    d: np.ndarray,
-    blocks: _RayBlocks,
-    centre: np.ndarray,
-    radius: float,
-    origin_box: tuple[np.ndarray, float],
-    best: np.ndarray,
-    max_range: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _facing(normal: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """float32 normals (K, 3) flipped where they point along the ray (normal . direction > 0)."""
+    dot = normal[:, 0] * d[:, 0]
+    dot += normal[:, 1] * d[:, 1]
+    dot += normal[:, 2] * d[:, 2]
+    normal[dot > 0] *= -1
+    return normal
+
+
+#: Rays per chunk when a cast's per-ray passes are shared between threads (:mod:`lidar_weather_sim.workers`).
+CHUNK_RAYS = 32768
+
+
+def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, new):
+    """Static-mesh hits to per-ray attributes (see :func:`_static_run`; ``new(name, shape, dtype)``
+    allocates them), and with ``blocks`` the origins' bounding box (centre, radius) and the cones
+    of the blocks of rays (else None)."""
+    n = len(best)
+    normal = new("normal", (n, 3), np.float32)
+    material = new("material", n, np.int32)
+    object_id = new("object_id", n, np.uint32)
+    axis = np.empty((n // _BLOCK if blocks else 0, 3))
+    half = np.empty(len(axis))
+    cuts = workers.bounds(n, CHUNK_RAYS, align=_BLOCK)
+    boxes = np.zeros((len(cuts) - 1, 6))
+    workers.run_chunks(
+        lambda c: _static_run(best, tri, max_range, o, d, part.normals, part.material, part.object_id, cuts[c],
+                              cuts[c + 1], blocks, _BLOCK, _COS_MARGIN, normal, material, object_id, axis, half,
+                              boxes[c]),  # fmt: skip
+        len(cuts) - 1,
+    )
+    box = None
+    if blocks:
+        lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
+        e = hi - lo
+        box = 0.5 * (lo + hi), float(0.5 * np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]))
+    return normal, material, object_id, box, axis, half
+
+
+@numba.njit(cache=True, nogil=True)
+def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, hi, blocks, block, cos_margin,
+                normal, material, object_id, axis, half, box):  # fmt: skip
+    """Rays lo..hi (lo a multiple of ``block``). In place: hits beyond ``max_range`` (float32)
+    become misses. Writes the gathered normal (facing the ray), material and object id per ray
+    (a miss gathers the tables' last row); with ``blocks`` also the bounding cone (unit axis,
+    half-angle widened by ``cos_margin``) of each full block of ``block`` consecutive rays and
+    the origins' min (box[:3]) and max (box[3:])."""
+    miss = len(materials) - 1
+    for i in range(lo, hi):
+        t = tri[i]
+        if best[i] > max_range:
+            best[i] = np.inf
+            t = -1
+        if t < 0:
+            t = miss
+        n0, n1, n2 = normals[t, 0], normals[t, 1], normals[t, 2]
+        dot = n0 * d[i, 0] + n1 * d[i, 1] + n2 * d[i, 2]  # float32, as numpy
+        if dot > 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
+        material[i] = materials[t]
+        object_id[i] = object_ids[t]
+    if not blocks or hi <= lo:
+        return
+    lo0, lo1, lo2 = o[lo, 0], o[lo, 1], o[lo, 2]
+    hi0, hi1, hi2 = lo0, lo1, lo2
+    for i in range(lo + 1, hi):
+        lo0, hi0 = min(lo0, o[i, 0]), max(hi0, o[i, 0])
+        lo1, hi1 = min(lo1, o[i, 1]), max(hi1, o[i, 1])
+        lo2, hi2 = min(lo2, o[i, 2]), max(hi2, o[i, 2])
+    box[0], box[1], box[2], box[3], box[4], box[5] = lo0, lo1, lo2, hi0, hi1, hi2
+    for b in range(lo // block, min(hi // block, len(axis))):
+        sx = sy = sz = 0.0
+        for i in range(b * block, (b + 1) * block):
+            sx += d[i, 0]
+            sy += d[i, 1]
+            sz += d[i, 2]
+        norm = np.sqrt(sx * sx + sy * sy + sz * sz)
+        if norm > 0:
+            ax, ay, az = sx / norm, sy / norm, sz / norm
+        else:
+            ax, ay, az = 1.0, 0.0, 0.0
+        axis[b, 0], axis[b, 1], axis[b, 2] = ax, ay, az
+        a0, a1, a2 = np.float32(ax), np.float32(ay), np.float32(az)
+        min_cos = np.float32(1.0)
+        for i in range(b * block, (b + 1) * block):
+            c = d[i, 0] * a0 + d[i, 1] * a1 + d[i, 2] * a2
+            if c < min_cos:
+                min_cos = c
+        half[b] = np.arccos(min(max(np.float64(min_cos) - cos_margin, -1.0), 1.0))
+
+
+@numba.njit(cache=True)
+def _cull(o, d, axis, half_angle, u, angle, block, centre, radius, best, max_range):
     """Rays that may hit the sphere (centre, radius) before ``best`` and ``max_range`` (m).
 
-    Every origin lies within ``origin_box`` = (centre, radius). Returns the rays'
-    indices, the float64 distance (m, >= 0) at which each may start without
-    skipping the sphere, and their float64 unit directions.
+    Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of
+    the unit vector ``u`` (all blocks if ``angle`` < 0) plus the rays after the last
+    full block; each gets the exact float64 test (numpy's operation order). Returns
+    the rays' indices (ascending), the float64 distance (m, >= 0) at which each may
+    start without skipping the sphere, and their float64 unit directions.
     """
-    box_centre, box_radius = origin_box
-    axis = centre - box_centre
-    reach = float(np.linalg.norm(axis))
-    if reach > radius + box_radius:
-        # a ray from o hitting the sphere means the same direction from box_centre
-        # hits the sphere grown by box_radius, seen within this half-angle
-        cand = blocks.rays_within(axis / reach, np.arcsin((radius + box_radius) / reach))
-    else:
-        cand = np.arange(len(o))
-    v = centre - o[cand].astype(np.float64)
-    dc = d[cand].astype(np.float64)
-    dc /= np.linalg.norm(dc, axis=1, keepdims=True)
-    along = np.einsum("ij,ij->i", v, dc)
-    perp = v - along[:, None] * dc
-    keep = (np.einsum("ij,ij->i", perp, perp) <= radius * radius) & (along + radius >= 0)
-    keep &= along - radius < np.minimum(best[cand], max_range)
-    return cand[keep], np.maximum(along[keep] - radius, 0.0), dc[keep]
+    n = len(o)
+    nb = len(axis)
+    idx = np.empty(n, np.int64)
+    shift = np.empty(n)
+    d64 = np.empty((n, 3))
+    far = np.float32(max_range)
+    r2 = radius * radius
+    # Block pre-filter: a block is tested (arccos) only if its axis is within the widest
+    # block's cone of u, with a margin: the cheap test never rejects a block the exact one keeps.
+    widest = 0.0
+    for b in range(nb):
+        widest = max(widest, half_angle[b])
+    limit = widest + angle + 1e-6 + 1e-7
+    min_cos = np.cos(limit) - 1e-9 if limit < np.pi else -2.0
+    count = 0
+    for b in range(nb + 1):
+        if b < nb:
+            if angle >= 0:
+                cos_gap = axis[b, 0] * u[0] + axis[b, 1] * u[1] + axis[b, 2] * u[2]
+                if cos_gap < min_cos:
+                    continue
+                gap = np.arccos(min(max(cos_gap, -1.0), 1.0))
+                if not gap <= half_angle[b] + angle + 1e-6:
+                    continue
+            i0, i1 = b * block, (b + 1) * block
+        else:
+            i0, i1 = nb * block, n
+        for i in range(i0, i1):
+            v0 = centre[0] - np.float64(o[i, 0])
+            v1 = centre[1] - np.float64(o[i, 1])
+            v2 = centre[2] - np.float64(o[i, 2])
+            x, y, z = np.float64(d[i, 0]), np.float64(d[i, 1]), np.float64(d[i, 2])
+            # cheap rejection before normalising: |v|^2 |d|^2 - (v.d)^2 is |d|^2 times the squared
+            # perpendicular distance, computed within ~1e-15 |v|^2 |d|^2 (the tolerance is far wider)
+            vv = v0 * v0 + v1 * v1 + v2 * v2
+            dd = x * x + y * y + z * z
+            vd = v0 * x + v1 * y + v2 * z
+            if vv * dd - vd * vd > (r2 + 1e-6 * vv + 1e-9) * dd:
+                continue
+            norm = np.sqrt(x * x + y * y + z * z)
+            x, y, z = x / norm, y / norm, z / norm
+            along = (v0 * x + v2 * z) + v1 * y  # numpy einsum's order
+            p0, p1, p2 = v0 - along * x, v1 - along * y, v2 - along * z
+            if not (p0 * p0 + p2 * p2) + p1 * p1 <= r2:
+                continue
+            if not along + radius >= 0:
+                continue
+            if not along - radius < min(best[i], far):
+                continue
+            idx[count] = i
+            shift[count] = max(along - radius, 0.0)
+            d64[count, 0], d64[count, 1], d64[count, 2] = x, y, z
+            count += 1
+    return idx[:count], shift[:count], d64[:count]

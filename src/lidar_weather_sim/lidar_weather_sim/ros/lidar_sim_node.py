@@ -93,6 +93,8 @@ class LidarSimNode(Node):
         sun = scenario.weather.sun.irradiance_w_m2
         p("sun_irradiance_w_m2", sun, "Sun irradiance (W/m^2; default: the scenario's weather)", (0.0, 1400.0), False)
         p("seed", scenario.seed, "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
+        self.max_frames = p("max_frames", 0, "Stop after publishing this many clouds (0 = run until shut down)", (0, 2**31 - 1))
+        self.published = 0
         self._settings = self._settings_with({})
         self.session = SimSession(self.world, self._settings, backend=backend, ground_truth=ground_truth)
         self.add_on_set_parameters_callback(self._validate)
@@ -102,7 +104,7 @@ class LidarSimNode(Node):
         player = self.world.player
         if mode == "scenario":
             self._tick, self._dt, self._t = 0, dt, 0.0
-            self._clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
+            self._clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
             self._tf = self.create_publisher(TFMessage, TOPIC_TF, TF_QOS) if publish_tf else None
             if publish_tf:
                 self._static = self.create_publisher(TFMessage, TOPIC_TF_STATIC, TF_STATIC_QOS)
@@ -210,7 +212,7 @@ class LidarSimNode(Node):
         self._tick += 1
         self._t = t = self._tick * self._dt
         ns = round(t * 1e9)
-        self._clock.publish(ClockMsg(clock=_time(ns)))
+        self._clock_pub.publish(ClockMsg(clock=_time(ns)))
         if self._tf is not None:
             player = self.world.player
             pos, quat = player.base_link_poses([t])
@@ -241,10 +243,17 @@ class LidarSimNode(Node):
         except (TransformError, ValueError) as exc:
             self._once(f"cast: {type(exc).__name__}", f"cannot cast up to {stamp * 1e-9:.9f} s: {exc}")
 
+    @property
+    def finished(self) -> bool:
+        return 0 < self.max_frames <= self.published
+
     def _publish(self, frames, origin_ns: int) -> None:
         for frame in frames:
+            if self.finished:
+                return
             msg, _ = cloud_to_msg(frame.points, origin_ns + round(frame.stamp_s * 1e9), self.frame)
             self._points.publish(msg)
+            self.published += 1
 
 
 def main(args: list[str] | None = None) -> None:
@@ -255,7 +264,8 @@ def main(args: list[str] | None = None) -> None:
             except ConfigError as exc:
                 print(f"lidar_sim_node: {exc}", file=sys.stderr)
                 sys.exit(2)
-            rclpy.spin(node)
+            while rclpy.ok() and not node.finished:
+                rclpy.spin_once(node, timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

@@ -1,0 +1,17 @@
+"""Play a bag's poses into the virtual LiDAR and record its clouds (graph config/graphs/replay_compare.yaml).
+
+    ros2 launch lidar_weather_sim replay_compare.launch.py bag:=/tmp/highway out:=/tmp/replayed
+
+Here (no `launch`): lidar-weather-sim up replay_compare bag:=/tmp/highway out:=/tmp/replayed
+
+The nodes, parameter files, remappings and arguments come from the graph
+description, read by lidar_weather_sim.graph: the same one `lidar-weather-sim up` runs.
+"""
+
+from lidar_weather_sim.graph import launch_description
+
+GRAPH = "replay_compare"
+
+
+def generate_launch_description():
+    return launch_description(GRAPH)

@@ -1,0 +1,128 @@
+"""``bag_player_node``: publishes a recorded bag's topics with their original timing, and /clock.
+
+The project's ``ros2 bag play --clock`` (rosbag2_py is not installable everywhere).
+Messages go out in log-time order, each at ``(log_time - first log_time) / rate``
+wall seconds after the start; with ``publish_clock`` /clock carries the bag's
+log time (before each message and at ``clock_hz`` in between) and the bag's own
+/clock messages are not replayed. /tf_static is published transient-local,
+every other topic reliable (depth 100), so best-effort and reliable readers both match.
+
+Parameters: ``bag`` (path), ``topics`` (string array, empty = all), ``rate``
+(playback speed factor), ``publish_clock`` (bool), ``clock_hz`` (Hz),
+``wait_for_topics`` (string array: start only when each has a subscriber),
+``wait_timeout_s`` (s, then start anyway). The node exits when the bag is played.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from lidar_weather_sim.bags import BagError, read_messages, typestore
+from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_TF_STATIC
+
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def message_class(msgtype: str):
+    """rclpy message class of ``pkg/msg/Name``."""
+    package, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{package}.msg"), name)
+
+
+def _time(ns: int):
+    from builtin_interfaces.msg import Time
+
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+class BagPlayerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("bag_player_node")
+        d = ParameterDescriptor
+        self.bag = self.declare_parameter("bag", "", d(description="rosbag2 directory or .mcap", read_only=True)).value
+        topics = self.declare_parameter("topics", [""], d(description="Topics to play (empty: all)", read_only=True)).value
+        rate = FloatingPointRange(from_value=0.01, to_value=100.0)
+        self.rate = self.declare_parameter("rate", 1.0, d(description="Playback speed factor", floating_point_range=[rate])).value
+        self.publish_clock = self.declare_parameter("publish_clock", True, d(description="Publish /clock from log time")).value
+        hz = FloatingPointRange(from_value=1.0, to_value=1000.0)
+        self.clock_hz = self.declare_parameter("clock_hz", 100.0, d(description="/clock rate between messages (Hz)", floating_point_range=[hz])).value
+        wait = self.declare_parameter("wait_for_topics", [""], d(description="Start when each has a subscriber")).value
+        self.wait_timeout_s = self.declare_parameter("wait_timeout_s", 30.0, d(description="Start anyway after (s)")).value
+        self.topics = [t for t in topics if t] or None
+        self.wait_for = [t for t in wait if t]
+        if not self.bag:
+            raise BagError("parameter 'bag' is empty: give the bag to play")
+        self.messages = [m for m in read_messages(self.bag, self.topics) if not (self.publish_clock and m.topic == TOPIC_CLOCK)]
+        self._pubs = {}
+        for m in self.messages:
+            if m.topic not in self._pubs:
+                qos = LATCHED if m.topic == TOPIC_TF_STATIC else RELIABLE
+                self._pubs[m.topic] = self.create_publisher(message_class(m.msgtype), m.topic, qos)
+        self._clock = self.create_publisher(Clock, TOPIC_CLOCK, RELIABLE) if self.publish_clock else None
+        self.published = 0
+        self.get_logger().info(f"playing {len(self.messages)} messages on {sorted(self._pubs)} from {self.bag} at x{self.rate:g}")
+
+    def wait_for_subscribers(self) -> None:
+        deadline = time.monotonic() + self.wait_timeout_s
+        while time.monotonic() < deadline and not all(
+            self.count_subscribers(t) > 0 for t in self.wait_for
+        ):  # fmt: skip
+            rclpy.spin_once(self, timeout_sec=0.05)
+
+    def play(self) -> None:
+        """Publish every message at its original (scaled) time; /clock in between."""
+        if not self.messages:
+            return
+        t0, start = self.messages[0].log_time_ns, time.monotonic()
+        clock_step_ns = round(1e9 / self.clock_hz)
+        next_clock = t0
+        for m in self.messages:
+            while True:  # /clock ticks (and spinning) until this message is due
+                due = start + (m.log_time_ns - t0) * 1e-9 / self.rate
+                tick_due = start + (next_clock - t0) * 1e-9 / self.rate
+                if self._clock is not None and next_clock < m.log_time_ns and tick_due <= due:
+                    self._sleep_until(tick_due)
+                    self._clock.publish(Clock(clock=_time(next_clock)))
+                    next_clock += clock_step_ns
+                    continue
+                self._sleep_until(due)
+                break
+            if self._clock is not None and next_clock <= m.log_time_ns:
+                self._clock.publish(Clock(clock=_time(m.log_time_ns)))
+                next_clock = m.log_time_ns + clock_step_ns
+            self._pubs[m.topic].publish(bytes(typestore().serialize_cdr(m.msg, m.msgtype)))
+            self.published += 1
+        self.get_logger().info(f"played {self.published} messages")
+
+    def _sleep_until(self, deadline: float) -> None:
+        while (left := deadline - time.monotonic()) > 0:
+            time.sleep(min(left, 0.01))
+
+
+def main(args: list[str] | None = None) -> None:
+    try:
+        with rclpy.init(args=args):
+            try:
+                node = BagPlayerNode()
+            except (BagError, ValueError) as exc:
+                print(f"bag_player_node: {exc}", file=sys.stderr)
+                sys.exit(2)
+            node.wait_for_subscribers()
+            node.play()
+            rclpy.spin_once(node, timeout_sec=0.5)  # let reliable writers flush
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,97 @@
+"""``ego_controller_node``: minimal adaptive cruise on a (filtered) LiDAR cloud -> /ego/cmd_speed.
+
+Subscribes ``cloud_topic`` (default /lidar/points/filtered, SensorDataQoS); per
+cloud it finds the nearest obstacle in its lane and publishes the commanded
+speed (std_msgs/Float64, m/s) on /ego/cmd_speed, which lidar_sim_node's
+scenario player follows. Logic and parameters: :mod:`lidar_weather_sim.acc`
+(every AccConfig field is a parameter). Time is the cloud's header stamp (sim
+time). ``trace_csv``: if set, one line per cloud (stamp_s, distance_m,
+label: the most common ground-truth label in the obstacle cluster, cmd_speed_m_s, decel_m_s2, points)
+for the closed-loop report.
+"""
+
+from __future__ import annotations
+
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Float64
+
+import numpy as np
+
+from lidar_weather_sim.acc import AccConfig, AccState, nearest_cluster, step
+from lidar_weather_sim.cloud_codec import CloudFormatError
+from lidar_weather_sim.config import validate
+from lidar_weather_sim.names import TOPIC_POINTS_FILTERED
+from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
+
+TOPIC_CMD_SPEED = "/ego/cmd_speed"
+
+
+class EgoControllerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("ego_controller_node")
+        values = {}
+        for name, field in AccConfig.model_fields.items():
+            d = ParameterDescriptor(description=field.description or name, read_only=True)
+            values[name] = self.declare_parameter(name, field.default, d).value
+        self.cfg = validate(values, AccConfig, "ego_controller_node parameters")
+        topic = self.declare_parameter("cloud_topic", TOPIC_POINTS_FILTERED, ParameterDescriptor(read_only=True)).value
+        trace = self.declare_parameter("trace_csv", "", ParameterDescriptor(description="per-cloud trace file")).value
+        self.state = AccState(self.cfg.cruise_speed_m_s)
+        self._trace = open(trace, "w", buffering=1) if trace else None  # noqa: SIM115 (closed in destroy_node)
+        if self._trace:
+            self._trace.write("stamp_s,distance_m,label,cmd_speed_m_s,decel_m_s2,points\n")
+        self._pub = self.create_publisher(Float64, TOPIC_CMD_SPEED, 10)
+        self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data)
+        self.commands = 0
+        self._logged: set[str] = set()
+        self.get_logger().info(f"adaptive cruise on {topic} -> {TOPIC_CMD_SPEED}, set speed {self.cfg.cruise_speed_m_s} m/s")
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        try:
+            points = msg_to_cloud(msg).points
+            cluster = nearest_cluster(points, self.cfg)
+        except (CloudFormatError, KeyError, ValueError) as exc:
+            key = type(exc).__name__
+            if key not in self._logged:
+                self._logged.add(key)
+                self.get_logger().warning(f"skipped cloud: {exc} (logged once per cause)")
+            return
+        t = stamp_to_ns(msg.header.stamp) * 1e-9
+        if self.state.time_s is not None and t <= self.state.time_s:
+            return  # old or repeated cloud
+        distance = float(points["x"][cluster[0]]) if len(cluster) else None
+        speed, decel = step(self.state, t, distance, self.cfg)
+        self._pub.publish(Float64(data=float(speed)))
+        self.commands += 1
+        if self._trace:
+            d = "" if distance is None else f"{distance:.3f}"
+            has_label = len(cluster) and "label" in points.dtype.names
+            label = int(np.bincount(points["label"][cluster]).argmax()) if has_label else ""
+            self._trace.write(f"{t:.6f},{d},{label},{speed:.6f},{decel:.6f},{len(points)}\n")
+
+    def destroy_node(self) -> None:
+        if self._trace:
+            self._trace.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    try:
+        with rclpy.init(args=args):
+            node = EgoControllerNode()
+            try:
+                rclpy.spin(node)
+            finally:
+                node.destroy_node()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+if __name__ == "__main__":
+    main()

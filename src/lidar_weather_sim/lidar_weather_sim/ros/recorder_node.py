@@ -1,0 +1,95 @@
+"""``recorder_node``: records topics to an MCAP rosbag2 (``lidar_weather_sim.bags.BagWriter``).
+
+The project's ``ros2 bag record``. Each topic is subscribed to as raw CDR as
+soon as a publisher shows its type (checked every 0.2 s), so nothing is
+deserialised; the log time is the node clock (sim time with ``use_sim_time``).
+PointCloud2 topics are read with SensorDataQoS (matches best-effort and
+reliable writers) at depth ``queue_depth``, /tf_static transient-local, the rest
+reliable. SIGINT/SIGTERM close the bag with a valid index (BagWriter); a
+SIGKILLed recording is recovered by ``lidar-weather-sim recover``.
+
+Parameters: ``out`` (bag directory), ``topics`` (string array), ``overwrite``
+(bool), ``queue_depth`` (int), ``max_messages`` (int, 0 = until shut down: the
+node exits after recording that many messages).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from lidar_weather_sim.bags import POINTCLOUD2, BagError, BagWriter
+from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_TF_STATIC
+
+
+class RecorderNode(Node):
+    def __init__(self) -> None:
+        super().__init__("recorder_node")
+        d = lambda text: ParameterDescriptor(description=text, read_only=True)  # noqa: E731
+        out = self.declare_parameter("out", "", d("Output rosbag2 directory (MCAP)")).value
+        self.wanted = [t for t in self.declare_parameter("topics", [TOPIC_POINTS], d("Topics to record")).value if t]
+        overwrite = self.declare_parameter("overwrite", False, d("Replace an existing bag")).value
+        self.depth = self.declare_parameter("queue_depth", 100, d("Subscription queue depth")).value
+        self.max_messages = self.declare_parameter("max_messages", 0, d("Exit after this many (0 = never)")).value
+        if not out:
+            raise BagError("parameter 'out' is empty: give the bag directory to write")
+        self.writer = BagWriter(out, storage="mcap", overwrite=overwrite)
+        self.counts = {t: 0 for t in self.wanted}
+        self._subs = {}
+        self.create_timer(0.2, self._discover)
+        self._discover()
+        self.get_logger().info(f"recording {self.wanted} to {out}")
+
+    def _discover(self) -> None:
+        types = dict(self.get_topic_names_and_types())
+        for topic in self.wanted:
+            if topic in self._subs or not types.get(topic):
+                continue
+            msgtype = types[topic][0]
+            if msgtype == POINTCLOUD2:
+                qos = QoSProfile(depth=self.depth, reliability=qos_profile_sensor_data.reliability)
+            elif topic == TOPIC_TF_STATIC:
+                qos = QoSProfile(depth=self.depth, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            else:
+                qos = QoSProfile(depth=self.depth, reliability=ReliabilityPolicy.RELIABLE)
+            from lidar_weather_sim.ros.bag_player_node import message_class
+
+            callback = lambda data, t=topic, m=msgtype: self._write(t, m, data)  # noqa: E731
+            self._subs[topic] = self.create_subscription(message_class(msgtype), topic, callback, qos, raw=True)
+            self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
+
+    def _write(self, topic: str, msgtype: str, data: bytes) -> None:
+        self.writer.write_serialized(topic, msgtype, data, self.get_clock().now().nanoseconds)
+        self.counts[topic] += 1
+
+    @property
+    def finished(self) -> bool:
+        return 0 < self.max_messages <= sum(self.counts.values())
+
+
+def main(args: list[str] | None = None) -> None:
+    node = None
+    try:
+        with rclpy.init(args=args):
+            try:
+                node = RecorderNode()
+            except (BagError, ValueError) as exc:
+                print(f"recorder_node: {exc}", file=sys.stderr)
+                sys.exit(2)
+            while rclpy.ok() and not node.finished:
+                rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.writer.close()
+            print(f"recorder_node: recorded {node.counts}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""Work sharing and scratch memory for the simulator's numba kernels.
+
+A kernel that releases the GIL (``numba.njit(nogil=True)``) is called once per chunk
+of its index range; the calling thread and ``THREADS - 1`` pool threads claim
+chunks from a shared counter until none are left. Every chunk writes only its own
+part of the outputs, so the result does not depend on which thread ran which chunk
+(or on the thread count): runs are bit for bit identical. Chunks are claimed
+dynamically, so a busy core only costs the chunk its thread is working on, and
+with every core busy the caller does the work alone, as fast as without threads.
+
+``LWS_SIM_THREADS`` sets the thread count (default: the CPUs this process may use;
+1 disables the pool).
+
+:class:`Scratch` keeps the large per-batch temporaries from one batch to the next:
+fresh memory costs a page fault per 4 KiB on first touch (several microseconds in a
+VM), and glibc hands large blocks back to the OS when they are freed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+MAX_CHUNKS = 32
+
+
+def _default_threads() -> int:
+    env = os.environ.get("LWS_SIM_THREADS", "").strip()
+    if env:
+        return max(1, int(env))
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+THREADS = _default_threads()
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _workers() -> ThreadPoolExecutor:
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(THREADS - 1, thread_name_prefix="lws-sim")
+        return _pool
+
+
+def bounds(n: int, min_size: int, max_chunks: int = MAX_CHUNKS, align: int = 1) -> np.ndarray:
+    """Chunk boundaries (k + 1,) over range(n): chunks of at least ``min_size`` (but at most
+    ``max_chunks`` of them), boundaries on multiples of ``align``; one chunk when n is small."""
+    chunks = int(min(max_chunks, n // max(min_size, 1))) if THREADS > 1 else 1
+    if chunks <= 1:
+        return np.array([0, n], np.int64)
+    cuts = (np.arange(1, chunks, dtype=np.int64) * n // chunks) // align * align
+    return np.unique(np.concatenate([[0], cuts[cuts > 0], [n]])).astype(np.int64)
+
+
+def run_chunks(fn: Callable[[int], object], n_chunks: int) -> list:
+    """``[fn(c) for c in range(n_chunks)]``, the calls shared with the pool's threads."""
+    results: list = [None] * n_chunks
+    workers = min(THREADS, n_chunks) - 1
+    if workers <= 0:
+        for c in range(n_chunks):
+            results[c] = fn(c)
+        return results
+    counter = itertools.count()  # next() is atomic under the GIL
+
+    def work() -> None:
+        for c in counter:
+            if c >= n_chunks:
+                return
+            results[c] = fn(c)
+
+    futures = [_workers().submit(work) for _ in range(workers)]
+    try:
+        work()
+    finally:
+        for f in futures:
+            if not f.cancel():  # started: wait for (and re-raise from) the chunk it is on
+                f.result()
+    return results
+
+
+class Scratch:
+    """Named arrays reused from call to call; ``get`` returns a view valid until the next ``get``
+    of the same name. Not thread-safe: one per simulator (or caster)."""
+
+    def __init__(self) -> None:
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+        shape = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
+        size = math.prod(shape)
+        dtype = np.dtype(dtype)
+        buf = self._buffers.get(name)
+        if buf is None or buf.size < size or buf.dtype != dtype:
+            buf = self._buffers[name] = np.empty(size + size // 8, dtype)  # headroom for growing batches
+        return buf[:size].reshape(shape)
+
+
+def allocator(scratch: Scratch | None) -> Callable[[str, tuple[int, ...], object], np.ndarray]:
+    """``scratch.get``, or (without a scratch) ``np.empty`` behind the same signature."""
+    return scratch.get if scratch is not None else lambda name, shape, dtype: np.empty(shape, dtype)

@@ -1,0 +1,106 @@
+"""Atmosphere region: extinction, near-field statistics, road surface, rooftop reproduction."""
+
+import json
+import subprocess
+import sys
+from importlib.metadata import entry_points
+
+import numpy as np
+import pytest
+import yaml
+
+from lidar_weather_sim.extinction import fog_alpha, rain_alpha, snow_alpha
+from lidar_weather_sim.regions import REGISTRY, RegionContext
+from lidar_weather_sim.regions_atmosphere import fit_path
+from lidar_weather_sim.reproduce import simulate
+from lidar_weather_sim.scenario import Weather
+from lidar_weather_sim.simulator import LidarSimulator
+from lidar_weather_sim.testing import MATERIALS, one_frame, scene_of, simple_profile, wall
+
+
+def test_plugins_are_registered_by_entry_point():
+    names = {ep.name for ep in entry_points(group="lidar_weather_sim.regions")}
+    assert {"cover", "atmosphere"} <= names
+
+
+def test_extinction_relations():
+    assert fog_alpha(50.0) == pytest.approx(3.912 / 50.0)
+    assert 0 < rain_alpha(1.0) < rain_alpha(10.0) < fog_alpha(1000.0)
+    assert rain_alpha(10.0) == pytest.approx(1.076 * 10**0.67 * np.log(10) / 1e4)
+    assert 0 < snow_alpha(1.0) < snow_alpha(5.0)
+
+
+def _quiet_fit(tmp_path, **changes):
+    """The shipped fit with the near field and path scatterers switched off (extinction/road only)."""
+    data = yaml.safe_load(fit_path().read_text())
+    for c in data["classes"].values():
+        c.update({"rate_per_beam": 0.0, "path_rate_per_beam": 0.0, **changes})
+    path = tmp_path / "fit.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def test_fog_of_50_m_removes_returns_beyond_the_predicted_range(tmp_path):
+    profile = simple_profile()
+    fit = _quiet_fit(tmp_path)
+    alpha = fog_alpha(50.0)
+    det = profile.detection
+    level = det.noise_mean + det.threshold_sigma * det.noise_sigma
+    rho = MATERIALS["concrete"].reflectivity
+    r = np.linspace(1.0, 150.0, 150000)
+    r_max = r[np.nonzero(det.power_constant * rho / r**2 * np.exp(-2 * alpha * r) > level)[0][-1]]
+    assert 10 < r_max < 60  # clear air: 150 m
+    weather = Weather.model_validate({"fog": {"visual_range_m": 50.0}})
+    for distance, seen in ((0.9 * r_max, True), (1.1 * r_max, False)):
+        region = REGISTRY.create("atmosphere", {"fit_file": fit}, RegionContext(profile, weather, MATERIALS))
+        assert region.weather_class == "fog" and region.alpha == pytest.approx(alpha)
+        sim = LidarSimulator(profile, scene_of(wall(distance, "concrete", 1, half_width=5.0)), regions=[("atmosphere", region)])
+        central = one_frame(sim).points
+        central = central[np.abs(central["azimuth"]) < 1e-6]
+        assert (len(central) == 1) is seen, distance
+        clear = one_frame(LidarSimulator(profile, scene_of(wall(distance, "concrete", 1, half_width=5.0)))).points
+        assert np.any(np.abs(clear["azimuth"]) < 1e-6)
+
+
+def test_wet_and_snow_covered_road():
+    profile = simple_profile()
+    batch_region = lambda cls: REGISTRY.create("atmosphere", {"weather_class": cls}, RegionContext(profile, None, MATERIALS))  # noqa: E731
+    rain, snow = batch_region("rain"), batch_region("snow")
+    wet = MATERIALS["asphalt_wet"].reflectivity / MATERIALS["asphalt_dry"].reflectivity
+    assert rain._wet_scale == pytest.approx(wet ** rain.c.wetness)
+    assert snow.c.snow_depth_m > 0 and snow._snow_refl == MATERIALS["snow"].reflectivity
+
+
+@pytest.fixture(scope="module")
+def rooftop():
+    return {(w, False): simulate(w, False, 6, seed=3) for w in ("clear", "rain", "snow")}
+
+
+def _mean(cond, region, key):
+    return float(np.nanmean([f[region][key] for f in cond.frames]))
+
+
+def test_snow_gives_a_wider_near_field_than_rain(rooftop):
+    snow, rain = _mean(rooftop["snow", False], "atmosphere", "x_sigma"), _mean(rooftop["rain", False], "atmosphere", "x_sigma")
+    assert snow > 2 * rain, (snow, rain)
+
+
+def test_rain_raises_street_second_echoes(rooftop):
+    rain, clear = _mean(rooftop["rain", False], "street", "n_e2"), _mean(rooftop["clear", False], "street", "n_e2")
+    assert rain > 1.3 * clear, (rain, clear)
+
+
+def test_reproduce_rooftop_writes_a_valid_json(tmp_path, cli):
+    out = tmp_path / "rt"
+    proc = subprocess.run([*cli, "reproduce", "rooftop", "--frames", "2", "--out", str(out)], capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads((out / "rooftop.json").read_text())
+    keys = {"weather", "sun", "region", "parameter", "unit", "sim_mean", "sim_std", "paper_mean", "paper_std"}
+    assert all(set(r) == keys for r in rows)
+    assert {(r["weather"], r["sun"]) for r in rows} == {(w, s) for w in ("clear", "rain", "fog", "snow") for s in (True, False)}
+    assert {r["region"] for r in rows} == {"atmosphere", "street", "both"}
+    atm = [r for r in rows if r["region"] == "atmosphere"]
+    assert len({r["parameter"] for r in atm}) == 12
+    assert sum(r["paper_mean"] is not None for r in rows) == 8 * 10 + 2 * 3  # Tables 3, 4 and Table 2 (clear)
+    assert (out / "rooftop.md").exists() and (out / "rooftop_atmosphere.png").stat().st_size > 1000

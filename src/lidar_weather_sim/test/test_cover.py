@@ -1,0 +1,102 @@
+"""Cover region: texture sampling, two-way loss, Table I random fields, range noise, cover returns, blending."""
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim.config import ConfigError
+from lidar_weather_sim.cover_textures import blend, image_texture, load_samples, make_texture
+from lidar_weather_sim.echo import FWHM_TO_SIGMA
+from lidar_weather_sim.points import Label
+from lidar_weather_sim.regions import REGISTRY, RegionContext
+from lidar_weather_sim.regions_cover import _forward_scatter_factors
+from lidar_weather_sim.simulator import LidarSimulator
+from lidar_weather_sim.testing import one_frame, scene_of, simple_profile, wall
+
+
+def _sim(profile, seed=0, **params):
+    regions = [("cover", REGISTRY.create("cover", params, RegionContext(profile)))] if params else []
+    return LidarSimulator(profile, scene_of(wall(20.0, "concrete", 1)), regions=regions, seed=seed)
+
+
+def _amplitude(epw, fwhm=0.6, threshold=4.0):
+    return threshold * np.exp((epw / (2 * fwhm * FWHM_TO_SIGMA)) ** 2 / 2)
+
+
+def test_texture_is_sampled_per_ray_and_applied_out_and_back(tmp_path):
+    grid = np.tile(np.linspace(0.5, 1.0, 9), (3, 1))  # transmission 0.5 at the right edge, 1.0 at the left
+    np.save(tmp_path / "ramp.npy", grid)
+    profile = simple_profile()
+    clean = one_frame(_sim(profile)).points
+    dirty_sim = _sim(profile, texture=f"image:{tmp_path / 'ramp.npy'}")
+    dirty = one_frame(dirty_sim).points
+    assert len(clean) == len(dirty) == 81
+    region = dirty_sim.regions[0][1]
+    direction = np.stack([np.cos(dirty["azimuth"]), np.sin(dirty["azimuth"]), np.zeros(len(dirty))], -1)
+    u, v = region.uv(direction.astype(np.float64))
+    t = region.textures[0].sample(u, v)
+    assert t.min() == pytest.approx(0.5, abs=0.01) and t.max() == pytest.approx(1.0, abs=0.01)
+    ratio = _amplitude(dirty["epw"].astype(np.float64)) / _amplitude(clean["epw"].astype(np.float64))
+    np.testing.assert_allclose(ratio, t**2, rtol=2e-3)  # two-way loss T^2 where the dirt sits
+
+
+def test_random_fields_reproduce_each_table_1_mean_within_1_percent(thesis_tables):
+    db = load_samples()
+    rng = np.random.default_rng(7)
+    for name, row in thesis_tables["cover_dirt_samples"].items():
+        if not (isinstance(row, dict) and "T" in row):
+            continue
+        means = [make_texture(name, rng, 0.03, db).mean for _ in range(40)]
+        assert np.mean(means) == pytest.approx(row["T"] / 100.0, rel=0.01), name
+        one = make_texture(name, rng, 0.03, db)
+        assert one.grid.shape == (4, 18) and 0.0 <= one.grid.min() and one.grid.max() <= 1.0
+    heavy = make_texture("5u", np.random.default_rng(1), 0.03, db).grid
+    assert 0.03 < heavy.max() - heavy.min() < 0.3  # within-cover spread like Fig. 7 (64-77.5 %)
+    a = make_texture("3l", np.random.default_rng(3), 0.03, db).grid
+    assert np.array_equal(a, make_texture("3l", np.random.default_rng(3), 0.03, db).grid)  # seeded
+
+
+def test_range_noise_grows_as_in_table_2(thesis_tables):
+    profile = simple_profile(range__noise_sigma_m=0.03, scan__columns=801)
+    clean = one_frame(_sim(profile, seed=1, texture="clean")).points
+    dirty = one_frame(_sim(profile, seed=1, texture="3l")).points
+    wall_only = lambda p: p[p["label"] == Label.STATIC]  # noqa: E731  (without the near-field cover returns)
+    residual = lambda p: wall_only(p)["distance"] - 20.0 / np.cos(wall_only(p)["azimuth"].astype(np.float64))  # noqa: E731
+    increase = residual(dirty).std() / residual(clean).std() - 1.0
+    expected = thesis_tables["cover_dirt_samples"]["3l"]["sigma_increase"] / 100.0
+    assert increase == pytest.approx(expected, abs=0.15)
+
+
+def test_near_field_cover_returns_grow_with_dirt_and_water():
+    profile = simple_profile(scan__columns=801)
+
+    def cover_returns(texture):
+        pts = one_frame(_sim(profile, seed=2, texture=texture)).points
+        near = pts[pts["label"] == Label.COVER]
+        assert np.all(near["distance"] < 0.6)
+        return len(near)
+
+    assert cover_returns("clean") == 0
+    light, heavy, water = cover_returns("1u"), cover_returns("3l"), cover_returns("water_film")
+    assert light < heavy and water > 100  # detected although the biaxial overlap is 0 there
+
+
+def test_textures_blend_over_time():
+    profile = simple_profile()
+    region = REGISTRY.create("cover", {"texture": "clean", "target_texture": "3l", "blend_start_s": 1.0,
+                                       "blend_duration_s": 2.0}, RegionContext(profile))  # fmt: skip
+    np.testing.assert_allclose(region.blend_weight(np.array([0.0, 1.0, 2.0, 3.0, 9.0])), [0, 0, 0.5, 1, 1])
+    mid = blend(region.textures[0], region.textures[1], 0.5)
+    assert mid.mean == pytest.approx(0.5 * (1.0 + region.textures[1].mean), rel=1e-3)
+
+
+def test_forward_scattering_widens_the_beam_and_keeps_its_energy():
+    w = np.array([0.25, 0.5, 0.25])
+    f = _forward_scatter_factors(w, 0.3)
+    assert f[1] == pytest.approx(0.7) and f[0] > 1 and np.sum(w * f) == pytest.approx(1.0)
+
+
+def test_bad_texture_names_the_file_or_key(tmp_path):
+    with pytest.raises(ConfigError, match="unknown cover texture '7x'"):
+        make_texture("7x", np.random.default_rng(0), 0.03)
+    with pytest.raises(ConfigError, match="missing.png: cannot read"):
+        image_texture(tmp_path / "missing.png")

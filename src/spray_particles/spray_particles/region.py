@@ -1,0 +1,157 @@
+"""``spray`` region plugin for lidar_weather_sim: spray particles as scatterers of the multi-echo pipeline.
+
+Particles are spheres of the thesis' mesh diameter (1.8 cm) with water's single
+scattering albedo (0.53, absorption 0.47, Table II): a sub-ray that enters one is
+returned from the sphere's surface like a Lambertian surface hit (reflectance =
+albedo x cos(incidence)) and is fully blocked behind it (occlusion 1), so spray
+creates first echoes in front of the vehicle that throws it and hides what lies
+behind on that sub-ray; the other sub-rays of the beam still reach the vehicle.
+Labels are ``Label.SPRAY`` (14), object ids the emitting vehicle's actor id.
+
+The region needs the scenario's actors and their poses: ``RegionContext.actors``
+(emitting vehicles are those with ``emits_spray``, or ``actor_ids``) and
+``RegionContext.pose_source`` (anything with ``actor_poses(t) -> {id: 4x4}``,
+e.g. the scenario player). ``step(t0, t1)`` advances the particles in simulated
+time (the simulator calls it before each batch).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from lidar_weather_sim.config import ConfigError, ConfigModel
+from lidar_weather_sim.points import Label
+from lidar_weather_sim.regions import RayBatch, RegionContext, RegionEffect, Scatterers
+from spray_particles.constants import load_constants
+from spray_particles.emitter import vehicle_emitter
+from spray_particles.raycast import sphere_hits
+from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
+from spray_particles.water import tyre_dimensions, water_film_mm
+
+
+class SprayRegion:
+    name = "spray"
+
+    class Params(ConfigModel):
+        source: Literal["internal"] = Field("internal", description="Particle source: the in-process system")
+        seed: int = Field(0, description="Seed of emission and turbulence")
+        actor_ids: list[int] | None = Field(None, description="Emitting actors (default: those with emits_spray)")
+        water_film_mm: float | None = Field(None, ge=0, le=3, description="Water film (mm); default eq. 1 from the rain")
+        texture_depth_mm: float = Field(1.5, gt=0, description="Road texture depth T_s for eq. 1 (mm)")
+        emission_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated emission rate")
+        film_cv: float = Field(0.0, ge=0, description="Variation of the film seen per tick (coefficient of variation)")
+        wind_over_speed: float = Field(0.4, ge=0, le=1.5, description="Air speed past the car in its wake / car speed")
+        wake_length_m: float = Field(30.0, gt=0, description="e-folding length of the wake (m)")
+        lateral_wind_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated lateral wind fields")
+        turbulence_intensity: float = Field(0.1, ge=0, description="RMS turbulence speed / car speed")
+        turbulence_length_m: float = Field(1.0, gt=0, description="Eddy size of the curl noise (m)")
+        fine_ratio: float = Field(0.5, ge=0, description="Fine (low-Stokes) particles per inertial particle")
+        lifetime_s: float = Field(2.0, gt=0, description="Lifetime of inertial particles (s)")
+        fine_lifetime_s: float = Field(4.0, gt=0, description="Lifetime of fine particles (s)")
+        tick_s: float = Field(0.01, gt=0, le=0.05, description="Integration step (s)")
+        mesh_diameter_m: float | None = Field(None, gt=0, description="Render sphere diameter (m); default config/spray.yaml")
+        albedo: float | None = Field(None, ge=0, le=1, description="Single scattering albedo; default config/spray.yaml")
+
+    def __init__(self, params: "SprayRegion.Params", context: RegionContext) -> None:
+        self.p = params
+        self.constants = c = load_constants()
+        actors = list(getattr(context, "actors", None) or [])
+        wanted = params.actor_ids
+        chosen = [a for a in actors if (a.id in wanted if wanted is not None else getattr(a, "emits_spray", False))]
+        if wanted is not None:
+            missing = sorted(set(wanted) - {a.id for a in chosen})
+            if missing:
+                raise ConfigError(f"region 'spray' parameters: key 'actor_ids': value {missing}: no such actors")
+        self.pose_source = getattr(context, "pose_source", None)
+        if chosen and self.pose_source is None:
+            raise ConfigError("region 'spray': emitting actors but no pose source in the RegionContext")
+        radius, width = tyre_dimensions(c.tyre.size)
+        vehicles = []
+        for a in chosen:
+            s = a.size
+            emitter = vehicle_emitter(s.length_m, s.width_m, s.height_m, radius, width, c.tyre.treads_across,
+                                      c.tyre.ring_vertices)  # fmt: skip
+            vehicles.append(EmittingVehicle(a.id, s.length_m, s.width_m, s.height_m, 0.15, emitter))
+        weather = context.weather
+        film = params.water_film_mm
+        if film is None:
+            rain = 0.0
+            if weather is not None and weather.precipitation.type == "rain":
+                rain = weather.precipitation.intensity_mm_h
+            film = float(water_film_mm(rain, params.texture_depth_mm, c.water.drainage_length_m, c.water.cross_slope,
+                                       c.water.film_constant_k_s))  # fmt: skip
+        wind = (0.0, 0.0, 0.0)
+        if weather is not None and weather.wind.speed_m_s > 0:  # blows from direction_deg (from north, clockwise)
+            a = np.deg2rad(weather.wind.direction_deg)
+            wind = (-weather.wind.speed_m_s * np.sin(a), -weather.wind.speed_m_s * np.cos(a), 0.0)
+        self.water_film_mm = film
+        sp = SprayParams(
+            water_film_mm=film, emission_scale=params.emission_scale, film_cv=params.film_cv,
+            wind_over_speed=params.wind_over_speed, wake_length_m=params.wake_length_m, ambient_wind_m_s=wind,
+            lateral_wind_scale=params.lateral_wind_scale, turbulence_intensity=params.turbulence_intensity,
+            turbulence_length_m=params.turbulence_length_m, fine_ratio=params.fine_ratio,
+            lifetime_s=params.lifetime_s, fine_lifetime_s=params.fine_lifetime_s, tick_s=params.tick_s,
+            seed=params.seed,
+        )  # fmt: skip
+        poses = self.pose_source.actor_poses if self.pose_source is not None else (lambda t: {})
+        self.system = SpraySystem(vehicles, poses, sp, c)
+        self.radius_m = 0.5 * (params.mesh_diameter_m or c.particles.mesh_diameter_m)
+        self.albedo = c.particles.single_scattering_albedo if params.albedo is None else params.albedo
+        self._actor_ids = np.array([v.actor_id for v in vehicles], dtype=np.uint32)
+
+    def step(self, t0_s: float, t1_s: float) -> None:
+        """Advance the particles to ``t1_s`` (simulated s; the system keeps its own fixed-step clock)."""
+        if self.system.time_s is None:
+            self.system.advance_to(t0_s)
+        self.system.advance_to(t1_s)
+
+    def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
+        n, n_sub = batch.shape
+        if self.system.time_s is None:
+            self.step(float(batch.time_s.min()), float(batch.time_s.max()))
+        centres = self.system.positions_at(float(batch.time_s.mean()))
+        if not len(centres):
+            return RegionEffect()
+        dirs = batch.directions.reshape(-1, 3)
+        # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
+        # (one dot product per ray); only the rays inside one of these cones go further
+        vehicle = self.system.particles.vehicle
+        ref = batch.origins.mean(axis=0)
+        spread = float(np.sqrt(np.max(np.sum((batch.origins - ref) ** 2, axis=1))))
+        keep = np.zeros(len(centres), bool)
+        ray_mask = np.zeros(len(dirs), bool)
+        for k in np.unique(vehicle):
+            m = vehicle == k
+            lo, hi = centres[m].min(axis=0), centres[m].max(axis=0)
+            q = 0.5 * (lo + hi) - ref
+            rad = 0.5 * float(np.linalg.norm(hi - lo)) + self.radius_m + spread
+            dist = float(np.linalg.norm(q))
+            if dist <= rad:
+                keep |= m
+                ray_mask[:] = True
+                continue
+            inside = dirs @ (q / dist) >= np.cos(min(np.pi, np.arcsin(min(1.0, rad / dist)) * 1.001 + 1e-6))
+            if inside.any():
+                keep |= m
+                ray_mask |= inside
+        rays = np.flatnonzero(ray_mask)
+        if not len(rays):
+            return RegionEffect()
+        idx = np.flatnonzero(keep)
+        beam_of_ray = rays // n_sub
+        max_range = batch.distance.reshape(-1)[rays]
+        max_range = np.where(np.isfinite(max_range), max_range, 1e9)
+        hits = sphere_hits(batch.origins[beam_of_ray], dirs[rays], max_range, centres[idx], self.radius_m)
+        if not len(hits.ray):
+            return RegionEffect()
+        hits.ray = rays[hits.ray]
+        beam, sub = np.divmod(hits.ray, n_sub)
+        sc = Scatterers(
+            beam=beam, subray=sub, range_m=hits.range_m, reflectance=self.albedo * hits.cos_incidence,
+            occlusion=np.ones(len(beam)), label=np.full(len(beam), Label.SPRAY, np.uint8),
+            object_id=self._actor_ids[vehicle[idx[hits.sphere]]],
+        )  # fmt: skip
+        return RegionEffect(scatterers=sc)

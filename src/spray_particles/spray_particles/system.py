@@ -1,0 +1,304 @@
+"""The spray particle system: emission on the wheels of moving vehicles, forces, collisions, death.
+
+World frame: the frame the vehicle poses are given in (``map``), z up, m, s.
+The system advances on a fixed clock of ``tick_s`` aligned to t = 0, so the
+particles at a given simulated time do not depend on how callers split time
+(:meth:`SpraySystem.advance_to`); :meth:`SpraySystem.positions_at` extrapolates
+from the last tick. All randomness comes from one generator per tick seeded
+with (seed, tick index): same seed, same particles.
+
+Two populations (``population``): 0 = inertial particles (4 mm, thesis Table
+II-IV), 1 = fine drops of the eq. 3 mean diameter that follow the air and linger
+(the low-Stokes population the thesis names as missing). Each particle stands
+for a concentration of drops that causes one detection; the render sphere is
+``mesh_diameter_m`` for both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from spray_particles.constants import SprayConstants, load_constants
+from spray_particles.emitter import WheelEmitter
+from spray_particles.forces import CurlNoise, drag_rates, lateral_wind_speed
+from spray_particles.integrator import step as integrate_step
+from spray_particles.water import mean_drop_diameter_m
+
+PoseFunction = Callable[[float], dict]  # time (s) -> {actor id: 4x4 body-to-world}
+
+
+@dataclass(frozen=True)
+class EmittingVehicle:
+    """A vehicle whose wheels throw spray: its actor id, body box (m) and wheel emitter."""
+
+    actor_id: int
+    length_m: float
+    width_m: float
+    height_m: float
+    ground_clearance_m: float
+    emitter: WheelEmitter
+
+
+@dataclass(frozen=True)
+class SprayParams:
+    """Tunable parameters of the system (SI; see :class:`spray_particles.region.SprayRegion.Params`)."""
+
+    water_film_mm: float = 0.5
+    emission_scale: float = 1.0
+    film_cv: float = 0.0  # coefficient of variation of the film seen per tick (gamma)
+    wind_over_speed: float = 0.4  # air speed past the car in its wake / car speed (Table III: 0.4, IV: 1)
+    wake_length_m: float = 30.0  # e-folding length of the wake behind the car
+    ambient_wind_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world frame, blowing towards
+    lateral_wind_scale: float = 1.0
+    turbulence_intensity: float = 0.1  # RMS turbulent speed / car speed in the wake
+    turbulence_length_m: float = 1.0
+    fine_ratio: float = 0.5  # fine particles emitted per inertial particle
+    lifetime_s: float = 2.0
+    fine_lifetime_s: float = 4.0
+    tick_s: float = 0.01
+    seed: int = 0
+
+
+@dataclass
+class Particles:
+    """Struct of arrays, one row per live particle (world frame)."""
+
+    pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    vel: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    age: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lifetime: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    kappa: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lam: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vehicle: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # index into system.vehicles
+    side: np.ndarray = field(default_factory=lambda: np.zeros(0))  # +1 left wheel, -1 right wheel
+    population: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
+    wheel: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # index into the vehicle's wheels
+    diameter: np.ndarray = field(default_factory=lambda: np.zeros(0))  # drag diameter (m)
+    weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # real drops per particle (reference only)
+
+    def __len__(self) -> int:
+        return len(self.age)
+
+    def select(self, keep: np.ndarray) -> "Particles":
+        return Particles(*(getattr(self, f)[keep] for f in self.__dataclass_fields__))
+
+    @classmethod
+    def concatenate(cls, parts: list["Particles"]) -> "Particles":
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__))
+
+
+class SpraySystem:
+    """Particles thrown by ``vehicles`` whose body-to-world poses ``poses(t)`` gives."""
+
+    def __init__(self, vehicles: list[EmittingVehicle], poses: PoseFunction, params: SprayParams | None = None,
+                 constants: SprayConstants | None = None) -> None:  # fmt: skip
+        self.vehicles = list(vehicles)
+        self.poses = poses
+        self.params = params or SprayParams()
+        self.constants = constants or load_constants()
+        self.particles = Particles()
+        self.tick_index: int | None = None
+        self.noise = CurlNoise(self.params.seed, self.params.turbulence_length_m)
+        c = self.constants
+        self._kappa_inertial, self._lam_inertial = drag_rates(
+            c.particles.diameter_m, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
+            c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s,
+        )  # fmt: skip
+        self.emitted = 0
+        self._pose_cache: dict[int, dict] = {}
+        self._target_tick = 0
+        vs = self.vehicles
+        nv, wmax = len(vs), max([v.emitter.n_wheels for v in vs] or [1])
+        self._length = np.array([v.length_m for v in vs], dtype=np.float64)
+        self._width = np.array([v.width_m for v in vs], dtype=np.float64)
+        self._height = np.array([v.height_m for v in vs], dtype=np.float64)
+        self._clearance = np.array([v.ground_clearance_m for v in vs], dtype=np.float64)
+        self._wheel_xz = np.zeros((nv, wmax, 2))
+        self._wheel_y = np.zeros((nv, wmax))
+        self._n_wheels = np.array([v.emitter.n_wheels for v in vs], dtype=np.int64)
+        for k, v in enumerate(vs):
+            self._wheel_xz[k, : v.emitter.n_wheels, 0] = v.emitter.wheel_xy[:, 0]
+            self._wheel_xz[k, : v.emitter.n_wheels, 1] = v.emitter.radius_m
+            self._wheel_y[k, : v.emitter.n_wheels] = v.emitter.wheel_xy[:, 1]
+        #: wheel arch: a cylinder 5 cm larger than the tyre, 5 cm wider on each side (m)
+        self._arch_r = np.array([v.emitter.radius_m + 0.05 for v in vs], dtype=np.float64)
+        self._arch_half_w = np.array([0.5 * v.emitter.width_m + 0.05 for v in vs], dtype=np.float64)
+
+    @property
+    def time_s(self) -> float | None:
+        return None if self.tick_index is None else self.tick_index * self.params.tick_s
+
+    # -- vehicle state -----------------------------------------------------------------
+    def _poses_at_tick(self, k: int) -> dict:
+        cache = self._pose_cache
+        if k not in cache:
+            t = k * self.params.tick_s
+            many = getattr(self.poses, "__self__", None)
+            if many is not None and hasattr(many, "actor_poses_at"):  # batch the rest of the step's ticks
+                ticks = list(range(k, max(k + 1, self._target_tick + 2)))
+                for tick, p in zip(ticks, many.actor_poses_at(np.array(ticks) * self.params.tick_s)):
+                    cache[tick] = p
+            else:
+                cache[k] = self.poses(t)
+        return cache[k]
+
+    def _vehicle_state(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per vehicle at tick ``k``: rotation (V, 3, 3), origin (V, 3), world velocity (V, 3) (finite
+        difference to the next tick), present (V,)."""
+        dt = self.params.tick_s
+        now, later = self._poses_at_tick(k), self._poses_at_tick(k + 1)
+        nv = len(self.vehicles)
+        rot = np.tile(np.eye(3), (nv, 1, 1))
+        org = np.zeros((nv, 3))
+        vel = np.zeros((nv, 3))
+        present = np.zeros(nv, bool)
+        for j, v in enumerate(self.vehicles):
+            if v.actor_id in now and v.actor_id in later:
+                a, b = np.asarray(now[v.actor_id]), np.asarray(later[v.actor_id])
+                rot[j], org[j], vel[j], present[j] = a[:3, :3], a[:3, 3], (b[:3, 3] - a[:3, 3]) / dt, True
+        return rot, org, vel, present
+
+    # -- air -----------------------------------------------------------------------------
+    def air_velocity(self, p: Particles, t: float, rot, org, vel) -> np.ndarray:
+        """Air velocity (n, 3) m/s, world frame, at the particles (numba kernel of
+        :meth:`air_velocity_reference`)."""
+        from spray_particles.kernels import air_velocity
+
+        prm = self.params
+        if not len(p) or not self.vehicles:
+            return np.broadcast_to(np.asarray(prm.ambient_wind_m_s, dtype=np.float64), (len(p), 3)).copy()
+        lat = self.constants.lateral_wind
+        v_lat = prm.lateral_wind_scale * lateral_wind_speed(np.linalg.norm(vel, axis=1), lat.slope,
+                                                            lat.threshold_speed_m_s)  # fmt: skip
+        lo, hi = self.constants.particles.lateral_field_range_m
+        nz = self.noise
+        return air_velocity(p.pos, p.vehicle, p.side, rot, org, vel, self._length, self._width, self._height,
+                            np.asarray(v_lat, dtype=np.float64), np.asarray(prm.ambient_wind_m_s, dtype=np.float64),
+                            float(prm.wind_over_speed), float(prm.wake_length_m), float(lo), float(hi),
+                            float(prm.turbulence_intensity), nz.k, nz.omega, nz.phase, nz.curl, float(t))  # fmt: skip
+
+    def air_velocity_reference(self, p: Particles, t: float, rot, org, vel) -> np.ndarray:
+        """Air velocity (n, 3) m/s, world frame, at the particles: ambient wind + wake of the particle's
+        vehicle moving with it at (1 - wind_over_speed) v_car + lateral fields + turbulence (numpy)."""
+        prm = self.params
+        n = len(p)
+        u = np.broadcast_to(np.asarray(prm.ambient_wind_m_s, dtype=np.float64), (n, 3)).copy()
+        if not n or not self.vehicles:
+            return u
+        k = p.vehicle
+        R = rot[k]
+        body = np.einsum("nji,nj->ni", R, p.pos - org[k])  # world -> body: R^T (p - o)
+        length = np.array([v.length_m for v in self.vehicles])[k]
+        width = np.array([v.width_m for v in self.vehicles])[k]
+        height = np.array([v.height_m for v in self.vehicles])[k]
+        behind = -(body[:, 0] + 0.5 * length)  # m behind the rear bumper (negative alongside the car)
+        wake = np.exp(-np.maximum(behind, 0.0) / prm.wake_length_m)
+        wake *= np.exp(-np.maximum(np.abs(body[:, 1]) - 0.5 * width, 0.0) - np.maximum(body[:, 2] - height, 0.0))
+        car_speed = np.linalg.norm(vel[k], axis=1)
+        u += (wake * (1.0 - prm.wind_over_speed))[:, None] * vel[k]
+        lo, hi = self.constants.particles.lateral_field_range_m
+        lat = self.constants.lateral_wind
+        in_field = (behind >= lo) & (behind <= hi)
+        v_lat = prm.lateral_wind_scale * lateral_wind_speed(car_speed, lat.slope, lat.threshold_speed_m_s)
+        lateral_body = np.zeros((n, 3))
+        lateral_body[:, 1] = np.where(in_field, -p.side * v_lat, 0.0)  # left-wheel particles pushed right
+        turb = self.noise.velocity(body, t) * (prm.turbulence_intensity * car_speed * wake)[:, None]
+        u += np.einsum("nij,nj->ni", R, lateral_body + turb)
+        return u
+
+    # -- time --------------------------------------------------------------------------------
+    def advance_to(self, time_s: float) -> None:
+        """Run every tick up to ``time_s`` (s); the first call starts the clock there (no particles yet)."""
+        dt = self.params.tick_s
+        target = int(np.floor(time_s / dt + 1e-9))
+        if self.tick_index is None:
+            self.tick_index = target
+            return
+        self._target_tick = target
+        while self.tick_index < target:
+            self._tick(self.tick_index)
+            self.tick_index += 1
+        for k in [k for k in self._pose_cache if k < self.tick_index]:
+            del self._pose_cache[k]
+
+    def positions_at(self, time_s: float) -> np.ndarray:
+        """Particle centres (n, 3) at ``time_s``, extrapolated from the last tick (ballistic)."""
+        p = self.particles
+        if self.tick_index is None or not len(p):
+            return p.pos.copy()
+        h = time_s - self.tick_index * self.params.tick_s
+        out = p.pos + h * p.vel
+        out[:, 2] -= 0.5 * self.constants.physics.gravity_m_s2 * h * h * (h > 0)
+        return out
+
+    def _tick(self, k: int) -> None:
+        prm, c = self.params, self.constants
+        dt = prm.tick_s
+        t = k * dt
+        rng = np.random.default_rng([prm.seed & 0xFFFFFFFF, k & 0xFFFFFFFF, 0x5B2A])
+        cached = getattr(self, "_state_cache", None)
+        s0 = cached[1] if cached is not None and cached[0] == k else self._vehicle_state(k)
+        s1 = self._vehicle_state(k + 1)
+        self._state_cache = (k + 1, s1)
+        p = self.particles
+        if len(p):
+            air = self.air_velocity(p, t, *s0[:3])
+            p.pos, p.vel = integrate_step(p.pos, p.vel, air, p.kappa, p.lam, c.physics.gravity_m_s2, dt)
+            p.age = p.age + dt
+            self.particles = p.select(self._alive(p, s1[0], s1[1]))
+        self._emit(rng, s1[3], s1[2], s1[0], s1[1])
+
+    def _alive(self, p: Particles, rot, org) -> np.ndarray:
+        """Particles still alive: younger than their lifetime, above the ground under their vehicle,
+        outside its body (lower body box minus the wheel arches)."""
+        from spray_particles.kernels import collisions
+
+        dead = collisions(p.pos, p.vehicle, rot, org, self._length, self._width, self._height, self._clearance,
+                          self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w)  # fmt: skip
+        return (p.age < p.lifetime) & ~dead
+
+    def emission_mean_per_frame(self, speed_m_s: float, film_mm: float) -> float:
+        """Mean inertial particles per wheel per sensor frame: eq. 2's linear dependence on film x speed
+        above a threshold speed, calibrated to Table III (config/spray.yaml emission)."""
+        e = self.constants.emission
+        return self.params.emission_scale * e.gain_per_mm_m_s * film_mm * max(0.0, speed_m_s - e.threshold_speed_m_s)
+
+    def _emit(self, rng, present, vel, rot, org) -> None:
+        prm, c = self.params, self.constants
+        parts = [self.particles]
+        for k, v in enumerate(self.vehicles):
+            if not present[k]:
+                continue
+            speed = float(np.linalg.norm(vel[k]))
+            film = prm.water_film_mm
+            if prm.film_cv > 0:
+                shape = 1.0 / prm.film_cv**2
+                film *= rng.gamma(shape, 1.0 / shape)
+            lam = self.emission_mean_per_frame(speed, film) * prm.tick_s / c.emission.frame_period_s
+            n_in = rng.poisson(lam, v.emitter.n_wheels)
+            n_fine = rng.poisson(lam * prm.fine_ratio, v.emitter.n_wheels)
+            for pop, counts in ((0, n_in), (1, n_fine)):
+                n = int(counts.sum())
+                if not n:
+                    continue
+                pos_b, vel_b, side, wheel = v.emitter.emit(rng, counts, speed, prm.tick_s)
+                pos = pos_b @ rot[k].T + org[k]
+                velw = vel_b @ rot[k].T + vel[k]
+                if pop == 0:
+                    kappa, lam_s, life = self._kappa_inertial, self._lam_inertial, prm.lifetime_s
+                else:
+                    d = mean_drop_diameter_m(speed, c.tyre.tread_height_m, c.water.drop_size_k,
+                                             c.physics.water_surface_tension_n_m, c.physics.water_density_kg_m3)
+                    kappa, lam_s = drag_rates(d, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
+                                              c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)
+                    life = prm.fine_lifetime_s
+                diameter = c.particles.diameter_m if pop == 0 else float(d)
+                parts.append(Particles(pos, velw, np.zeros(n), np.full(n, life), np.full(n, float(kappa)),
+                                       np.full(n, float(lam_s)), np.full(n, k, np.int64), side,
+                                       np.full(n, pop, np.uint8), wheel, np.full(n, diameter), np.ones(n)))  # fmt: skip
+                self.emitted += n
+        if len(parts) > 1:
+            self.particles = Particles.concatenate(parts)

@@ -1,0 +1,87 @@
+"""Droplet reference: drop sizes (eq. 3), water volume (eq. 2), per-beam backscatter detection; metrics."""
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim.scan import ScanPattern
+from lidar_weather_sim.testing import simple_profile
+from spray_particles.constants import load_constants
+from spray_particles.emitter import vehicle_emitter
+from spray_particles.metrics import bev_histogram, compare_histograms, per_frame_overlap
+from spray_particles.reference import DropletReference, detect_frame
+from spray_particles.system import EmittingVehicle, Particles, SprayParams
+from spray_particles.water import mean_drop_diameter_m, tread_pickup_m3_s, tyre_dimensions
+
+C = load_constants()
+
+
+def _reference(speed=15.0, **params):
+    r, w = tyre_dimensions(C.tyre.size)
+    vehicle = EmittingVehicle(100, 4.7, 1.85, 1.45, 0.15, vehicle_emitter(4.7, 1.85, 1.45, r, w))
+
+    def poses(t):
+        m = np.eye(4)
+        m[0, 3] = speed * t
+        return {100: m}
+
+    return DropletReference([vehicle], poses, SprayParams(**{"water_film_mm": 0.5, **params}), C)
+
+
+def test_drop_sizes_follow_eq3_and_carry_eq2_water():
+    ref = _reference(15.0)
+    ref.advance_to(0.0)
+    ref.advance_to(0.01)  # one tick of emission, no flight yet
+    p = ref.particles
+    assert len(p) > 1000
+    # number-weighted median of the real drops = eq. 3 mean diameter (clipping aside)
+    order = np.argsort(p.diameter)
+    cum = np.cumsum(p.weight[order]) / p.weight.sum()
+    median = p.diameter[order][np.searchsorted(cum, 0.5)]
+    d_eq3 = mean_drop_diameter_m(15.0, C.tyre.tread_height_m, C.water.drop_size_k)
+    assert median == pytest.approx(d_eq3, rel=0.15)
+    water = np.sum(p.weight * np.pi / 6 * p.diameter**3)
+    expected = C.reference.airborne_fraction * 4 * tread_pickup_m3_s(0.5, 15.0, C.tyre.grooves, C.tyre.groove_width_m,
+                                                                     C.tyre.tread_height_m) * 0.01  # fmt: skip
+    assert water == pytest.approx(expected, rel=1e-6)
+    # each drop has the drag of its own size: small drops have larger drag rates
+    assert np.corrcoef(np.log(p.diameter), np.log(p.kappa))[0, 1] < -0.99
+
+
+def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0):
+    profile = simple_profile(optics__divergence_h_mrad=1.75, optics__divergence_v_mrad=2.0)
+    pattern = ScanPattern(profile)
+    ref = _reference()
+    rng = np.random.default_rng(0)
+    pos = np.stack([distance + rng.uniform(-0.1, 0.1, n_drops), rng.uniform(-1e-4, 1e-4, n_drops),
+                    rng.uniform(-1e-4, 1e-4, n_drops)], 1)  # fmt: skip
+    n = n_drops
+    ref.particles = Particles(pos, np.zeros((n, 3)), np.zeros(n), np.full(n, 9.0), np.zeros(n), np.zeros(n),
+                              np.zeros(n, np.int64), np.ones(n), np.full(n, 2, np.uint8), np.zeros(n, np.int64),
+                              np.full(n, 2e-4), np.full(n, weight))  # fmt: skip
+    ref.tick_index = 0
+
+    def poses(times):
+        return np.zeros((len(times), 3)), np.tile(np.eye(3), (len(times), 1, 1))
+
+    return detect_frame(ref, pattern, 0, 0.0, poses, threshold=4.0)
+
+
+def test_backscatter_summed_over_the_beam_volume_decides_detection():
+    dense = _frame_with_drops(1000, 50.0)
+    sparse = _frame_with_drops(1000, 0.01)
+    assert len(sparse.range_m) == 0
+    assert len(dense.range_m) >= 1 and dense.range_m == pytest.approx(np.full(len(dense.range_m), 10.0), abs=0.1)
+    peak = np.argmax(dense.amplitude)
+    assert dense.column[peak] == 40  # the 0 deg column of the test profile: the blob's centre
+    assert set(np.abs(dense.column - 40)) <= set(range(4))  # the blob (0.1 m) reaches neighbouring beams
+
+
+def test_metrics():
+    a = bev_histogram(np.array([[10.2, 0.1], [10.3, 0.2], [20.0, -3.0]]))
+    assert a.sum() == 3 and a.shape == (80, 40)
+    m = compare_histograms(a, a)
+    assert m == {"pearson": pytest.approx(1.0), "jaccard_pct": 0.0, "hamming_pct": 0.0}
+    b = bev_histogram(np.array([[10.2, 0.1], [30.0, 5.0]]))
+    m = compare_histograms(a, b)
+    assert m["jaccard_pct"] == pytest.approx(100 * 2 / 3) and m["hamming_pct"] == pytest.approx(100 * 2 / 3200)
+    assert per_frame_overlap([1, 1, 2], [1, 2, 2]) == pytest.approx(2 / 3)

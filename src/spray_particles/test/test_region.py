@@ -1,0 +1,136 @@
+"""The `spray` region plugin: ray-sphere intersection, echo order, occlusion, scenarios, seeding."""
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim.config import ConfigError
+from lidar_weather_sim.points import Label
+from lidar_weather_sim.regions import REGISTRY, RegionContext
+from lidar_weather_sim.scenario import load_scenario
+from lidar_weather_sim.simulator import LidarSimulator
+from lidar_weather_sim.testing import one_frame, scene_of, simple_profile, wall
+from lidar_weather_sim.world import World
+from spray_particles.raycast import sphere_hits
+from spray_particles.region import SprayRegion
+from spray_particles.system import Particles
+
+
+def test_spray_is_registered_by_entry_point():
+    assert "spray" in REGISTRY.names()
+    assert REGISTRY.get("spray") is SprayRegion
+
+
+def test_sphere_hits_equal_brute_force_for_cm_spheres_at_50_m_including_the_azimuth_seam():
+    rng = np.random.default_rng(0)
+    n_rays, radius = 4000, 0.009
+    az = rng.uniform(-np.pi, np.pi, n_rays)
+    el = rng.uniform(-0.05, 0.05, n_rays)
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], 1)
+    o = rng.normal(0, 0.05, (n_rays, 3))  # origins spread like a rolling shutter
+    rng_m = rng.uniform(5, 50, n_rays)
+    on_ray = o + rng_m[:, None] * d  # half the spheres near a ray, some across the +-pi seam
+    c = np.concatenate([on_ray[:1500] + rng.normal(0, 0.008, (1500, 3)), rng.uniform(-50, 50, (1500, 3))])
+    c[:20] = np.array([-30.0, 0.0, 0.0]) + rng.normal(0, 0.3, (20, 3))
+    max_range = np.full(n_rays, 1e9)
+    hits = sphere_hits(o, d, max_range, c, radius)
+    v = c[None, :, :] - o[:, None, :]
+    t = np.einsum("rpk,rk->rp", v, d)
+    perp2 = np.einsum("rpk,rpk->rp", v, v) - t * t
+    entry = t - np.sqrt(np.maximum(radius**2 - perp2, 0))
+    brute = np.argwhere((perp2 < radius**2) & (entry > 0))
+    got = np.stack([hits.ray, hits.sphere], 1)
+    assert len(brute) > 500
+    assert {tuple(x) for x in got} == {tuple(x) for x in brute}
+    assert hits.range_m == pytest.approx(entry[hits.ray, hits.sphere], abs=1e-9)
+
+
+def _region_with(centres, profile):
+    """A spray region whose particle system holds fixed spheres (no emitters)."""
+    region = REGISTRY.create("spray", {}, RegionContext(profile))
+    n = len(centres)
+    region.system.particles = Particles(np.asarray(centres, float), np.zeros((n, 3)), np.zeros(n), np.full(n, 10.0),
+                                        np.zeros(n), np.zeros(n), np.zeros(n, np.int64), np.ones(n),
+                                        np.zeros(n, np.uint8), np.zeros(n, np.int64), np.full(n, 0.004), np.ones(n))  # fmt: skip
+    region.system.tick_index = 0
+    region.system.params = region.system.params.__class__(tick_s=1e9)  # no ticks: the spheres stay put
+    region._actor_ids = np.array([100], np.uint32)
+    return region
+
+
+def test_a_particle_on_the_ray_gives_the_first_echo_and_hides_the_vehicle_behind_it():
+    profile = simple_profile()
+    scene = scene_of(wall(20.0, "car_paint", 100))
+    clear = one_frame(LidarSimulator(profile, scene, regions=[])).points
+    region = _region_with([[10.0, 0.0, 0.0], [10.0, 0.9, 0.0]], profile)  # on the 0 deg beam; between beams
+    frame = one_frame(LidarSimulator(profile, scene, regions=[("spray", region)])).points
+    centre = frame[np.abs(frame["azimuth"]) < 1e-6]
+    assert list(centre["label"]) == [Label.SPRAY] and centre["object_id"][0] == 100
+    assert centre["distance"][0] == pytest.approx(10.0 - 0.009, abs=1e-3)
+    assert len(frame) == len(clear)  # one beam's wall return replaced by spray, no other beam touched
+
+
+def test_spray_occludes_the_vehicle_on_some_subrays_and_keeps_echo_order():
+    """scala4-like beams of 3 sub-rays: a particle on one sub-ray gives a first spray echo and the
+    vehicle behind it stays as a later echo of the same beam."""
+    profile = simple_profile(optics__divergence_v_mrad=14.0, optics__subrays_v=3)
+    scene = scene_of(wall(20.0, "car_paint", 100))
+    from lidar_weather_sim.scan import ScanPattern
+
+    table = ScanPattern(profile).direction_table(0)
+    column = int(np.argmin(np.abs(np.arctan2(table[:, 0, 1, 1], table[:, 0, 1, 0]))))
+    upper = table[column, 0, 2]  # the upper sub-ray of the central beam
+    region = _region_with([8.0 * upper], profile)
+    frame = one_frame(LidarSimulator(profile, scene, regions=[("spray", region)])).points
+    centre = frame[np.abs(frame["azimuth"]) < 1e-6]
+    assert list(centre["label"]) == [Label.SPRAY, Label.VEHICLE]  # (car paint)
+    assert list(centre["echo"]) == [1, 2] and centre["distance"][0] < centre["distance"][1]
+
+
+def _run(name, seconds=2.0, **spray):
+    world = World.build(load_scenario(name))
+    regions = world.regions(params={"spray": spray} if spray else None)
+    sim = LidarSimulator(world.profile, world.scene, regions=regions, seed=0)
+    frames = []
+    for t in np.arange(0.0, seconds, 0.01):
+        frames += sim.advance(float(t), world.player)
+    return frames, dict(regions)["spray"]
+
+
+def test_more_speed_gives_more_spray_detections():
+    counts = {}
+    for speed in (39, 60):
+        frames, _ = _run(f"proving_ground_{speed}", 2.5)
+        counts[speed] = np.mean([np.sum(f.points["label"] == Label.SPRAY) for f in frames[25:]])
+    assert counts[60] > 2 * counts[39] > 0
+
+
+def test_highway_spray_echoes_come_from_the_leading_vehicle_and_in_front_of_it():
+    frames, region = _run("highway_spray", 2.0)
+    pts = np.concatenate([f.points for f in frames[25:]])
+    spray = pts[pts["label"] == Label.SPRAY]
+    assert len(spray) > 20 and set(np.unique(spray["object_id"])) == {100}
+    vehicle = pts[(pts["label"] == Label.VEHICLE) & (pts["object_id"] == 100)]
+    assert np.median(spray["x"]) < np.median(vehicle["x"]) + 1.0  # spray sits behind the car, towards the ego
+    assert np.median(spray["y"]) > 1.5  # on the leading vehicle's side (left lane)
+    assert region.water_film_mm == 0.7
+
+
+def test_same_seed_same_frames():
+    a, _ = _run("proving_ground_55", 0.5)
+    b, _ = _run("proving_ground_55", 0.5)
+    c, _ = _run("proving_ground_55", 0.5, seed=9)
+    assert all(x.points.tobytes() == y.points.tobytes() for x, y in zip(a, b))
+    assert any(x.points.tobytes() != y.points.tobytes() for x, y in zip(a, c))
+
+
+def test_film_from_rain_by_eq1_when_not_given():
+    world = World.build(load_scenario("highway_spray"))
+    region = dict(world.regions(params={"spray": {"water_film_mm": None}}))["spray"]
+    assert region.water_film_mm == pytest.approx(0.7, rel=0.01)  # eq. 1 fitted to the highway
+
+
+def test_parameter_errors_name_the_key():
+    with pytest.raises(ConfigError, match=r"region 'spray' parameters: key 'water_film_mm': value 7"):
+        REGISTRY.create("spray", {"water_film_mm": 7}, RegionContext(None))
+    with pytest.raises(ConfigError, match=r"key 'actor_ids': value \[5\]"):
+        REGISTRY.create("spray", {"actor_ids": [5]}, RegionContext(None, actors=[]))

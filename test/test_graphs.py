@@ -1,0 +1,158 @@
+"""Graph descriptions (config/graphs): the launch files and `lidar-weather-sim up` read the same one; `up` over DDS.
+
+The launch-file check runs each launch/*.launch.py against a minimal stand-in of
+``launch``/``launch_ros`` (not installable here) that records the actions, and
+compares the nodes it would start with what ``up`` starts for the same arguments.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import signal
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from lidar_weather_sim.graph import available_graphs, command_line, load_graph, resolve
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH_FILES = sorted((ROOT / "launch").glob("*.launch.py"))
+REQUIRED_ARGS = {"replay_compare": {"bag": "/tmp/bag", "out": "/tmp/out"}}
+
+
+class _Recorder:
+    def __init__(self, kind: str):
+        self.kind = kind
+
+    def __call__(self, *args, **kwargs):
+        return types.SimpleNamespace(kind=self.kind, args=args, kwargs=kwargs)
+
+
+@pytest.fixture
+def fake_launch(monkeypatch):
+    launch = types.ModuleType("launch")
+    launch.LaunchDescription = lambda entities: list(entities)
+    actions = types.ModuleType("launch.actions")
+    for name in ("DeclareLaunchArgument", "OpaqueFunction", "Shutdown"):
+        setattr(actions, name, _Recorder(name))
+    launch_ros = types.ModuleType("launch_ros")
+    ros_actions = types.ModuleType("launch_ros.actions")
+    ros_actions.Node = _Recorder("Node")
+    for name, mod in {"launch": launch, "launch.actions": actions, "launch_ros": launch_ros, "launch_ros.actions": ros_actions}.items():
+        monkeypatch.setitem(sys.modules, name, mod)
+
+
+def _run_launch_file(path: Path, given: dict[str, str]):
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    entities = module.generate_launch_description()
+    declared = {e.args[0]: e.kwargs["default_value"] for e in entities if e.kind == "DeclareLaunchArgument"}
+    context = types.SimpleNamespace(launch_configurations={**declared, **given})
+    (opaque,) = [e for e in entities if e.kind == "OpaqueFunction"]
+    return module.GRAPH, declared, opaque.kwargs["function"](context)
+
+
+def test_every_graph_has_a_launch_file_and_every_launch_file_a_graph(fake_launch):
+    graphs = {_run_launch_file(p, REQUIRED_ARGS.get(p.name.split(".")[0], {}))[0] for p in LAUNCH_FILES}
+    assert graphs == set(available_graphs()) == {"sim", "replay_compare", "closed_loop", "pattern"}
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+@pytest.mark.parametrize("variant", ["defaults", "options"])
+def test_launch_file_starts_what_up_starts(fake_launch, path, variant):
+    options = {"filter": "true", "regions": "[cover, atmosphere]", "scenario": "highway_spray", "rate_hz": "20"}
+    graph_name = path.name.split(".")[0]
+    graph = load_graph(graph_name)
+    given = {**REQUIRED_ARGS.get(graph_name, {})}
+    if variant == "options":
+        given.update({k: v for k, v in options.items() if k in graph.arguments})
+    name, declared, nodes = _run_launch_file(path, given)
+    assert name == graph_name
+    assert declared == {n: a.default for n, a in graph.arguments.items()}
+    plans = resolve(graph, given)
+    assert [n.kwargs["name"] for n in nodes] == [p.name for p in plans]
+    for node, plan in zip(nodes, plans):
+        kw = node.kwargs
+        assert (kw["package"], kw["executable"]) == (plan.package, plan.executable)
+        assert kw["parameters"] == [*(str(f) for f in plan.parameter_files), plan.parameters]
+        assert kw["remappings"] == list(plan.remappings)
+        assert ("on_exit" in kw) == plan.required
+        cmd = command_line(plan, Path("/tmp/p.yaml"))
+        assert cmd[cmd.index("-m") + 1] == plan.module
+        assert all(str(f) in cmd for f in plan.parameter_files)
+
+
+def test_resolve_types_conditions_and_errors():
+    from lidar_weather_sim.config import ConfigError
+
+    sim = load_graph("sim")
+    (node,) = resolve(sim, {"realtime_factor": "2", "max_frames": "7", "regions": "[cover]", "use_sim_time": "true"})
+    assert node.parameters["realtime_factor"] == 2.0 and isinstance(node.parameters["realtime_factor"], float)
+    assert node.parameters["max_frames"] == 7 and node.parameters["regions"] == ["cover"]
+    assert node.parameters["use_sim_time"] is True and "profile" not in node.parameters  # empty: node default
+    assert [p.name for p in resolve(sim, {"filter": "true"})] == ["lidar_sim_node", "weather_filter_node"]
+    loop = {p.name: p for p in resolve(load_graph("closed_loop"), {"filter": "false"})}
+    assert list(loop) == ["lidar_sim_node", "ego_controller_node"] and loop["ego_controller_node"].parameters["cloud_topic"] == "/lidar/points"
+    for bad, match in (({"nope": "1"}, "has no argument nope"), ({"pose_source": "gps"}, "not one of"),
+                       ({"max_frames": "1.5"}, "is not a int"), ({"filter": "maybe"}, "not one of"),
+                       ({"regions": "[]"}, "cannot hold an empty list")):  # fmt: skip
+        with pytest.raises(ConfigError, match=match):
+            resolve(sim, bad)
+    with pytest.raises(ConfigError, match="unknown graph 'simm'"):
+        load_graph("simm")
+
+
+def test_up_runs_the_sim_graph_clouds_at_the_profile_rate_and_a_region_swap_at_the_next_frame(processes, cli, ros, tmp_path):
+    """scenario mode: /clock at 100 Hz of sim time, scala4 clouds every 40 ms; rain appears from the frame after the set."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import PointCloud2
+
+    from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
+
+    up = processes.start(*cli, "up", "sim", "scenario:=highway_spray", "regions:=[spray]", "filter:=true",
+                         "--run-dir", str(tmp_path / "run"))  # fmt: skip
+    clouds, filtered, clocks = [], [], []
+    ros.node.create_subscription(PointCloud2, "/lidar/points", clouds.append, qos_profile_sensor_data)
+    ros.node.create_subscription(PointCloud2, "/lidar/points/filtered", filtered.append, qos_profile_sensor_data)
+    ros.node.create_subscription(Clock, "/clock", lambda m: clocks.append(stamp_to_ns(m.clock)),
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))  # fmt: skip
+    assert ros.spin_until(lambda: len(clouds) >= 15, timeout_s=60), processes.output(up)
+    client = AsyncParameterClient(ros.node, "lidar_sim_node")
+    assert client.wait_for_services(timeout_sec=20)
+    requested_ns = clocks[-1]
+    future = client.set_parameters([Parameter("regions", value=["atmosphere", "spray"])])
+    assert ros.spin_until(future.done, timeout_s=20) and future.result().results[0].successful
+    answered_ns = clocks[-1]
+    n_before = len(clouds)
+    assert ros.spin_until(lambda: len(clouds) >= n_before + 10, timeout_s=60), processes.output(up)
+    decoded = [(stamp_to_ns(m.header.stamp), msg_to_cloud(m).points) for m in clouds]
+    stamps = [s for s, _ in decoded]
+    assert all(b - a == 40_000_000 for a, b in zip(stamps, stamps[1:]) if b - a < 80_000_000)  # 25 Hz on sim time
+    assert sum(b - a == 40_000_000 for a, b in zip(stamps, stamps[1:])) >= len(stamps) - 3  # best effort: few lost
+    ticks = sorted(set(clocks))
+    assert all(b - a == 10_000_000 for a, b in zip(ticks, ticks[1:])) or len(ticks) < 2  # 100 Hz poses
+    assert decoded[0][1].dtype.names == ("x", "y", "z", "intensity", "return_type", "channel", "azimuth", "elevation",
+                                         "distance", "time_stamp", "echo", "label", "epw", "object_id")  # fmt: skip
+    rain = [(s, int((p["label"] == 11).sum())) for s, p in decoded]
+    assert all(n == 0 for s, n in rain if s + 40_000_000 <= requested_ns), rain  # frames complete before the request
+    after = [n for s, n in rain if s >= answered_ns]  # frames started after the answer: the next frame on
+    assert after and all(n > 20 for n in after), rain
+    assert filtered, "weather_filter_node (filter:=true) published nothing"
+    up.send_signal(signal.SIGINT)
+    assert up.wait(timeout=30) == 0, processes.output(up)
+    out = processes.output(up)
+    assert "[up] lidar_sim_node exited with status 0" in out and "[up] weather_filter_node exited with status 0" in out
+
+
+def test_up_fails_when_a_node_fails(processes, cli, tmp_path):
+    """lidar_sim_node is required: its failure stops the filter too, and up exits 1."""
+    up = processes.start(*cli, "up", "sim", "scenario:=no_such_scenario", "filter:=true", "--run-dir", str(tmp_path / "run"))
+    assert up.wait(timeout=60) == 1, processes.output(up)
+    out = processes.output(up)
+    assert "lidar_sim_node exited with status 2 (failure)" in out and "weather_filter_node exited with status 0" in out
