@@ -15,6 +15,8 @@ default of ``default_backend()``.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import importlib
 import os
 from functools import cache
@@ -44,7 +46,7 @@ class BackendUnavailableError(ValueError):
     """Unknown backend name, or a backend whose library cannot be used here."""
 
 
-class CasterBase:
+class CasterBase(ABC):
     """Shared input handling: subclasses implement ``_cast`` on float32 (N, 3) C arrays, N > 0."""
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +58,9 @@ class CasterBase:
             return np.zeros(0, np.float32), np.zeros(0, np.int64)
         return self._cast(o, d)
 
+    @abstractmethod
     def _cast(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        raise NotImplementedError
+        """Distances (N,) float32 (inf = miss) and triangle indices (N,) int64 (-1 = miss)."""
 
 
 class _EmptyCaster(CasterBase):
