@@ -129,6 +129,18 @@ def _cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import_ouster(args: argparse.Namespace) -> int:
+    from lidar_weather_sim.ouster_import import default_sdist, import_ouster
+
+    mesh = args.mesh_out or f"{str(args.out).rstrip('/')}_mesh.ply"
+    report = import_ouster(args.sdist or default_sdist(), args.out, mesh, overwrite=args.overwrite)
+    print(f"wrote {len(report.points_per_frame)} frames ({', '.join(map(str, report.points_per_frame))} points, "
+          f"{report.duration_s:.3f} s) to {report.bag}")  # fmt: skip
+    print(f"wrote the street mesh ({report.triangles} triangles, map frame) to {report.mesh}")
+    print("median point-to-mesh distance per frame: " + ", ".join(f"{d * 100:.1f} cm" for d in report.alignment_m))
+    return 0
+
+
 def _cmd_closed_loop(args: argparse.Namespace) -> int:
     from lidar_weather_sim.closed_loop import main as closed_loop_main
 
@@ -211,6 +223,13 @@ def build_parser() -> argparse.ArgumentParser:
     closed.add_argument("--out", default="closed_loop_report", help="report directory (report.md, speed.png, traces)")
     closed.add_argument("--realtime-factor", type=float, default=1.0, help="sim / wall-clock speed")
     closed.set_defaults(func=_cmd_closed_loop)
+
+    ouster = commands.add_parser("import-ouster", help="real OS1-128 street recording (ouster-sdk sdist) as bag + mesh")
+    ouster.add_argument("--sdist", help="ouster_sdk-1.0.1.tar.gz (default: .venv/cache/, from scripts/setup.sh)")
+    ouster.add_argument("--out", required=True, metavar="BAG", help="output rosbag2 directory (MCAP)")
+    ouster.add_argument("--mesh-out", metavar="PLY", help="street mesh for static_meshes (default: BAG_mesh.ply)")
+    ouster.add_argument("--overwrite", action="store_true", help="replace an existing bag and mesh")
+    ouster.set_defaults(func=_cmd_import_ouster)
     return parser
 
 

@@ -22,6 +22,10 @@ ground-truth fields follow. Clouds are unorganised (height 1).
 
 With ground truth the point step is 44 bytes; without it ``label`` and
 ``object_id`` are absent, byte 33-35 is padding and the step is 40 bytes.
+Real sensors that measure no EPW (e.g. an Ouster OS1) write the 40-byte layout
+without the ``epw`` field as well (:data:`POINT_DTYPE_NO_EPW`): a missing field,
+not a fill value, is how readers such as the weather filters tell that EPW is
+unknown (they then fall back to intensity or geometry).
 A merged echo takes the label and object id of its strongest contributing
 sub-ray; a spray point's object id is the emitting vehicle's.
 """
@@ -89,6 +93,8 @@ POINT_DTYPE = _dtype(
 )
 #: Point dtype without ground truth; 40 bytes.
 POINT_DTYPE_NO_GROUND_TRUTH = _dtype(_BASE_FIELDS + [("epw", np.float32, 36)], POINT_STEP_WITHOUT_GROUND_TRUTH)
+#: Point dtype of real sensors without EPW and without ground truth; 40 bytes, bytes 33-39 padding.
+POINT_DTYPE_NO_EPW = _dtype(_BASE_FIELDS, POINT_STEP_WITHOUT_GROUND_TRUTH)
 
 
 def point_dtype(ground_truth: bool = True) -> np.dtype:
