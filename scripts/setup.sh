@@ -3,7 +3,8 @@
 #
 #   1. Debian packages (only when running as root and something is missing)
 #   2. a venv in .venv with the pinned wheels of requirements.txt
-#   3. the include-path fix for interface builds from the pip-installed rosidl
+#   3. the include-path fix for interface builds from the pip-installed rosidl,
+#      sensor profiles and the real OS1-128 bag and mesh from the ouster-sdk sdist
 #   4. tf2_msgs (compat/) built only where no tf2_msgs is importable
 #   5. colcon build --symlink-install of src/
 #   6. .venv/env.sh, which every make target sources
@@ -68,6 +69,18 @@ fi
 if [[ ! -f config/sensors/os1_128_2048.yaml || scripts/make_sensor_profiles.py -nt config/sensors/os1_128_2048.yaml ]]; then
   say "generating Velodyne and Ouster profiles in config/sensors/"
   "$venv/bin/python" scripts/make_sensor_profiles.py "$ouster_sdist" config/sensors >/dev/null
+fi
+
+# --- 3c. the real OS1-128 recording of the sdist as a bag and a street mesh ----
+# (lidar-weather-sim import-ouster; redone when the importer changes)
+ouster_real="$venv/cache/ouster_real"
+import_hash=$(cd src/lidar_weather_sim/lidar_weather_sim && cat ouster_import.py ouster_pcap.py points.py | sha256sum | cut -c1-16)
+if [[ "$(cat "$ouster_real/.stamp" 2>/dev/null)" != "$import_hash" ]]; then
+  say "importing the real OS1-128 recording into $ouster_real"
+  rm -rf "$ouster_real"
+  PYTHONPATH="$root/src/lidar_weather_sim" "$venv/bin/python" -m lidar_weather_sim.cli import-ouster \
+    --sdist "$ouster_sdist" --out "$ouster_real/os1_128_street" --mesh-out "$ouster_real/os1_128_street_mesh.ply" >/dev/null
+  echo "$import_hash" >"$ouster_real/.stamp"
 fi
 
 # --- 4/5. colcon builds -----------------------------------------------------
