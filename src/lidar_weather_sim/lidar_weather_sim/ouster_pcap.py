@@ -180,12 +180,12 @@ def decode_scans(payloads: np.ndarray, meta: OusterMetadata) -> list[Scan]:
     range_mm = (words & ((1 << range_bits) - 1)) * np.uint32(unit_mm)
     frame = np.repeat(frame_id, meta.columns_per_packet)
     scans = []
-    for fid in dict.fromkeys(frame.tolist()):  # one iteration per scan, in recording order
-        sel = np.flatnonzero((frame == fid) & valid & (mid < meta.columns))
+    for run in np.split(np.arange(len(frame)), np.flatnonzero(np.diff(frame)) + 1):  # one run of packets per scan
+        sel = run[valid[run] & (mid[run] < meta.columns)]
         if len(sel) != meta.columns or len(np.unique(mid[sel])) != meta.columns:
             continue
         sel = sel[np.argsort(mid[sel])]
-        scans.append(Scan(int(fid), stamp[sel], range_mm[sel].T.copy(), pixels[sel, :, refl_byte].T.copy()))
+        scans.append(Scan(int(frame[sel[0]]), stamp[sel], range_mm[sel].T.copy(), pixels[sel, :, refl_byte].T.copy()))
     return scans
 
 
