@@ -147,6 +147,56 @@ def _cmd_closed_loop(args: argparse.Namespace) -> int:
     return closed_loop_main(args)
 
 
+def _cmd_make_measured(args: argparse.Namespace) -> int:
+    from lidar_weather_sim.effects import parse_effect
+    from lidar_weather_sim.measured import make_measured
+    from lidar_weather_sim.scenario import load_scenario
+
+    effects = [parse_effect(text) for text in args.hide]
+    report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
+                           profile=args.profile, overwrite=args.overwrite)  # fmt: skip
+    hidden = ", ".join(e.label() for e in effects) or "nothing"
+    print(f"wrote {report.frames} frames ({report.points} points) to {report.output} with {hidden} hidden")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lidar_weather_sim.compare import build_comparison
+    from lidar_weather_sim.gap_report import write_compare
+    from lidar_weather_sim.recording import Recording
+    from lidar_weather_sim.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario) if args.scenario else None
+    comparison = build_comparison(Recording.load(args.measured, args.topic), Recording.load(args.simulated, args.topic),
+                                  scenario)  # fmt: skip
+    m = write_compare(Path(args.out), comparison, args.measured, args.simulated)
+    print(f"{m['frames']['paired']} frame pairs: gap {m['gap']:.4f}, bird's-eye Pearson {m['bev']['pearson']:.3f}; "
+          f"wrote {args.out}/metrics.json, report.md and plots")  # fmt: skip
+    return 0
+
+
+def _cmd_gap(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from lidar_weather_sim.gap_command import run_gap
+    from lidar_weather_sim.scenario import load_scenario
+
+    with tqdm(unit="frame", desc="gap: frames cast") as bar:
+
+        def progress(text: str, casts: int) -> None:
+            bar.update(casts - bar.n)
+            bar.set_postfix_str(text[:60])
+
+        result = run_gap(args.measured, load_scenario(args.scenario), args.out, profile=args.profile, topic=args.topic,
+                         progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames)  # fmt: skip
+    found = ", ".join(f"{e['name']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
+                      for e in result["effects"]) or "no effect"  # fmt: skip
+    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}; wrote {args.out}/gap.json")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="lidar-weather-sim",
@@ -193,6 +243,35 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--out", default="rooftop_reproduction", help="output directory")
     reproduce.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data beside the workspace)")
     reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.reproduce", fromlist=["main"]).main(a))
+
+    measured = commands.add_parser("make-measured", help="render 'measured' data with hidden effects and nuisance")
+    measured.add_argument("scenario", metavar="SCENARIO", help="name in config/scenarios or a YAML path")
+    measured.add_argument("--hide", action="append", default=[], metavar="NAME:key=value[,key=value]",
+                          help="effect to hide, e.g. atmosphere.fog:visual_range=60 (repeatable; see effects.py)")
+    measured.add_argument("--frames", type=int, help="frames (default: the scenario's duration)")
+    measured.add_argument("--seed", type=int, help="seed of the measurement (default: the scenario's + 1000)")
+    measured.add_argument("--profile", help="sensor profile overriding the scenario's")
+    measured.add_argument("--out", required=True, help="output rosbag2 directory (MCAP)")
+    measured.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    measured.set_defaults(func=_cmd_make_measured)
+
+    compare = commands.add_parser("compare", help="metrics, report and plots of a simulated vs a measured recording")
+    compare.add_argument("measured", metavar="MEASURED", help="rosbag2 (MCAP or sqlite3) with a PointCloud2 topic")
+    compare.add_argument("simulated", metavar="SIMULATED", help="rosbag2 (MCAP or sqlite3) with a PointCloud2 topic")
+    compare.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
+    compare.add_argument("--scenario", help="scenario whose actor sizes shape the actor zones")
+    compare.add_argument("--out", default="compare_report", help="output directory")
+    compare.set_defaults(func=_cmd_compare)
+
+    gap = commands.add_parser("gap", help="re-simulate a recording, name the missing effects, fit them, report")
+    gap.add_argument("measured", metavar="MEASURED", help="rosbag2 with a PointCloud2 topic and /tf (or odometry)")
+    gap.add_argument("--scenario", required=True, help="scenario to re-simulate with (name or YAML path)")
+    gap.add_argument("--profile", help="sensor profile overriding the scenario's")
+    gap.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
+    gap.add_argument("--fit-frames", type=int, default=16, help="calibration frames used for fitting")
+    gap.add_argument("--heldout-frames", type=int, default=30, help="held-out frames used for every decision")
+    gap.add_argument("--out", default="gap_report", help="output directory")
+    gap.set_defaults(func=_cmd_gap)
 
     up = commands.add_parser("up", help="start a graph of config/graphs as separate processes (what ros2 launch starts)")
     up.add_argument("graph", metavar="GRAPH", help="graph name in config/graphs (sim, replay_compare, closed_loop, pattern) or a path")

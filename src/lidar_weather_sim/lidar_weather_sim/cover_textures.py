@@ -16,6 +16,9 @@ from paper 1 Tables I and II):
   Gaussian field with the within-cover spread is added and re-centred so the
   grid mean equals the level-1 mean exactly;
 - ``water_film``: a uniform film with a small spread (estimate, see the file);
+- ``dirt:<T>``: generic dirt of mean transmission T (0-1): a hierarchical field whose
+  spreads, range noise, forward share and cover-return rate are interpolated between the
+  thesis samples by opacity 1 - T (continuous in T, so T can be fitted);
 - ``image:<path>``: a custom texture from a grey-scale image (PNG via
   matplotlib, or ``.npy``), 0 = opaque, 1 (or 255) = clear.
 
@@ -105,6 +108,31 @@ def sample_texture(name: str, spec: SampleSpec, db: SamplesFile, rng: np.random.
     return CoverTexture(name, np.clip(grid, 0.0, 1.0), extra, spec.forward_share, spec.near_field_per_beam)
 
 
+def dirt_spec(transmission: float, db: SamplesFile) -> SampleSpec:
+    """A sample of mean ``transmission`` (0-1) with the other properties interpolated linearly
+    in opacity between the thesis' dirt samples (all entries but ``water_film``)."""
+    if not 0.0 <= transmission <= 1.0:
+        raise ConfigError(f"cover texture 'dirt:{transmission}': transmission must be within 0-1")
+    dirt = sorted((s for k, s in db.samples.items() if k != "water_film"), key=lambda s: 1.0 - s.mean_transmission)
+    opacity = np.array([1.0 - s.mean_transmission for s in dirt])
+    at = lambda attr: float(np.interp(1.0 - transmission, opacity, [getattr(s, attr) for s in dirt]))  # noqa: E731
+    return SampleSpec(mean_transmission=transmission, within_sd=at("within_sd"), sigma_increase=at("sigma_increase"),
+                      forward_share=at("forward_share"), near_field_per_beam=at("near_field_per_beam"),
+                      source=f"interpolated between the thesis samples at opacity {1.0 - transmission:.3f}")  # fmt: skip
+
+
+def with_mean(texture: CoverTexture, transmission: float) -> CoverTexture:
+    """``texture`` with its opacity (1 - T) scaled so that its mean transmission is ``transmission``;
+    the cover-return rate scales with the opacity too (more dirt or water, more multipath)."""
+    opacity = 1.0 - texture.mean
+    target = 1.0 - float(transmission)
+    if opacity <= 1e-9:  # a clear texture: a uniform film of the wanted transmission
+        return replace(texture, grid=np.full(texture.grid.shape, float(transmission)))
+    grid = np.clip(1.0 - (1.0 - texture.grid) * (target / opacity), 0.0, 1.0)
+    grid = np.clip(grid + (transmission - grid.mean()), 0.0, 1.0)
+    return replace(texture, grid=grid, near_field_per_beam=texture.near_field_per_beam * target / opacity)
+
+
 def image_texture(path: str | Path) -> CoverTexture:
     """A custom texture from a grey-scale image (row 0 = top of the FOV) or a ``.npy`` array of 0-1."""
     path = Path(path)
@@ -134,8 +162,14 @@ def make_texture(name: str, rng: np.random.Generator, base_range_sigma_m: float,
     if name.startswith("image:"):
         return image_texture(name[len("image:"):])
     db = db or load_samples()
+    if name.startswith("dirt:"):
+        try:
+            transmission = float(name[len("dirt:"):])
+        except ValueError:
+            raise ConfigError(f"cover texture '{name}': expected dirt:<mean transmission 0-1>") from None
+        return sample_texture(name, dirt_spec(transmission, db), db, rng, base_range_sigma_m)
     if name not in db.samples:
-        raise ConfigError(f"{samples_path()}: unknown cover texture '{name}' (known: clean, image:<path>, "
+        raise ConfigError(f"{samples_path()}: unknown cover texture '{name}' (known: clean, dirt:<T>, image:<path>, "
                           f"{', '.join(db.samples)})")  # fmt: skip
     return sample_texture(name, db.samples[name], db, rng, base_range_sigma_m)
 

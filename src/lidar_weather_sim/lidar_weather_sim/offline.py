@@ -18,7 +18,7 @@ from lidar_weather_sim.bags import BagWriter, typestore
 from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP, TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.player import matrix_quaternion
 from lidar_weather_sim.scenario import Scenario
-from lidar_weather_sim.simulator import LidarSimulator
+from lidar_weather_sim.simulator import Frame, LidarSimulator
 from lidar_weather_sim.world import World
 
 POSE_STEP_S = 0.01  # poses advance at 100 Hz of simulated time
@@ -77,8 +77,12 @@ def run_scenario(
     profile: str | None = None,
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    postprocess: Callable[[Frame], np.ndarray | None] | None = None,
 ) -> RunReport:
-    """Simulate ``frames`` frames (default: the scenario's duration) and record them to ``output``."""
+    """Simulate ``frames`` frames (default: the scenario's duration) and record them to ``output``.
+
+    ``postprocess(frame)`` may replace a frame's points before they are written, or return
+    None to drop the frame (it still counts towards ``frames``)."""
     world = World.build(scenario, profile)
     sim = LidarSimulator(
         world.profile,
@@ -107,9 +111,11 @@ def run_scenario(
                 if done == total:
                     break
                 stamp_ns = int(round(frame.stamp_s * 1e9))
-                bag.write_cloud(TOPIC_POINTS, frame.points, stamp_ns, FRAME_LIDAR, log_time_ns=ns)
+                cloud = frame.points if postprocess is None else postprocess(frame)
                 done += 1
-                points += len(frame.points)
+                if cloud is not None:
+                    bag.write_cloud(TOPIC_POINTS, cloud, stamp_ns, FRAME_LIDAR, log_time_ns=ns)
+                    points += len(cloud)
                 if progress:
                     progress(done, total)
             t = round(t + POSE_STEP_S, 9)

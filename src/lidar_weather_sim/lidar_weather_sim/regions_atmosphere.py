@@ -18,7 +18,10 @@ Effects per batch (world frame rays, ranges in m along the ray):
   Poisson scatterers between 5 m and the hit (at least ``path_gap_m`` before it),
   which turn street returns into second echoes;
 - road surface (scene hits on up-facing surfaces, |n_z| > 0.9): wetness w scales the
-  reflectance by (rho_wet / rho_dry)^w (materials ``asphalt_wet`` / ``asphalt_dry``);
+  reflectance by (rho_wet / rho_dry)^w (materials ``asphalt_wet`` / ``asphalt_dry``).
+  w is the weather class's fitted wetness, or, when ``road_water_film_mm`` h is given,
+  w = 1 - exp(-h / T_s) with T_s the road's mean texture depth: the film darkens the
+  road as it fills the texture and turns it into a mirror once it covers it;
   a snow cover of depth d replaces the reflectance by that of ``snow`` and moves the
   hit forward along the ray by d / cos(incidence).
 """
@@ -80,6 +83,10 @@ class AtmosphereParams(ConfigModel):
     intensity_mm_h: float | None = Field(None, ge=0, description="Overrides weather.precipitation.intensity_mm_h (mm/h)")
     near_field_max_m: float = Field(5.0, gt=0.5, description="Far end of the near-field volume (m)")
     path_gap_m: float = Field(0.8, ge=0, description="Path scatterers end this far before the scene hit (m)")
+    air: bool = Field(True, description="Extinction and scatterers in the air; false: only the road surface changes")
+    road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Water film on the road (mm); "
+                                                                           "none = the weather class's wetness")
+    road_texture_depth_mm: float = Field(1.5, gt=0, description="Mean texture depth T_s of the road (mm)")
 
 
 def classify(visual_range_m: float, precipitation: str) -> str:
@@ -120,7 +127,9 @@ class AtmosphereRegion:
         self.rate_scale = 1.0 if ref_alpha is None else self.alpha / ref_alpha
         mats = context.materials or MaterialTable.default()
         self._refl = np.append(mats.reflectivity, 1.0)
-        self._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** self.c.wetness
+        self.wetness = self.c.wetness if params.road_water_film_mm is None else \
+            1.0 - float(np.exp(-params.road_water_film_mm / params.road_texture_depth_mm))  # fmt: skip
+        self._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** self.wetness
         self._snow_refl = mats["snow"].reflectivity
         self.near_field = NearFieldModel(self.c.rate_per_beam, self.c.cover_share, self.c.cover_scale_m,
                                          self.c.amplitude_median, self.c.amplitude_sigma_ln,
@@ -133,18 +142,21 @@ class AtmosphereRegion:
         n, s = batch.shape
         c = self.c
         label = VOLUME_LABEL[self.weather_class]
-        near = sample_near_field(self.near_field, n, batch.weights, self.profile, rng, Label.COVER, label, self.rate_scale)
-        path = self._path_scatterers(batch, rng, label)
+        scatterers = None
+        if self.p.air:
+            near = sample_near_field(self.near_field, n, batch.weights, self.profile, rng, Label.COVER, label,
+                                     self.rate_scale)  # fmt: skip
+            scatterers = Scatterers.concatenate([near, self._path_scatterers(batch, rng, label)])
         ground = np.isfinite(batch.distance) & (np.abs(batch.normal[..., 2]) > 0.9)
         scale = np.where(ground, self._wet_scale, 1.0)
         offset = np.zeros((n, s))
-        if c.snow_depth_m > 0:
+        if c.snow_depth_m > 0 and self.p.air:
             cos_inc = np.maximum(np.abs(np.einsum("nsk,nsk->ns", batch.normal, batch.directions)), 0.05)
             scale = np.where(ground, self._snow_refl / np.maximum(self._refl[batch.material], 1e-6), scale)
             offset = np.where(ground, -c.snow_depth_m / cos_inc, 0.0)
         return RegionEffect(
-            extinction_per_m=np.full((n, s), self.alpha),
-            scatterers=Scatterers.concatenate([near, path]),
+            extinction_per_m=np.full((n, s), self.alpha if self.p.air else 0.0),
+            scatterers=scatterers,
             reflectance_scale=scale,
             range_offset_m=offset,
         )

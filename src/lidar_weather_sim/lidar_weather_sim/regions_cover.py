@@ -23,14 +23,17 @@ import numpy as np
 from pydantic import Field
 
 from lidar_weather_sim.config import ConfigModel
-from lidar_weather_sim.cover_textures import CoverTexture, make_texture
+from lidar_weather_sim.cover_textures import CoverTexture, make_texture, with_mean
 from lidar_weather_sim.near_field import NearFieldModel, sample_near_field
 from lidar_weather_sim.points import Label
 from lidar_weather_sim.regions import RayBatch, RegionContext, RegionEffect
 
 
 class CoverParams(ConfigModel):
-    texture: str = Field("clean", description="clean, a config/cover/samples.yaml entry (1u..6l, water_film) or image:<path>")
+    texture: str = Field("clean", description="clean, a config/cover/samples.yaml entry (1u..6l, water_film), "
+                                                "dirt:<mean transmission> or image:<path>")
+    mean_transmission: float | None = Field(None, ge=0, le=1, description="Rescale the texture's opacity to this mean "
+                                                                          "transmission (0-1); none = as drawn")
     target_texture: str | None = Field(None, description="Texture blended in over time (same names), none = static")
     blend_start_s: float = Field(0.0, ge=0, description="Simulated time the blend starts (s)")
     blend_duration_s: float = Field(0.0, ge=0, description="Duration of the blend (s); 0 = switch at blend_start_s")
@@ -52,6 +55,8 @@ class CoverRegion:
         self.textures: list[CoverTexture] = [make_texture(params.texture, rng, sigma0)]
         if params.target_texture:
             self.textures.append(make_texture(params.target_texture, rng, sigma0))
+        if params.mean_transmission is not None:
+            self.textures = [with_mean(t, params.mean_transmission) for t in self.textures]
         beams = [b.elevation_deg for b in self.profile.beams]
         half = 0.5 * np.rad2deg(self.profile.optics.divergence_v_mrad * 1e-3)
         self._el = np.deg2rad([min(beams) - half, max(beams) + half])

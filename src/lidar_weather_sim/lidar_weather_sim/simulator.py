@@ -125,6 +125,7 @@ class LidarSimulator:
         self._last_time_s: float | None = None
         self._geo: tuple[np.ndarray, ...] | None = None  # see _point_tables
         self._scratch = workers.Scratch()  # per-batch temporaries, reused
+        self._region_time_s: float | None = None  # simulated time the regions were last stepped to
 
     # -- receiver ----------------------------------------------------------------
     def threshold(self) -> Threshold:
@@ -140,6 +141,33 @@ class LidarSimulator:
         return d.noise_mean + d.threshold_sigma * d.noise_sigma
 
     # -- time ----------------------------------------------------------------------
+    def restart(self, *, regions: list[tuple[str, Region]] | None = None, sun_irradiance_w_m2: float | None = None,
+                seed: int | None = None) -> None:  # fmt: skip
+        """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2) and seed
+        where given. The scene and its caster stay (no rebuild): re-simulating the same frames with
+        other weather costs only the casts."""
+        self._frame = None
+        self._last_time_s = None
+        self._region_time_s = None
+        if regions is not None:
+            self.regions = list(regions)
+        if sun_irradiance_w_m2 is not None:
+            self.sun_irradiance_w_m2 = float(sun_irradiance_w_m2)
+        if seed is not None:
+            self.seed = int(seed)
+
+    def cast_frame(self, index: int, start_s: float, poses: PoseSource) -> Frame:
+        """Cast the whole frame ``index`` (its scan pattern: scala4 alternates layers by index) whose
+        scan starts at ``start_s`` (simulated s), e.g. to re-simulate a recorded frame. Regions step
+        from their last time to this frame's, so call it in increasing time."""
+        if self._last_time_s is not None and start_s < self._last_time_s:
+            raise ValueError(f"time went backwards: frame at {start_s:.6f} s after {self._last_time_s:.6f} s")
+        self._frame = _FrameAccumulator(int(index), float(start_s))
+        self._last_time_s = None
+        last_column_s = float(self.pattern.column_time_s[-1]) + 1e-7  # rounding of start_s + t never drops it
+        frames = self.advance(float(start_s) + last_column_s, poses)
+        return frames[0]
+
     def advance(self, time_s: float, poses: PoseSource) -> list[Frame]:
         """Cast every column fired up to ``time_s`` (simulated, s); return the frames completed."""
         period = self.profile.period_s
@@ -228,7 +256,7 @@ class LidarSimulator:
                 label=label,
             )
             batch_time = float(times.mean())  # regions advance in simulated time before they are sampled
-            previous = getattr(self, "_region_time_s", None)
+            previous = self._region_time_s
             for _, region in self.regions:
                 region.step(batch_time if previous is None else previous, batch_time)
             self._region_time_s = batch_time

@@ -212,6 +212,11 @@ class TransformBuffer:
         with self._lock:
             return self._frames()
 
+    def root(self, frame: str) -> str:
+        """The root of the tree ``frame`` hangs in (``frame`` itself if it has no parent)."""
+        with self._lock:
+            return self._chain(_name(frame))[-1]
+
     def time_range(self, child: str) -> tuple[int, int] | None:
         """(oldest, newest) stamp in ns of the edge above ``child``; None if static."""
         with self._lock:

@@ -46,10 +46,12 @@ class World:
             scene.add_actor(actor.id, mesh, f"actor {actor.id}", actor.label_code)
         return cls(scenario, profile, scene, ScenarioPlayer(scenario, scene.roads))
 
-    def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None) -> list[tuple[str, Region]]:
-        """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``."""
+    def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None,
+                pose_source=None) -> list[tuple[str, Region]]:  # fmt: skip
+        """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``;
+        actor poses come from ``pose_source`` (default: the scenario player)."""
         context = RegionContext(self.profile, self.scenario.weather, self.scene.materials,
-                                actors=self.scenario.actors, pose_source=self.player)  # fmt: skip
+                                actors=self.scenario.actors, pose_source=pose_source or self.player)  # fmt: skip
         names = self.scenario.regions if names is None else names
         merged = {**self.scenario.region_params}
         for name, values in (params or {}).items():
