@@ -16,7 +16,7 @@ import numpy as np
 
 from lidar_weather_sim.bags import BagWriter, typestore
 from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP, TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
-from lidar_weather_sim.player import matrix_quaternion
+from lidar_weather_sim.player import NoEgoError, matrix_quaternion
 from lidar_weather_sim.scenario import Scenario
 from lidar_weather_sim.simulator import Frame, LidarSimulator
 from lidar_weather_sim.world import World
@@ -82,7 +82,13 @@ def run_scenario(
     """Simulate ``frames`` frames (default: the scenario's duration) and record them to ``output``.
 
     ``postprocess(frame)`` may replace a frame's points before they are written, or return
-    None to drop the frame (it still counts towards ``frames``)."""
+    None to drop the frame (it still counts towards ``frames``). A mesh-only scenario (no ego)
+    raises :class:`NoEgoError`: it has no poses to run."""
+    if scenario.ego is None:
+        raise NoEgoError(
+            f"scenario '{scenario.name}' has no ego (mesh-only, no map): it cannot be run; use it with "
+            "gap/compare on a recording or the sim node's /tf mode"
+        )
     world = World.build(scenario, profile)
     sim = LidarSimulator(
         world.profile,

@@ -6,6 +6,8 @@ duration. base_link is the ego's origin on the road surface (REP-105), the
 sensor is mounted on it with the scenario's mount pose. All poses are in the
 map frame: translations in m, quaternions x, y, z, w. The ego speed can be
 commanded at run time (closed loop); actors keep their scenario speed.
+A mesh-only scenario has no ego: its player has no actors and no ego poses
+(:class:`NoEgoError`); sensor poses then come from a recording or /tf.
 """
 
 from __future__ import annotations
@@ -113,30 +115,42 @@ class MoverTrack:
         return pos, heading
 
 
+class NoEgoError(ValueError):
+    """Ego or sensor poses asked of a scenario without an ego (a mesh-only scenario)."""
+
+
 class ScenarioPlayer:
     """Implements the simulator's PoseSource for a scenario."""
 
     def __init__(self, scenario: Scenario, network: RoadNetwork) -> None:
         self.scenario = scenario
         self.network = network
-        self.ego = MoverTrack(scenario.ego, network)
+        self.ego = None if scenario.ego is None else MoverTrack(scenario.ego, network)
         self.actors = {a.id: (a, MoverTrack(a, network)) for a in scenario.actors}
         self.mount = mount_matrix(scenario.sensor.mount)
         self._mount_quaternion = matrix_quaternion(self.mount[:3, :3])
 
     def base_link_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """base_link in map: translations (N, 3) m, quaternions (N, 4)."""
-        pos, heading = self.ego.poses(times_s)
+        pos, heading = self._ego().poses(times_s)
         return pos, yaw_quaternions(heading)
 
     def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor frame in map at each time (rolling shutter: one pose per firing time)."""
-        pos, heading = self.ego.poses(times_s)
+        pos, heading = self._ego().poses(times_s)
         c, s = np.cos(heading), np.sin(heading)
         mx, my, mz = self.mount[:3, 3]
         translation = pos + np.stack([c * mx - s * my, s * mx + c * my, np.full_like(c, mz)], axis=-1)
         yaw_q = yaw_quaternions(heading)
         return translation, _quaternion_product(yaw_q, self._mount_quaternion[None, :])
+
+    def _ego(self) -> MoverTrack:
+        if self.ego is None:
+            raise NoEgoError(
+                f"scenario '{self.scenario.name}' has no ego (mesh-only, no map): its sensor poses must come "
+                "from a recording (gap, compare) or from /tf, not from the scenario"
+            )
+        return self.ego
 
     def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
         """Body-to-map 4x4 of every actor present at ``time_s``."""

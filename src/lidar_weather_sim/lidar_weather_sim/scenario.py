@@ -5,6 +5,13 @@ unit suffixes (``fog.visual_range_m``, ``precipitation.intensity_mm_h``,
 ``sun.irradiance_w_m2`` - the thesis' unit, not OpenSCENARIO's lux,
 ``wind.speed_m_s``). Positions on roads use OpenDRIVE road ids, lane ids
 (negative = right of the reference line) and s (m along the road).
+
+A scenario without a ``map`` (``map: null`` or omitted) has an empty road
+network: its scene is only its ``static_meshes`` (for example a mesh built from
+a real recording). Such a mesh-only scenario has no roads to drive on, so it has
+no ``ego`` and no ``actors``; its sensor poses must come from outside (``gap`` /
+``compare`` on a recording, the node's /tf or odometry mode), and
+``lidar-weather-sim run`` refuses it.
 """
 
 from __future__ import annotations
@@ -103,11 +110,14 @@ class Weather(ConfigModel):
 class Scenario(ConfigModel):
     name: str
     description: str = ""
-    map: str = Field(description="OpenDRIVE file in maps/ (or a path)")
-    static_meshes: list[str] = Field(default_factory=list, description="Extra meshes in maps/ (glTF/OBJ/PLY)")
+    map: str | None = Field(None, description="OpenDRIVE file in maps/ (or a path); null: no roads, a mesh-only scene")
+    static_meshes: list[str] = Field(
+        default_factory=list,
+        description="Extra meshes (glTF/OBJ/PLY): names in maps/, paths, or 'cache:<path>' in the workspace's .venv/cache",
+    )
     duration_s: float = Field(10.0, gt=0, description="Length of `lidar-weather-sim run` (s)")
     seed: int = 0
-    ego: Mover
+    ego: Mover | None = Field(None, description="The sensor's vehicle; required with a map, absent without one")
     sensor: SensorSetup = Field(default_factory=SensorSetup)
     actors: list[Actor] = Field(default_factory=list)
     weather: Weather = Field(default_factory=Weather)
@@ -122,7 +132,19 @@ class Scenario(ConfigModel):
         unused = sorted(set(self.region_params) - set(self.regions))
         if unused:
             raise ValueError(f"region_params for regions not in 'regions': {unused}")
+        if self.map is not None and self.ego is None:
+            raise ValueError("'ego' is required with a 'map' (only a mesh-only scenario, map: null, has no ego)")
+        if self.map is None:
+            if not self.static_meshes:
+                raise ValueError("a scenario without a 'map' needs 'static_meshes' (its scene would be empty)")
+            if self.ego is not None or self.actors:
+                raise ValueError("a scenario without a 'map' has no roads: it cannot have an 'ego' or 'actors'")
         return self
+
+    @property
+    def mesh_only(self) -> bool:
+        """No road network and no ego: sensor poses must come from a recording or /tf."""
+        return self.map is None
 
 
 def scenarios_dir() -> Path:

@@ -6,7 +6,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lidar_weather_sim.mesh import box_mesh
-from lidar_weather_sim.paths import maps_dir
+from lidar_weather_sim.materials import MaterialTable
+from lidar_weather_sim.opendrive import RoadNetwork
+from lidar_weather_sim.paths import maps_dir, resolve_data_path
 from lidar_weather_sim.player import ScenarioPlayer
 from lidar_weather_sim.regions import REGISTRY, Region, RegionContext
 from lidar_weather_sim.scenario import Scenario
@@ -15,8 +17,8 @@ from lidar_weather_sim.sensor_profile import SensorProfile, load_profile
 
 
 def _map_path(name: str) -> Path:
-    path = Path(name)
-    return path if path.is_absolute() or path.exists() else maps_dir() / name
+    """A map or mesh of a scenario: ``cache:<path>``, a path, or a name in maps/."""
+    return resolve_data_path(name, maps_dir())
 
 
 @dataclass
@@ -24,14 +26,17 @@ class World:
     scenario: Scenario
     profile: SensorProfile
     scene: Scene
-    player: ScenarioPlayer
+    player: ScenarioPlayer  # without an ego (mesh-only): actor_poses is {}, ego poses raise NoEgoError
 
     @classmethod
     def build(cls, scenario: Scenario, profile: str | SensorProfile | None = None) -> "World":
         """Scene, player and profile of ``scenario`` (``profile`` overrides the scenario's sensor)."""
         if not isinstance(profile, SensorProfile):
             profile = load_profile(profile or scenario.sensor.profile)
-        scene = Scene.from_xodr(_map_path(scenario.map))
+        if scenario.map is None:  # mesh-only: an empty road network, the scene is the static meshes
+            scene = Scene(MaterialTable.default(), roads=RoadNetwork({}, "<no map>"))
+        else:
+            scene = Scene.from_xodr(_map_path(scenario.map))
         for mesh_name in scenario.static_meshes:
             scene.add_static(
                 load_static_mesh(_map_path(mesh_name), scene.materials.index("concrete"), scene.next_object_id()),
