@@ -139,7 +139,8 @@ def test_the_real_street_is_cast_from_the_recorded_poses():
     assert poses.actor_poses(0.0) == {}
     sim = LidarSimulator(world.profile, world.scene, seed=0)
     frame = recording.frames[0]
-    simulated = sim.cast_frame(recording.scan_index(frame, world.profile.period_s), recording.time_s(frame.stamp_ns), poses).points
+    index = recording.scan_index(frame, world.profile.period_s)
+    simulated = sim.cast_frame(index, recording.time_s(frame.stamp_ns), poses).points
     measured = frame.points
     # the mesh misses ~9 % of the returns and adds some where the sensor saw nothing (ouster_import)
     assert 0.7 < len(simulated) / len(measured) < 1.3
