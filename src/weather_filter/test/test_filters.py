@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS, Label, empty_points, fill_polar, strip_ground_truth
-from weather_filter.filters import DRORFilter, DSORFilter, EchoAwareFilter, LIORFilter, MissingFieldsError, make_filter
+from weather_filter.filters import DRORFilter, DSORFilter, DSORParams, EchoAwareFilter, LIORFilter, MissingFieldsError, make_filter
 from weather_filter.synthetic import highway_frame
 
 
@@ -63,7 +63,7 @@ def test_dsor_removes_near_isolated_points_and_keeps_a_far_wall_scanned_at_0_25_
     outliers = wall_with_outliers()[-30:]
     for axis in "xyz":
         pts[axis][n_wall:] = outliers[axis]
-    remove = DSORFilter()(pts).remove
+    remove = DSORFilter(DSORParams(range_multiplier=0.05))(pts).remove
     assert remove[n_wall:].all() and not remove[:n_wall].any()
 
 
@@ -71,7 +71,8 @@ def test_dsor_threshold_scales_with_range():
     pts = wall_with_outliers()
     far = pts.copy()
     far["x"] += 200.0  # everything far away: dynamic threshold large, nothing removed
-    assert DSORFilter()(far).remove.sum() < DSORFilter()(pts).remove.sum()
+    published = DSORFilter(DSORParams(range_multiplier=0.05))  # fixed r: the threshold grows with absolute range
+    assert published(far).remove.sum() < published(pts).remove.sum()
 
 
 def test_lior_keeps_strong_isolated_points():

@@ -1,6 +1,6 @@
 """``weather-filter``: evaluate the weather filters on a bag and train the learned filter.
 
-    weather-filter eval BAG [--method M] [--topic T] [--out FILE.json] [--param NAME=VALUE ...]
+    weather-filter eval BAG [--method M] [--fallback dror|dsor] [--topic T] [--out FILE.json] [--param NAME=VALUE ...]
     weather-filter train [BAG ...] [--synthetic-frames N] [--out MODEL.joblib]
 
 Errors print one line naming the problem and exit 2.
@@ -15,7 +15,7 @@ import sys
 
 from lidar_weather_sim.names import TOPIC_POINTS
 
-from weather_filter.filters import METHODS
+from weather_filter.filters import GEOMETRY_METHODS, METHODS
 
 
 def _parse_params(items: list[str]) -> dict:
@@ -34,7 +34,14 @@ def _parse_params(items: list[str]) -> dict:
 def _cmd_eval(args: argparse.Namespace) -> int:
     from weather_filter.evaluate import evaluate_bag
 
-    result = evaluate_bag(args.bag, args.method, args.topic, **_parse_params(args.param))
+    import warnings
+
+    from weather_filter.filters import GeometryFallbackWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", GeometryFallbackWarning)
+        warnings.showwarning = lambda message, *rest, **kw: print(f"weather-filter eval: warning: {message}", file=sys.stderr)
+        result = evaluate_bag(args.bag, args.method, args.topic, args.fallback, **_parse_params(args.param))
     text = json.dumps(result, indent=2)
     if args.out:
         with open(args.out, "w") as stream:
@@ -84,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--method", default="echo", choices=METHODS, help="filter (default echo)")
     ev.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     ev.add_argument("--out", help="also write the JSON to this file")
+    ev.add_argument("--fallback", default="dror", choices=GEOMETRY_METHODS,
+                    help="geometry-only filter for clouds lacking the method's fields (default dror)")  # fmt: skip
     ev.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="filter parameter override")
     ev.set_defaults(func=_cmd_eval)
 

@@ -9,6 +9,8 @@ F1 their harmonic mean; ``object_recall`` = kept / points with labels 1-3;
 in [0, 1]. A value whose denominator is zero is vacuously 1.0 (no points removed:
 nothing removed wrongly; no weather or no ROI object points: nothing missed), so
 every value stays a number. A bag without ``label`` reports ``removed_fraction`` instead.
+Clouds lacking the method's fields (EPW, echo...) are filtered by the geometry-only
+fallback with a warning; the result then names it under ``fallback``.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 
 from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS, Label
 
-from weather_filter.filters import PointFilter
+from weather_filter.filters import FallbackFilter, PointFilter
 
 ROI_HALF_WIDTH_M = 1.75
 ROI_X_M = (5.0, 60.0)
@@ -108,16 +110,23 @@ def evaluate_frames(filt: PointFilter, frames: Iterable[np.ndarray], method: str
     """Run ``filt`` over ``frames`` (structured point arrays) and return the evaluation dictionary."""
     acc = Accumulator(method or filt.name)
     filt.reset()
+    fallback_frames = 0
     for points in frames:
         result = filt(points)
         acc.add(points, result.remove, result.elapsed_s)
-    return acc.result()
+        fallback_frames += isinstance(filt, FallbackFilter) and filt.last_used != filt.primary.name
+    out = acc.result()
+    if fallback_frames:
+        out["fallback"] = {"method": filt.fallback.name, "frames": fallback_frames}
+    return out
 
 
-def evaluate_bag(bag: str, method: str, topic: str, **filter_params) -> dict:
+def evaluate_bag(bag: str, method: str, topic: str, fallback: str = "dror", **filter_params) -> dict:
+    """Clouds lacking the fields of ``method`` are filtered by the geometry-only ``fallback`` (warning, and a
+    ``fallback`` entry in the result naming it and how many frames it filtered)."""
     from lidar_weather_sim.bags import read_clouds
 
-    from weather_filter.filters import make_filter
+    from weather_filter.filters import make_filter_with_fallback
 
-    filt = make_filter(method, **filter_params)
+    filt = make_filter_with_fallback(method, fallback, **filter_params)
     return evaluate_frames(filt, (frame.points for frame in read_clouds(bag, topic)), method)

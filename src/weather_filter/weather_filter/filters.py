@@ -21,12 +21,15 @@ noted.
 from __future__ import annotations
 
 import time
+import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields as dc_fields
 from typing import ClassVar
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from weather_filter.scan_geometry import angular_resolution_rad
 
 GEOMETRY_FIELDS = frozenset({"x", "y", "z"})
 
@@ -85,18 +88,26 @@ def neighbour_counts(tree: cKDTree, query: np.ndarray, radius: np.ndarray | floa
 
 @dataclass(frozen=True)
 class DRORParams:
-    """Charron et al. 2018 defaults. ``azimuth_resolution_deg``: horizontal step of the sensor (scala4 0.25 deg);
-    ``multiplier`` (beta) and ``min_search_radius_m`` (SR_min), ``min_neighbours`` (k_min, self excluded)."""
+    """Charron et al. 2018: ``multiplier`` (beta), ``min_search_radius_m`` (SR_min), ``min_neighbours``
+    (k_min, self excluded) as published. ``angular_resolution_deg`` (alpha): None = estimated from the cloud
+    (the coarser of its azimuth and elevation steps, :mod:`weather_filter.scan_geometry`); a number fixes it.
+    ``max_range_m``: None = the published filter (every range); a number leaves points beyond it alone."""
 
-    azimuth_resolution_deg: float = 0.25
+    angular_resolution_deg: float | None = None
     multiplier: float = 3.0
     min_search_radius_m: float = 0.04
     min_neighbours: int = 3
+    max_range_m: float | None = None
+
+
+#: alpha when the cloud has no scan structure to estimate it from (no ``channel``, or not a scanning
+#: pattern, e.g. a hand-made test cloud): the project's reference sensor's step (scala4, 0.25 deg).
+DEFAULT_ANGULAR_RESOLUTION_DEG = 0.25
 
 
 class DRORFilter(PointFilter):
-    """Dynamic radius outlier removal: search radius SR = max(SR_min, beta * alpha * r), r the horizontal range;
-    a point with fewer than k_min neighbours inside SR is removed."""
+    """Dynamic radius outlier removal: search radius SR = max(SR_min, beta * alpha * r), r the horizontal range,
+    alpha the scan's angular resolution; a point with fewer than k_min neighbours inside SR is removed."""
 
     name = "dror"
 
@@ -106,24 +117,35 @@ class DRORFilter(PointFilter):
     def remove_mask(self, points: np.ndarray) -> np.ndarray:
         p = self.params
         coords = xyz(points)
-        radius = np.maximum(p.min_search_radius_m, p.multiplier * np.radians(p.azimuth_resolution_deg) * horizontal_range(points))
-        counts = neighbour_counts(cKDTree(coords), coords, radius) - 1
-        return counts < p.min_neighbours
+        r = horizontal_range(points)
+        alpha = angular_resolution_rad(points, p.angular_resolution_deg, DEFAULT_ANGULAR_RESOLUTION_DEG)
+        radius = np.maximum(p.min_search_radius_m, p.multiplier * alpha * r)
+        remove = neighbour_counts(cKDTree(coords), coords, radius) - 1 < p.min_neighbours
+        if p.max_range_m is not None:
+            remove &= np.linalg.norm(coords, axis=1) <= p.max_range_m
+        return remove
 
 
 @dataclass(frozen=True)
 class DSORParams:
-    """Kurup & Bos 2021 defaults: k nearest neighbours, global std multiplier s, range multiplier r."""
+    """Kurup & Bos 2021: k nearest neighbours and global std multiplier s as published; range multiplier r
+    (1/m): None = 1 / (the cloud's mean horizontal range), a number fixes it (the paper's 0.05)."""
 
     neighbours: int = 4
     std_multiplier: float = 0.01
-    range_multiplier: float = 0.05
+    range_multiplier: float | None = None
 
 
 class DSORFilter(PointFilter):
     """Dynamic statistical outlier removal: mean distance d_i to the k nearest neighbours; global threshold
     T = mean(d) + s * std(d); a point is removed if d_i > T * r * range_i (range_i horizontal, as in the
-    authors' PCL implementation)."""
+    authors' PCL implementation).
+
+    T * r * range_i compares a point with the global mean *scaled to its range*, which is only consistent
+    when r is the inverse of the range at which the cloud's mean spacing T is observed: the paper's
+    r = 0.05 1/m encodes its data set's 20 m. On a cloud whose points are mostly nearer (a street
+    scanned by an OS1-128: mean 12 m) the fixed value puts every point's threshold below its own spacing
+    (63 % removed on the real clear frames). So r defaults to 1 / mean horizontal range of the cloud."""
 
     name = "dsor"
 
@@ -139,20 +161,23 @@ class DSORFilter(PointFilter):
         dist, _ = cKDTree(coords).query(coords, k=k, workers=-1)
         mean_d = dist[:, 1:].mean(axis=1)
         threshold = mean_d.mean() + p.std_multiplier * mean_d.std()
-        return mean_d > threshold * p.range_multiplier * horizontal_range(points)
+        r = horizontal_range(points)
+        range_multiplier = p.range_multiplier if p.range_multiplier is not None else 1.0 / max(float(r.mean()), 1e-6)
+        return mean_d > threshold * range_multiplier * r
 
 
 @dataclass(frozen=True)
 class LIORParams:
-    """Candidates: intensity below ``intensity_threshold`` (0-255) *and*, when the cloud has EPW, EPW below
-    ``epw_threshold_m``; within ``max_range_m`` (weather returns are near-field). A candidate is removed if it
-    has fewer than ``min_neighbours`` (self excluded) inside a DROR-style radius
-    max(``min_search_radius_m``, ``multiplier`` * ``azimuth_resolution_deg`` * r)."""
+    """Candidates: intensity below ``intensity_threshold`` (0-255) *and* EPW below ``epw_threshold_m``;
+    within ``max_range_m`` (weather returns are near-field). A candidate is removed if it has fewer than
+    ``min_neighbours`` (self excluded) inside a DROR-style radius
+    max(``min_search_radius_m``, ``multiplier`` * alpha * r), alpha = ``angular_resolution_deg`` or, when
+    None, the cloud's azimuth step (:mod:`weather_filter.scan_geometry`)."""
 
     intensity_threshold: float = 60.0
     epw_threshold_m: float = 0.9
     max_range_m: float = 40.0
-    azimuth_resolution_deg: float = 0.25
+    angular_resolution_deg: float | None = None
     multiplier: float = 3.0
     min_search_radius_m: float = 0.2
     min_neighbours: int = 3
@@ -162,19 +187,22 @@ class LIORFilter(PointFilter):
     """Low-intensity outlier removal (Park et al. 2020) with an EPW term: weak (low intensity, short pulse)
     points that are also isolated are weather. The intensity and EPW thresholds replace LIOR's
     range-dependent intensity curve because this sensor's intensity is already range-compensated
-    only by the target's reflectance, not by weather. Without an EPW field only intensity is used."""
+    only by the target's reflectance, not by weather.
+
+    EPW is required: ``intensity`` is "received power on the sensor's scale" and the threshold is only
+    meaningful on the scale of the echo-measuring sensor it was set for. A cloud without EPW (a real
+    OS1-128, whose ``intensity`` is Ouster's 8-bit *reflectivity*, median 8 on a clear street, so that
+    nearly every point is a "weak" candidate) goes to the geometry-only fallback instead."""
 
     name = "lior"
-    required_fields = GEOMETRY_FIELDS | {"intensity"}
+    required_fields = GEOMETRY_FIELDS | {"intensity", "epw"}
 
     def __init__(self, params: LIORParams = LIORParams()) -> None:
         self.params = params
 
     def candidates(self, points: np.ndarray, r: np.ndarray) -> np.ndarray:
         p = self.params
-        weak = points["intensity"].astype(np.float64) < p.intensity_threshold
-        if "epw" in points.dtype.names:
-            weak &= points["epw"] < p.epw_threshold_m
+        weak = (points["intensity"].astype(np.float64) < p.intensity_threshold) & (points["epw"] < p.epw_threshold_m)
         return weak & (r <= p.max_range_m)
 
     def isolated(self, points: np.ndarray, r: np.ndarray, subset: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
@@ -182,7 +210,9 @@ class LIORFilter(PointFilter):
         p = self.params
         if tree is None:
             tree = cKDTree(xyz(points))
-        radius = np.maximum(p.min_search_radius_m, p.multiplier * np.radians(p.azimuth_resolution_deg) * r[subset])
+        # the candidates are already weak short pulses: the horizontal step, as in DROR's paper, suffices here
+        alpha = angular_resolution_rad(points, p.angular_resolution_deg, DEFAULT_ANGULAR_RESOLUTION_DEG, "azimuth")
+        radius = np.maximum(p.min_search_radius_m, p.multiplier * alpha * r[subset])
         return neighbour_counts(tree, xyz(points[subset]), radius) - 1 < p.min_neighbours
 
     def remove_mask(self, points: np.ndarray) -> np.ndarray:
@@ -264,6 +294,70 @@ class EchoAwareFilter(PointFilter):
 #: Geometry-only filters usable on any cloud with x, y, z.
 GEOMETRY_METHODS = ("dror", "dsor")
 METHODS = ("dror", "dsor", "lior", "echo", "learned")
+
+#: Parameters of a geometry-only filter when it stands in for a method whose fields the cloud lacks (issue 6:
+#: on real clear frames the filter must remove <= 0.5 % of the points). Without intensity/EPW/echo nothing
+#: tells a raindrop from a leaf or an edge pixel, so the fallback removes only what a clear scene does not
+#: produce: fewer than 2 neighbours within 5 angular steps (sizes in units of the cloud's own resolution,
+#: not metres), and only within the near field where the weather filters look for weather (LIOR's 40 m).
+#: Published DROR (beta 3, k_min 3) removes 2.4 % of the real clear OS1-128 frames (foliage, thin
+#: structures, mixed pixels at edges); this setting 0.3 %.
+FALLBACK_PARAMS = {
+    "dror": dict(multiplier=5.0, min_neighbours=2, max_range_m=LIORParams.max_range_m),
+    "dsor": dict(std_multiplier=1.0),
+}
+
+
+class GeometryFallbackWarning(UserWarning):
+    """A cloud lacked the fields of the requested filter; the geometry-only fallback filtered it."""
+
+
+class FallbackFilter(PointFilter):
+    """``primary`` where the cloud has its fields, else the geometry-only ``fallback`` with a
+    :class:`GeometryFallbackWarning` (once per set of missing fields). ``last_used`` names the filter
+    that ran on the latest cloud."""
+
+    required_fields = GEOMETRY_FIELDS
+
+    def __init__(self, primary: PointFilter, fallback: PointFilter) -> None:
+        self.primary, self.fallback = primary, fallback
+        self.name = primary.name
+        self.last_used = primary.name
+        self._warned: set[tuple[str, ...]] = set()
+
+    def remove_mask(self, points: np.ndarray) -> np.ndarray:
+        missing = tuple(self.primary.missing_fields(points))
+        filt = self.primary
+        if missing:
+            filt = self.fallback
+            if missing not in self._warned:
+                self._warned.add(missing)
+                warnings.warn(fallback_message(self.primary.name, list(missing), self.fallback.name), GeometryFallbackWarning, stacklevel=3)
+        self.last_used = filt.name
+        return filt.remove_mask(points)
+
+    def reset(self) -> None:
+        self.primary.reset()
+        self.fallback.reset()
+
+
+def fallback_message(method: str, missing: list[str], fallback: str) -> str:
+    return f"cloud lacks {', '.join(missing)} (needed by '{method}'): using geometry-only '{fallback}'"
+
+
+def make_fallback_filter(method: str = "dror") -> PointFilter:
+    """The geometry-only filter ``method`` with :data:`FALLBACK_PARAMS`."""
+    if method not in GEOMETRY_METHODS:
+        raise ValueError(f"fallback method must be one of {', '.join(GEOMETRY_METHODS)}, not {method!r}")
+    return make_filter(method, **FALLBACK_PARAMS[method])
+
+
+def make_filter_with_fallback(method: str, fallback: str = "dror", **overrides) -> PointFilter:
+    """``make_filter(method)`` that filters clouds lacking its fields with :func:`make_fallback_filter`."""
+    primary = make_filter(method, **overrides)
+    if primary.required_fields <= GEOMETRY_FIELDS:
+        return primary
+    return FallbackFilter(primary, make_fallback_filter(fallback))
 
 
 def make_filter(method: str, **overrides) -> PointFilter:

@@ -6,7 +6,8 @@ and ``/lidar/points/removed`` (same fields as the input, SensorDataQoS) and a
 per label when the cloud has ``label``, filter time, method, weather class when
 the per-frame classifier is available). A malformed cloud is logged once per
 cause and skipped. A cloud lacking the fields of ``method`` (EPW, echo...) is
-filtered with ``fallback_method`` (geometry only), with a warning once.
+filtered with ``fallback_method`` (geometry only, with
+``weather_filter.filters.FALLBACK_PARAMS``), with a warning once.
 
 Parameters: ``method`` (dror|dsor|lior|echo|learned), ``fallback_method``
 (dror|dsor), ``model_path`` (learned filter; empty = packaged model).
@@ -27,7 +28,7 @@ from lidar_weather_sim.cloud_codec import CloudFormatError
 from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TOPIC_POINTS_REMOVED
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 
-from weather_filter.filters import GEOMETRY_METHODS, METHODS, make_filter
+from weather_filter.filters import GEOMETRY_METHODS, METHODS, fallback_message, make_fallback_filter, make_filter
 
 
 class WeatherFilterNode(Node):
@@ -46,7 +47,7 @@ class WeatherFilterNode(Node):
             raise ValueError(f"fallback_method must be one of {GEOMETRY_METHODS}, not {fallback!r}")
         extra = {"model_path": self.get_parameter("model_path").value or None} if method == "learned" else {}
         self._filter = make_filter(method, **extra)
-        self._fallback = make_filter(fallback)
+        self._fallback = make_fallback_filter(fallback)
         self._logged: set[str] = set()
         self._weather = None
         self.frames = 0
@@ -78,7 +79,7 @@ class WeatherFilterNode(Node):
         filt = self._filter
         missing = filt.missing_fields(points)
         if missing:
-            self._once(f"missing:{missing}", f"cloud lacks {', '.join(missing)}: using geometry-only '{self._fallback.name}'")
+            self._once(f"missing:{missing}", fallback_message(filt.name, missing, self._fallback.name))
             filt = self._fallback
             if filt.missing_fields(points):
                 self._once("nogeom", "cloud lacks x, y or z: skipped", "error")
