@@ -4,23 +4,37 @@ The project's ``ros2 bag play --clock`` (rosbag2_py is not installable everywher
 Messages go out in log-time order, each at ``(log_time - first log_time) / rate``
 wall seconds after the start; with ``publish_clock`` /clock carries the bag's
 log time (before each message and at ``clock_hz`` in between) and the bag's own
-/clock messages are not replayed. /tf_static is published transient-local,
+/clock messages are not replayed (while the node waits for subscribers, /clock
+stands at the first log time). /tf_static is published transient-local,
 every other topic reliable (depth 100), so best-effort and reliable readers both match.
+The /tf_static messages of the bag's first instant go out before the clock starts,
+and playback starts once every reader has acknowledged them: no reader gets a /tf
+that needs a static frame before that frame.
 
 Parameters: ``bag`` (path), ``topics`` (string array, empty = all), ``rate``
 (playback speed factor), ``publish_clock`` (bool), ``clock_hz`` (Hz),
 ``wait_for_topics`` (string array: start only when each has a subscriber),
-``wait_timeout_s`` (s, then start anyway). The node exits when the bag is played.
+``wait_timeout_s`` (s, then start anyway), ``stay_after_playing`` (bool).
+A topic this node plays counts as subscribed once a reader is matched to its
+publisher (what was published before would be lost to a volatile reader, or
+reach a transient-local one late); any other topic once a subscription shows in
+the graph. When the bag is played and every reliable reader has acknowledged it
+(at most ``wait_timeout_s`` each), the publishers go: their readers see the
+input end. The node then exits, or with ``stay_after_playing`` runs on until
+shut down (in a graph that a reader ends when it is done with the bag, e.g.
+``lidar_sim_node`` with ``exit_when_input_ends``).
 """
 
 from __future__ import annotations
 
 import importlib
+import itertools
 import sys
 import time
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -58,6 +72,8 @@ class BagPlayerNode(Node):
         self.clock_hz = self.declare_parameter("clock_hz", 100.0, d(description="/clock rate between messages (Hz)", floating_point_range=[hz])).value
         wait = self.declare_parameter("wait_for_topics", [""], d(description="Start when each has a subscriber")).value
         self.wait_timeout_s = self.declare_parameter("wait_timeout_s", 30.0, d(description="Start anyway after (s)")).value
+        stay = d(description="After playing, run on until shut down")
+        self.stay_after_playing = self.declare_parameter("stay_after_playing", False, stay).value
         self.topics = [t for t in topics if t] or None
         self.wait_for = [t for t in wait if t]
         if not self.bag:
@@ -72,21 +88,42 @@ class BagPlayerNode(Node):
         self.published = 0
         self.get_logger().info(f"playing {len(self.messages)} messages on {sorted(self._pubs)} from {self.bag} at x{self.rate:g}")
 
+    def _topic_publishers(self) -> dict:
+        """This node's publishers by topic (the played topics and /clock)."""
+        return {**self._pubs, **({TOPIC_CLOCK: self._clock} if self._clock is not None else {})}
+
+    def _subscribed(self, topic: str) -> bool:
+        own = self._topic_publishers().get(topic)
+        return own.get_subscription_count() > 0 if own is not None else self.count_subscribers(topic) > 0
+
     def wait_for_subscribers(self) -> None:
+        """Until each ``wait_for_topics`` topic has a subscriber; meanwhile /clock stands at the bag's start."""
         deadline = time.monotonic() + self.wait_timeout_s
-        while time.monotonic() < deadline and not all(
-            self.count_subscribers(t) > 0 for t in self.wait_for
-        ):  # fmt: skip
+        while time.monotonic() < deadline and not all(self._subscribed(t) for t in self.wait_for):
+            if self._clock is not None and self.messages:
+                self._clock.publish(Clock(clock=_time(self.messages[0].log_time_ns)))
             rclpy.spin_once(self, timeout_sec=0.05)
+        if missing := [t for t in self.wait_for if not self._subscribed(t)]:
+            self.get_logger().warning(f"no subscriber on {missing} after {self.wait_timeout_s:g} s: playing anyway")
+
+    def wait_for_acks(self, topics=None) -> None:
+        """Until every reader of ``topics`` (default: all) has acknowledged what was published (at most ``wait_timeout_s`` each)."""
+        for topic, publisher in self._topic_publishers().items():
+            if (topics is None or topic in topics) and not publisher.wait_for_all_acked(Duration(seconds=self.wait_timeout_s)):
+                self.get_logger().warning(f"{topic}: not acknowledged by every reader after {self.wait_timeout_s:g} s")
 
     def play(self) -> None:
         """Publish every message at its original (scaled) time; /clock in between."""
         if not self.messages:
             return
-        t0, start = self.messages[0].log_time_ns, time.monotonic()
-        clock_step_ns = round(1e9 / self.clock_hz)
+        t0 = self.messages[0].log_time_ns
+        first = [m.topic == TOPIC_TF_STATIC and m.log_time_ns == t0 for m in self.messages]  # static frames of t0
+        for m in itertools.compress(self.messages, first):
+            self._publish(m)
+        self.wait_for_acks([TOPIC_TF_STATIC])
+        start, clock_step_ns = time.monotonic(), round(1e9 / self.clock_hz)
         next_clock = t0
-        for m in self.messages:
+        for m in itertools.compress(self.messages, [not f for f in first]):
             while True:  # /clock ticks (and spinning) until this message is due
                 due = start + (m.log_time_ns - t0) * 1e-9 / self.rate
                 tick_due = start + (next_clock - t0) * 1e-9 / self.rate
@@ -100,9 +137,19 @@ class BagPlayerNode(Node):
             if self._clock is not None and next_clock <= m.log_time_ns:
                 self._clock.publish(Clock(clock=_time(m.log_time_ns)))
                 next_clock = m.log_time_ns + clock_step_ns
-            self._pubs[m.topic].publish(bytes(typestore().serialize_cdr(m.msg, m.msgtype)))
-            self.published += 1
+            self._publish(m)
         self.get_logger().info(f"played {self.published} messages")
+
+    def _publish(self, m) -> None:
+        self._pubs[m.topic].publish(bytes(typestore().serialize_cdr(m.msg, m.msgtype)))
+        self.published += 1
+
+    def finish(self) -> None:
+        """End the stream: once every reader has all of it, the publishers go (see the module docstring)."""
+        self.wait_for_acks()
+        for publisher in self._topic_publishers().values():
+            self.destroy_publisher(publisher)
+        self._pubs, self._clock = {}, None
 
     def _sleep_until(self, deadline: float) -> None:
         while (left := deadline - time.monotonic()) > 0:
@@ -119,7 +166,9 @@ def main(args: list[str] | None = None) -> None:
                 sys.exit(2)
             node.wait_for_subscribers()
             node.play()
-            rclpy.spin_once(node, timeout_sec=0.5)  # let reliable writers flush
+            node.finish()
+            while node.stay_after_playing and rclpy.ok():
+                rclpy.spin_once(node, timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

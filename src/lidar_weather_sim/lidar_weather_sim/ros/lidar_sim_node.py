@@ -5,12 +5,18 @@ simulated time and publishes /clock, and with ``publish_tf`` /tf and
 /tf_static), ``tf`` (/tf + /tf_static, fixed_frame -> sensor_frame) or
 ``odometry`` (nav_msgs/Odometry of base_frame in fixed_frame, plus the mount
 base_frame -> sensor_frame from /tf_static or ``mount_xyz_m``/``mount_rpy_deg``).
+With ``wait_for_subscriber`` the tf/odometry input is subscribed to only once
+/lidar/points has a subscriber (bag replay: no frame is cast before its recorder
+listens, and the player, waiting for this node's subscriptions, starts after);
+with ``exit_when_input_ends`` the node exits once every publisher of that input
+has left and all it sent is cast (the end of a bag replay).
 The map and the actors always come from ``scenario``. Each pose update casts
 the columns swept since the last one; a frame is published on /lidar/points
 (SensorDataQoS, sensor frame, stamp = scan start) when its sweep completes.
 In tf/odometry mode time is taken from the message stamps (bag replay,
 use_sim_time). ``regions``, ``region_params``, ``sun_irradiance_w_m2`` and
-``seed`` may be set at run time: validated on set, used from the next frame.
+``seed`` may be set at run time: validated on set, used from the next frame to
+start; the log gives the time of the request and the stamp of that frame.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -94,14 +100,19 @@ class LidarSimNode(Node):
         p("sun_irradiance_w_m2", sun, "Sun irradiance (W/m^2; default: the scenario's weather)", (0.0, 1400.0), False)
         p("seed", scenario.seed, "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
         self.max_frames = p("max_frames", 0, "Stop after publishing this many clouds (0 = run until shut down)", (0, 2**31 - 1))
+        wait = p("wait_for_subscriber", False, "tf/odometry: subscribe to the poses once /lidar/points has a subscriber")
+        self.exit_when_input_ends = p("exit_when_input_ends", False, "tf/odometry: exit once the pose publishers have left")
+        self.inputs = 0  # pose messages (/tf or odometry) received
         self.published = 0
-        self._settings = self._settings_with({})
-        self.session = SimSession(self.world, self._settings, backend=backend, ground_truth=ground_truth)
+        self.session = SimSession(self.world, self._settings_with({}), backend=backend, ground_truth=ground_truth)
+        self._in_use = self.session.settings  # the settings the last published frames were cast with
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
         self._logged: set[str] = set()
         self._points = self.create_publisher(PointCloud2, TOPIC_POINTS, qos_profile_sensor_data)
         player = self.world.player
+        self.mode = mode
+        steady = Clock(clock_type=ClockType.STEADY_TIME)  # not sim time: runs without /clock
         if mode == "scenario":
             self._tick, self._dt, self._t = 0, dt, 0.0
             self._clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS)
@@ -112,21 +123,36 @@ class LidarSimNode(Node):
                 mount_tf = _transform(self.base, self.frame, 0, m[:3, 3], matrix_quaternion(m[:3, :3]))
                 self._static.publish(TFMessage(transforms=[mount_tf]))
             self.create_subscription(Float64, TOPIC_CMD_SPEED, self._on_speed, 10)
-            steady = Clock(clock_type=ClockType.STEADY_TIME)  # not sim time: this node drives it
             self.create_timer(dt / rtf if rtf > 0 else 0.0, self._on_tick, clock=steady)
         else:
             self._statics: dict[str, TransformStamped] = {}  # newest /tf_static edge per child, for restarts
             self._mount = mount_transform(xyz, rpy) if mode == "odometry" else None
             self.source = TfPoseSource(self._new_buffer(), self.fixed, self.frame, player.actor_poses, -1)
-            self.create_subscription(TFMessage, TOPIC_TF_STATIC, self._on_tf_static, TF_STATIC_QOS)
-            if mode == "tf":
-                self.create_subscription(TFMessage, TOPIC_TF, self._on_tf, TF_QOS)
-            else:
-                self.create_subscription(Odometry, odom_topic, self._on_odometry, 50)
+            self._gate = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if wait else None
+            self._subscribe_input(odom_topic)
         self.get_logger().info(
             f"scenario '{scenario.name}', profile '{self.world.profile.name}', pose source {mode}, "
             f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
+            + (f"; poses taken once {TOPIC_POINTS} has a subscriber" if mode != "scenario" and wait else "")
         )
+
+    def _subscribe_input(self, odom_topic: str) -> None:
+        """Subscribe to /tf_static and /tf or odometry (with the wait_for_subscriber gate: once it opens)."""
+        if self._gate is not None:
+            if self._points.get_subscription_count() == 0:
+                return
+            self.destroy_timer(self._gate)
+            self._gate = None
+        self.create_subscription(TFMessage, TOPIC_TF_STATIC, self._on_tf_static, TF_STATIC_QOS)
+        if self.mode == "tf":
+            self._input = self.create_subscription(TFMessage, TOPIC_TF, self._on_tf, TF_QOS)
+        else:
+            self._input = self.create_subscription(Odometry, odom_topic, self._on_odometry, 50)
+
+    @property
+    def input_ended(self) -> bool:
+        """With ``exit_when_input_ends``: poses have come and every publisher of them has left."""
+        return self.exit_when_input_ends and self.inputs > 0 and self._input.get_publisher_count() == 0
 
     # -- parameters --------------------------------------------------------------------
     def _p(self, name, default=None, description="", value_range=None, read_only=True):
@@ -153,7 +179,8 @@ class LidarSimNode(Node):
         changes = {q.name: q.value for q in params if q.name in RUNTIME}
         if changes:
             try:
-                self.session.build_regions(self._settings_with(changes))
+                settings = self._settings_with(changes)
+                self._accepted = (settings, self.session.build_regions(settings))  # requested as built in _apply
             except (ConfigError, ValueError, TypeError) as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
@@ -161,10 +188,11 @@ class LidarSimNode(Node):
     def _apply(self, params) -> None:
         changes = {q.name: q.value for q in params if q.name in RUNTIME}
         if changes:
-            self._settings = self._settings_with(changes)
-            self.session.request(self._settings)
+            self.session.request(*self._accepted)
             listed = ", ".join(f"{k}={v}" for k, v in changes.items())
-            self.get_logger().info(f"from the next frame: {listed}")
+            last = self.session.last_time_s
+            when = "before the first frame" if last is None else f"at {self._stamp_text(last)} s"
+            self.get_logger().info(f"{listed}: requested {when}, used from the next frame to start")
 
     # -- inputs --------------------------------------------------------------------------
     def _once(self, cause: str, detail: str, note: str = "skipped") -> None:
@@ -173,6 +201,7 @@ class LidarSimNode(Node):
             self.get_logger().warning(f"{detail} ({note}; logged once per cause)")
 
     def _on_tf(self, msg: TFMessage) -> None:
+        self.inputs += 1
         stamps, problems = add_tf_message(self.source.buffer, msg)
         for problem in problems:
             self._once(*problem)
@@ -193,6 +222,7 @@ class LidarSimNode(Node):
         return buffer
 
     def _on_odometry(self, msg: Odometry) -> None:
+        self.inputs += 1
         try:
             stamp = add_odometry(self.source.buffer, msg, self.fixed, self.base)
         except ValueError as exc:
@@ -221,7 +251,7 @@ class LidarSimNode(Node):
                 q = matrix_quaternion(m[:3, :3])
                 transforms.append(_transform(self.fixed, f"actor_{actor_id}", ns, m[:3, 3], q))
             self._tf.publish(TFMessage(transforms=transforms))
-        self._publish(self.session.advance(t, self.world.player), 0)
+        self._publish(self.session.advance(t, self.world.player))
 
     def _step(self, candidates: list[int]) -> None:
         source = self.source
@@ -239,7 +269,7 @@ class LidarSimNode(Node):
             self.source.buffer, self.source.time_origin_ns = self._new_buffer(), -1
             return None
         try:
-            self._publish(self.session.advance(t, source), source.time_origin_ns)
+            self._publish(self.session.advance(t, source))
         except (TransformError, ValueError) as exc:
             self._once(f"cast: {type(exc).__name__}", f"cannot cast up to {stamp * 1e-9:.9f} s: {exc}")
 
@@ -247,13 +277,38 @@ class LidarSimNode(Node):
     def finished(self) -> bool:
         return 0 < self.max_frames <= self.published
 
-    def _publish(self, frames, origin_ns: int) -> None:
+    def _stamp_ns(self, time_s: float) -> int:
+        """Simulated seconds -> ROS stamp (scenario mode: simulated time is ROS time)."""
+        return (0 if self.mode == "scenario" else self.source.time_origin_ns) + round(time_s * 1e9)
+
+    def _stamp_text(self, time_s: float) -> str:
+        ns = self._stamp_ns(time_s)
+        return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+
+    def _publish(self, frames) -> None:
+        """Publish the frames of one advance (and log a requested settings change it swapped in)."""
+        session = self.session
+        if session.settings is not self._in_use:
+            self._in_use, since = session.settings, session.settings_from_s
+            first = "the first frame" if since is None else f"the frame stamped {self._stamp_text(since)} s"
+            self.get_logger().info(f"in use from {first}: {session.settings}")
         for frame in frames:
             if self.finished:
                 return
-            msg, _ = cloud_to_msg(frame.points, origin_ns + round(frame.stamp_s * 1e9), self.frame)
+            msg, _ = cloud_to_msg(frame.points, self._stamp_ns(frame.stamp_s), self.frame)
             self._points.publish(msg)
             self.published += 1
+
+
+def _spin_once(executor: SingleThreadedExecutor, timeout_sec: float) -> bool:
+    """Run one ready callback; False if none became ready within ``timeout_sec``."""
+    try:
+        handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=timeout_sec)
+    except (TimeoutException, ShutdownException):
+        return False
+    handler()
+    handler.result()  # raises the callback's exception
+    return True
 
 
 def main(args: list[str] | None = None) -> None:
@@ -264,8 +319,12 @@ def main(args: list[str] | None = None) -> None:
             except ConfigError as exc:
                 print(f"lidar_sim_node: {exc}", file=sys.stderr)
                 sys.exit(2)
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
             while rclpy.ok() and not node.finished:
-                rclpy.spin_once(node, timeout_sec=0.1)
+                ended = node.input_ended  # then all the input sent is queued here
+                if not _spin_once(executor, 0.1) and ended:
+                    break  # ... and cast
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

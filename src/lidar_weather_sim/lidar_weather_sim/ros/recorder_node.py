@@ -1,8 +1,10 @@
 """``recorder_node``: records topics to an MCAP rosbag2 (``lidar_weather_sim.bags.BagWriter``).
 
 The project's ``ros2 bag record``. Each topic is subscribed to as raw CDR as
-soon as a publisher shows its type (checked every 0.2 s), so nothing is
-deserialised; the log time is the node clock (sim time with ``use_sim_time``).
+soon as a publisher shows its type (checked every 0.2 s of steady time), so
+nothing is deserialised; the log time is the node clock. With ``use_sim_time``
+that is /clock, and topics are subscribed to only once /clock has arrived: no
+message is logged at a time the node does not know yet.
 PointCloud2 topics are read with SensorDataQoS (matches best-effort and
 reliable writers) at depth ``queue_depth``, /tf_static transient-local, the rest
 reliable. SIGINT/SIGTERM close the bag with a valid index (BagWriter); a
@@ -19,12 +21,14 @@ import sys
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from lidar_weather_sim.bags import POINTCLOUD2, BagError, BagWriter
-from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_TF_STATIC
+from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF_STATIC
 
 
 class RecorderNode(Node):
@@ -41,11 +45,21 @@ class RecorderNode(Node):
         self.writer = BagWriter(out, storage="mcap", overwrite=overwrite)
         self.counts = {t: 0 for t in self.wanted}
         self._subs = {}
-        self.create_timer(0.2, self._discover)
+        self._clock_sub = None  # with use_sim_time: until the first /clock message
+        if self.get_parameter("use_sim_time").value:
+            self._clock_sub = self.create_subscription(ClockMsg, TOPIC_CLOCK, self._on_clock, qos_profile_sensor_data)
+        self.create_timer(0.2, self._discover, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._discover()
-        self.get_logger().info(f"recording {self.wanted} to {out}")
+        self.get_logger().info(f"recording {self.wanted} to {out}" + (" once /clock runs" if self._clock_sub else ""))
+
+    def _on_clock(self, _msg: ClockMsg) -> None:  # the time source's older subscription is served first
+        self.destroy_subscription(self._clock_sub)
+        self._clock_sub = None
+        self._discover()
 
     def _discover(self) -> None:
+        if self._clock_sub is not None:
+            return
         types = dict(self.get_topic_names_and_types())
         for topic in self.wanted:
             if topic in self._subs or not types.get(topic):

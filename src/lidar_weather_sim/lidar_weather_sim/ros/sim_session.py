@@ -7,7 +7,7 @@ node turns parameters into :class:`RuntimeSettings`, validates them with
 the first frame boundary: never in the middle of a frame, so every frame is
 cast with one set of regions, seed and sun irradiance. If the frame being
 cast has not fired a column yet, that frame already uses them; otherwise the
-next one does.
+next one does. :attr:`SimSession.settings_from_s` tells which frame that was.
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ class SimSession:
         )  # fmt: skip
         self.frame_start_s: float | None = None  # scan start of the frame being cast
         self.last_time_s: float | None = None
+        self.settings_from_s: float | None = None  # scan start of the first frame cast with settings (None: all)
 
     def build_regions(self, settings: RuntimeSettings) -> list[tuple[str, Region]]:
         """The region plugins of ``settings``; raises ConfigError naming an unknown plugin or bad parameter."""
@@ -112,7 +113,7 @@ class SimSession:
     def _apply(self) -> None:
         settings, regions = self._pending
         self._pending = None
-        self.settings = settings
+        self.settings, self.settings_from_s = settings, self.frame_start_s
         self.sim.regions = list(regions)
         self.sim.seed = int(settings.seed)
         self.sim.sun_irradiance_w_m2 = float(settings.sun_irradiance_w_m2)
