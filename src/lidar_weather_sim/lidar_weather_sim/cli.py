@@ -153,6 +153,13 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     from lidar_weather_sim.scenario import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
+    if args.on:
+        from lidar_weather_sim.augment import augment_recording
+
+        frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
+                                   topic=args.topic, overwrite=args.overwrite)  # fmt: skip
+        print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)} on top to {args.out}")
+        return 0
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
                            profile=args.profile, overwrite=args.overwrite)  # fmt: skip
     hidden = ", ".join(e.label() for e in effects) or "nothing"
@@ -251,6 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--frames", type=int, help="frames (default: the scenario's duration)")
     measured.add_argument("--seed", type=int, help="seed of the measurement (default: the scenario's + 1000)")
     measured.add_argument("--profile", help="sensor profile overriding the scenario's")
+    measured.add_argument("--on", metavar="BAG", help="put the effects on top of this (real) recording's frames "
+                                                        "instead of simulating the scenario (see augment.py)")
+    measured.add_argument("--topic", help="PointCloud2 topic of --on (default: /lidar/points or the only one)")
     measured.add_argument("--out", required=True, help="output rosbag2 directory (MCAP)")
     measured.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     measured.set_defaults(func=_cmd_make_measured)
@@ -268,8 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--scenario", required=True, help="scenario to re-simulate with (name or YAML path)")
     gap.add_argument("--profile", help="sensor profile overriding the scenario's")
     gap.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
-    gap.add_argument("--fit-frames", type=int, default=16, help="calibration frames used for fitting")
-    gap.add_argument("--heldout-frames", type=int, default=30, help="held-out frames used for every decision")
+    gap.add_argument("--fit-frames", type=int, default=30, help="calibration frames used for fitting")
+    gap.add_argument("--heldout-frames", type=int, default=40, help="held-out frames used for every decision")
     gap.add_argument("--out", default="gap_report", help="output directory")
     gap.set_defaults(func=_cmd_gap)
 

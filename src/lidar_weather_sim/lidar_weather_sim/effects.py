@@ -126,9 +126,11 @@ def conflicts(effects: list[Effect]) -> str | None:
     for name in set(names):
         if name != "spray" and names.count(name) > 1:
             return f"effect '{name}' given twice"
-    spray_actors = [e.params.get("actor") for e in effects if e.name == "spray"]
-    if len(spray_actors) != len(set(spray_actors)):
+    spray = [e for e in effects if e.name == "spray"]
+    if len({e.params.get("actor") for e in spray}) != len(spray):
         return "spray given twice for the same actor"
+    if len({e.value for e in spray}) > 1:
+        return "spray from several actors needs one water film (the road's) for all of them"
     if all(p in names for p in PRECIPITATION):
         return "precipitation is rain or snow, not both"
     if "cover.dirt" in names and "cover.water" in names:
@@ -181,8 +183,6 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
             actor = e.params.get("actor", _default_emitter(scenario))
             spray_actors.append((int(actor), v))
     if spray_actors:
-        if len({film for _, film in spray_actors}) > 1:
-            raise ValueError("spray from several actors needs one water film for all of them")
         region("spray").update(actor_ids=[a for a, _ in spray_actors], water_film_mm=spray_actors[0][1])
     return Scenario.model_validate(data)
 

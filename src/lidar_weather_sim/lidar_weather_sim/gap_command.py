@@ -33,4 +33,4 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
     before = resim.signature([], everything)
     after = resim.signature(diagnosis.effects, everything)
     text = yaml.safe_dump(patched.model_dump(mode="json"), sort_keys=False)
-    return write_gap(Path(out), diagnosis, measured_sig, before, after, text)
+    return write_gap(Path(out), diagnosis, measured_sig, before, after, text, runnable=not scenario.mesh_only)

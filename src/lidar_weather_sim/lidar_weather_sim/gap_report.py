@@ -118,10 +118,11 @@ def write_compare(out: Path, comparison: Comparison, measured_name: str, simulat
 
 
 def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, after: Signature,
-              patched_yaml: str) -> dict:  # fmt: skip
+              patched_yaml: str, runnable: bool = True) -> dict:  # fmt: skip
     """gap.json, patched_scenario.yaml, report.md and before/after plots in ``out``.
 
-    ``before`` / ``after``: every measured frame re-simulated without / with the accepted effects."""
+    ``before`` / ``after``: every measured frame re-simulated without / with the accepted effects;
+    ``runnable``: the patched scenario can be run on its own (it has roads and an ego)."""
     from lidar_weather_sim.signatures import gap_terms, gap_value
 
     out.mkdir(parents=True, exist_ok=True)
@@ -162,8 +163,9 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
               "| effect | fitted parameters | held-out gap |", "|---|---|---:|"]  # fmt: skip
     for e in result["rejected"]:
         lines.append(f"| {e['name']} | {_fmt(e['params'])} | {e['gap_after']:.4f} |")
-    lines += ["", "![terms](gap_terms.png)", "", "![ranges](ranges_before_after.png)", "", "![bev](bev_before_after.png)",
-              "", "Re-run the patched scenario: `lidar-weather-sim run patched_scenario.yaml`.", ""]  # fmt: skip
+    lines += ["", "![terms](gap_terms.png)", "", "![ranges](ranges_before_after.png)", "", "![bev](bev_before_after.png)", ""]
+    lines.append("Re-run the patched scenario: `lidar-weather-sim run patched_scenario.yaml`." if runnable else
+                 "The patched scenario is mesh-only (no ego): use it with `gap` or `compare` on the recording.")  # fmt: skip
     (out / "report.md").write_text("\n".join(lines))
     return result
 

@@ -4,7 +4,9 @@ The scene is built once from the scenario (roads, static meshes, actor bodies); 
 call to :meth:`Resimulator.signature` patches the scenario with a list of effects
 (:mod:`lidar_weather_sim.effects`), rebuilds only the regions and the noise floor
 (:meth:`LidarSimulator.restart`) and casts the frames in time order with the recorded
-poses (rolling shutter: the pose of each column's firing time). Actors follow their
+poses (rolling shutter: the pose of each column's firing time), in batches of the columns
+fired in 10 ms as ``lidar-weather-sim run`` casts them (moving particles are placed per
+batch). Actors follow their
 ``actor_<id>`` frames in the recording when it has them, else the scenario. Frame
 index, seed and region randomness are the same from call to call (common random
 numbers), so two effect lists are compared on the same draws.
@@ -17,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from lidar_weather_sim.effects import Effect, apply_effects
+from lidar_weather_sim.offline import POSE_STEP_S
 from lidar_weather_sim.recording import Recording
 from lidar_weather_sim.scenario import Scenario
 from lidar_weather_sim.signatures import ActorBox, FrameContext, Signature
@@ -117,7 +120,8 @@ class Resimulator:
         for i in sorted(indices):
             frame = self.recording.frames[i]
             start = self.recording.time_s(frame.stamp_ns)
-            out.append(self.sim.cast_frame(self.recording.scan_index(frame, period), start, self.poses).points)
+            index = self.recording.scan_index(frame, period)
+            out.append(self.sim.cast_frame(index, start, self.poses, batch_s=POSE_STEP_S).points)
             self.casts += 1
         return out
 

@@ -5,9 +5,10 @@ ROS-free. Points are in the sensor frame (REP-103, m). Every point falls in one 
 =========  ===========================================================================
 cover      range < 0.5 m (returns from the sensor cover, thesis paper 1)
 near       0.5 m <= range < 5 m (near-field weather, thesis paper 2)
-actors     range >= 5 m inside the box around a known vehicle and the 10 m behind it
-           (where its spray flies; thesis paper 3)
-road       range >= 5 m, not actors, z below the road level + 0.3 m
+body       range >= 5 m on a known vehicle (its body box + 0.3 m)
+wake       range >= 5 m around a known vehicle and in the 10 m behind it, above the road
+           and off its body: where its spray flies (thesis paper 3)
+road       range >= 5 m, not body or wake, z below the road level + 0.3 m
 far        everything else (guard rails, vehicles far away, buildings)
 =========  ===========================================================================
 
@@ -28,13 +29,13 @@ import numpy as np
 
 from lidar_weather_sim.features import FEATURES, frame_features
 
-ZONES = ("cover", "near", "actors", "road", "far")
+ZONES = ("cover", "near", "body", "wake", "road", "far")
 COVER_M, NEAR_M = 0.5, 5.0
 ROAD_MARGIN_M = 0.3
 RANGE_EDGES = {
     "cover": np.arange(0.0, COVER_M + 1e-9, 0.05),
     "near": np.arange(COVER_M, NEAR_M + 1e-9, 0.05),
-    **{z: np.arange(NEAR_M, 150.0 + 1e-9, 0.5) for z in ("actors", "road", "far")},
+    **{z: np.arange(NEAR_M, 150.0 + 1e-9, 0.5) for z in ("body", "wake", "road", "far")},
 }
 ECHOES = 3
 INTENSITY_BINS = 16
@@ -44,6 +45,8 @@ BEV_X, BEV_Y = (-100.0, 100.0), (-50.0, 50.0)
 RANGE_CLASS_EDGES = np.array([0.0, COVER_M, NEAR_M, 15.0, 30.0, 60.0, np.inf])
 ACTOR_ZONE_BEHIND_M = 10.0  # spray flies this far behind a vehicle
 ACTOR_ZONE_MARGIN_M = (1.0, 1.5, 1.5)  # beyond the body: ahead, to the sides, above
+BODY_MARGIN_M = 0.3  # returns this close to a body box belong to the body
+WAKE_ABOVE_ROAD_M = 0.15  # wake returns are at least this high in the vehicle's frame
 
 
 @dataclass(frozen=True)
@@ -77,11 +80,13 @@ def zone_of(points: np.ndarray, context: FrameContext) -> np.ndarray:
     ahead, side, above = ACTOR_ZONE_MARGIN_M
     for box in context.actors:
         local = (xyz - box.pose[:3, 3]) @ box.pose[:3, :3]  # sensor -> body frame
-        inside = (
-            (local[:, 0] >= -0.5 * box.length_m - ACTOR_ZONE_BEHIND_M) & (local[:, 0] <= 0.5 * box.length_m + ahead)
-            & (np.abs(local[:, 1]) <= 0.5 * box.width_m + side) & (local[:, 2] <= box.height_m + above)
-        )  # fmt: skip
-        zone[far & inside] = ZONES.index("actors")
+        x, y, z = local[:, 0], np.abs(local[:, 1]), local[:, 2]
+        wake = ((x >= -0.5 * box.length_m - ACTOR_ZONE_BEHIND_M) & (x <= 0.5 * box.length_m + ahead)
+                & (y <= 0.5 * box.width_m + side) & (z >= WAKE_ABOVE_ROAD_M) & (z <= box.height_m + above))  # fmt: skip
+        m = BODY_MARGIN_M
+        body = (np.abs(x) <= 0.5 * box.length_m + m) & (y <= 0.5 * box.width_m + m) & (z <= box.height_m + m)
+        zone[far & wake] = ZONES.index("wake")
+        zone[far & body] = ZONES.index("body")
     zone[d < NEAR_M] = ZONES.index("near")
     zone[d < COVER_M] = ZONES.index("cover")
     return zone
@@ -167,35 +172,75 @@ def bray_curtis(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(a - b).sum() / total) if total > 0 else 0.0
 
 
-def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, frames_b: int) -> float:
+EXACT_NOISE_MAX_COUNT = 60  # bins with fewer returns in total use the exact binomial expectation
+
+
+def _noise_abs_difference(total: np.ndarray, na: int, nb: int) -> np.ndarray:
+    """E|A/na - B/nb| per bin when the bin's ``total`` = A + B returns are split between the two
+    recordings by chance alone (A ~ Binomial(total, na / (na + nb))): exact for small totals,
+    the normal approximation above :data:`EXACT_NOISE_MAX_COUNT`."""
+    from scipy.stats import binom
+
+    p = na / (na + nb)
+    out = np.sqrt(2.0 / np.pi * total * p * (1.0 - p)) * (1.0 / na + 1.0 / nb)
+    for m in np.unique(total[(total > 0) & (total <= EXACT_NOISE_MAX_COUNT)]).astype(np.int64):
+        k = np.arange(m + 1)
+        out[total == m] = float(np.sum(binom.pmf(k, m, p) * np.abs(k / na - (m - k) / nb)))
+    return out
+
+
+def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, frames_b: int,
+                           clip: bool = True) -> float:  # fmt: skip
     """Bray-Curtis dissimilarity of the per-frame means minus what counting noise alone gives.
 
-    With Poisson counts the difference of the means a - b in a bin has the variance
-    A / n_a^2 + B / n_b^2 (A, B the summed counts), so sampling alone adds
-    E|a - b| = sqrt(2 var / pi) to it. Subtracting that bin by bin (the total clipped at 0)
-    leaves the systematic part: a sparse zone (a few spray or cover returns per frame)
-    does not look different merely because it is sparse."""
+    Given a bin's total count, chance alone splits it between the two recordings
+    binomially; the expected |a - b| of that split (:func:`_noise_abs_difference`) is
+    subtracted bin by bin and the total clipped at 0. What is left is the systematic part:
+    a sparse zone (a few spray or cover returns per frame) does not look different merely
+    because it is sparse, and a recording compared with a re-draw of itself scores ~0.
+    ``clip=False`` keeps negative totals: a fit then still sees which of two near-perfect
+    parameter values matches better."""
     na, nb = max(frames_a, 1), max(frames_b, 1)
     a, b = sum_a / na, sum_b / nb
     total = float(a.sum() + b.sum())
     if total <= 0:
         return 0.0
-    noise = np.sqrt(2.0 / np.pi * (sum_a / na**2 + sum_b / nb**2))
-    return float(max(np.abs(a - b).sum() - noise.sum(), 0.0) / total)
+    noise = _noise_abs_difference(np.rint(sum_a + sum_b), na, nb)
+    excess = np.abs(a - b).sum() - noise.sum()
+    return float((max(excess, 0.0) if clip else excess) / total)
 
 
-def gap_terms(measured: Signature, simulated: Signature) -> dict[str, float]:
+EVIDENCE_POINTS = 30.0  # a histogram with this many returns in both recordings together counts half
+
+
+def gap_terms(measured: Signature, simulated: Signature, clip: bool = True) -> dict[str, float]:
     """Systematic Bray-Curtis dissimilarity of every histogram the two signatures share."""
     keys = [k for k in measured.sums if k in simulated.sums]
-    return {k: systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames)
+    return {k: systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip)
             for k in keys}  # fmt: skip
 
 
-def gap_value(measured: Signature, simulated: Signature) -> float:
-    """The reality gap (0 = indistinguishable, 1 = disjoint; lower is better): the mean of
-    :func:`gap_terms` - per zone the range, intensity and EPW histograms by echo number,
-    plus the bird's-eye and channel x range histograms - so every zone counts equally,
-    whatever its number of points, and a missing zone (spray, cover returns) weighs as much
-    as a wrong far field."""
-    terms = gap_terms(measured, simulated)
-    return float(np.mean(list(terms.values()))) if terms else 0.0
+def evidence_weights(measured: Signature, simulated: Signature) -> dict[str, float]:
+    """m / (m + EVIDENCE_POINTS) per shared histogram, m its returns in both recordings: a zone
+    that holds a handful of returns (two stray points in 30 frames) cannot dominate the gap."""
+    keys = [k for k in measured.sums if k in simulated.sums]
+    out = {}
+    for k in keys:
+        m = float(measured.sums[k].sum() + simulated.sums[k].sum())
+        out[k] = m / (m + EVIDENCE_POINTS)
+    return out
+
+
+def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> float:
+    """The reality gap (0 = indistinguishable, 1 = disjoint; lower is better): the mean over
+    the histograms - per zone the range, intensity and EPW histograms by echo number, plus
+    the bird's-eye and channel x range histograms - of their systematic Bray-Curtis
+    dissimilarity times their evidence weight (:func:`evidence_weights`). Every zone with
+    enough returns counts equally, whatever its number of points, so a missing zone (spray,
+    cover returns) weighs as much as a wrong far field. ``clip=False``: the fitting objective
+    (see :func:`systematic_bray_curtis`)."""
+    terms = gap_terms(measured, simulated, clip)
+    if not terms:
+        return 0.0
+    weights = evidence_weights(measured, simulated)
+    return float(np.mean([terms[k] * weights[k] for k in terms]))

@@ -156,15 +156,19 @@ class LidarSimulator:
         if seed is not None:
             self.seed = int(seed)
 
-    def cast_frame(self, index: int, start_s: float, poses: PoseSource) -> Frame:
+    def cast_frame(self, index: int, start_s: float, poses: PoseSource, batch_s: float | None = None) -> Frame:
         """Cast the whole frame ``index`` (its scan pattern: scala4 alternates layers by index) whose
-        scan starts at ``start_s`` (simulated s), e.g. to re-simulate a recorded frame. Regions step
+        scan starts at ``start_s`` (simulated s), e.g. to re-simulate a recorded frame, in batches of
+        ``batch_s`` (s; None = one batch) as :meth:`advance` would at that pose rate. Regions step
         from their last time to this frame's, so call it in increasing time."""
         if self._last_time_s is not None and start_s < self._last_time_s:
             raise ValueError(f"time went backwards: frame at {start_s:.6f} s after {self._last_time_s:.6f} s")
         self._frame = _FrameAccumulator(int(index), float(start_s))
         self._last_time_s = None
         last_column_s = float(self.pattern.column_time_s[-1]) + 1e-7  # rounding of start_s + t never drops it
+        steps = np.arange(batch_s, last_column_s, batch_s) if batch_s else np.zeros(0)
+        for t in steps:
+            self.advance(round(float(start_s) + float(t), 9), poses)
         frames = self.advance(float(start_s) + last_column_s, poses)
         return frames[0]
 

@@ -278,13 +278,18 @@ class SpraySystem:
                 shape = 1.0 / prm.film_cv**2
                 film *= rng.gamma(shape, 1.0 / shape)
             lam = self.emission_mean_per_frame(speed, film) * prm.tick_s / c.emission.frame_period_s
-            n_in = rng.poisson(lam, v.emitter.n_wheels)
-            n_fine = rng.poisson(lam * prm.fine_ratio, v.emitter.n_wheels)
+            # counts by inverse CDF of fixed uniforms and per-population generators: the same draws
+            # whatever the film, so more water adds particles to the same ones (common random numbers,
+            # which keeps a fit of the water film smooth)
+            u = rng.random((2, v.emitter.n_wheels))
+            n_in = _poisson_quantile(u[0], lam)
+            n_fine = _poisson_quantile(u[1], lam * prm.fine_ratio)
+            populations = rng.spawn(2)
             for pop, counts in ((0, n_in), (1, n_fine)):
                 n = int(counts.sum())
                 if not n:
                     continue
-                pos_b, vel_b, side, wheel = v.emitter.emit(rng, counts, speed, prm.tick_s)
+                pos_b, vel_b, side, wheel = v.emitter.emit(populations[pop], counts, speed, prm.tick_s)
                 pos = pos_b @ rot[k].T + org[k]
                 velw = vel_b @ rot[k].T + vel[k]
                 if pop == 0:
@@ -302,3 +307,12 @@ class SpraySystem:
                 self.emitted += n
         if len(parts) > 1:
             self.particles = Particles.concatenate(parts)
+
+
+def _poisson_quantile(u: np.ndarray, lam: float) -> np.ndarray:
+    """Poisson(lam) counts as the quantiles of the uniforms ``u`` (monotone in lam for fixed u)."""
+    from scipy.stats import poisson
+
+    if lam <= 0:
+        return np.zeros(len(u), np.int64)
+    return poisson.ppf(u, lam).astype(np.int64)
