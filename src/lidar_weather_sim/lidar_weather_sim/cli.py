@@ -278,8 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--scenario", required=True, help="scenario to re-simulate with (name or YAML path)")
     gap.add_argument("--profile", help="sensor profile overriding the scenario's")
     gap.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
-    gap.add_argument("--fit-frames", type=int, default=30, help="calibration frames used for fitting")
-    gap.add_argument("--heldout-frames", type=int, default=40, help="held-out frames used for every decision")
+    gap.add_argument("--fit-frames", type=int, default=24, help="calibration frames used for fitting")
+    gap.add_argument("--heldout-frames", type=int, default=30, help="held-out frames used for every decision")
     gap.add_argument("--out", default="gap_report", help="output directory")
     gap.set_defaults(func=_cmd_gap)
 

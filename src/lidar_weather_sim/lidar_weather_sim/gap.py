@@ -93,7 +93,7 @@ def candidate_effects(resim: Resimulator) -> list[Effect]:
 class GapSearch:
     """The diagnosis of :mod:`lidar_weather_sim.gap` over one recording and scenario."""
 
-    def __init__(self, resim: Resimulator, fit_frames: int = 30, heldout_frames: int = 40, screen_frames: int = 6,
+    def __init__(self, resim: Resimulator, fit_frames: int = 24, heldout_frames: int = 30, screen_frames: int = 4,
                  grid: int = 5, refine: int = 2, min_gain: float = MIN_GAIN, min_abs_gain: float = MIN_ABS_GAIN,
                  progress: Callable[[str], None] | None = None) -> None:  # fmt: skip
         self.resim = resim
