@@ -17,22 +17,8 @@ from pathlib import Path
 
 from lidar_weather_sim.effects import parse_effect
 from lidar_weather_sim.gap_command import run_gap
-from lidar_weather_sim.measured import make_measured
+from lidar_weather_sim.measured import RECOVERY_CASES, case_scenario, make_measured
 from lidar_weather_sim.scenario import load_scenario
-
-CASES = [
-    ["atmosphere.fog:visual_range=80"],
-    ["atmosphere.rain:intensity=10"],
-    ["atmosphere.snow:intensity=1.5"],
-    ["atmosphere.road_wet:water_film=1.5"],
-    ["cover.dirt:transmission=0.7"],
-    ["cover.water:transmission=0.8"],
-    ["sensor.sun:irradiance=400"],
-    ["spray:water_film=1.0,actor=100"],
-    ["atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400"],
-    ["cover.dirt:transmission=0.7", "spray:water_film=1.0,actor=100"],
-]
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -42,11 +28,8 @@ def main() -> None:
     args = parser.parse_args()
     base = load_scenario("highway_clear")
     print("| hidden | found (error) | held-out gap before -> after | s |\n|---|---|---|---:|")
-    for hidden in CASES:
-        scenario = base
-        if any(h.startswith("atmosphere.road_wet") for h in hidden):
-            mount = base.sensor.mount.model_copy(update={"pitch_deg": 3.0})
-            scenario = base.model_copy(update={"sensor": base.sensor.model_copy(update={"mount": mount})})
+    for hidden in RECOVERY_CASES:
+        scenario = case_scenario(base, hidden)
         effects = [parse_effect(h) for h in hidden]
         with tempfile.TemporaryDirectory() as tmp:
             make_measured(scenario, effects, Path(tmp) / "m", frames=args.frames)

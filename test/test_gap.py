@@ -16,7 +16,7 @@ import yaml
 from lidar_weather_sim.bags import bag_info
 from lidar_weather_sim.effects import apply_effects, parse_effect
 from lidar_weather_sim.gap_command import run_gap
-from lidar_weather_sim.measured import make_measured
+from lidar_weather_sim.measured import RECOVERY_CASES, case_scenario, make_measured
 from lidar_weather_sim.scenario import Scenario, load_scenario
 
 FRAMES = 60
@@ -28,33 +28,14 @@ def highway() -> Scenario:
     return load_scenario("highway_clear")
 
 
-def _road_in_view(scenario: Scenario) -> Scenario:
-    """The scala4 at bumper height, level, sees almost no road; pitched 3 deg down it does
-    (road wetness is only observable where the road is in view)."""
-    mount = scenario.sensor.mount.model_copy(update={"pitch_deg": 3.0})
-    return scenario.model_copy(update={"sensor": scenario.sensor.model_copy(update={"mount": mount})})
-
-
 def _diagnose(scenario: Scenario, hidden: list[str], tmp_path) -> tuple[dict, list]:
-    if any(h.startswith("atmosphere.road_wet") for h in hidden):
-        scenario = _road_in_view(scenario)
+    scenario = case_scenario(scenario, hidden)
     effects = [parse_effect(text) for text in hidden]
     make_measured(scenario, effects, tmp_path / "measured", frames=FRAMES)
     return run_gap(tmp_path / "measured", scenario, tmp_path / "gap", **BUDGETS), effects
 
 
-CASES = [
-    ["atmosphere.fog:visual_range=80"],
-    ["atmosphere.rain:intensity=10"],
-    ["atmosphere.snow:intensity=1.5"],
-    ["atmosphere.road_wet:water_film=1.5"],
-    ["cover.dirt:transmission=0.7"],
-    ["cover.water:transmission=0.8"],
-    ["sensor.sun:irradiance=400"],
-    ["spray:water_film=1.0,actor=100"],
-    ["atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400"],
-    ["cover.dirt:transmission=0.7", "spray:water_film=1.0,actor=100"],
-]
+CASES = RECOVERY_CASES
 
 
 @pytest.mark.parametrize("hidden", CASES, ids=["+".join(h.split(":")[0] for h in c) for c in CASES])

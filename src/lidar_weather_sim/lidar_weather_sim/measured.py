@@ -74,3 +74,28 @@ def make_measured(
 
     return run_scenario(hidden, output, frames=frames, seed=run_seed, profile=profile, overwrite=overwrite,
                         progress=progress, postprocess=measure)  # fmt: skip
+
+
+#: Reference diagnoses (each effect alone and two pairs) checked by test/test_gap.py and
+#: printed by benchmarks/gap_recovery.py, on highway_clear.
+RECOVERY_CASES = [
+    ["atmosphere.fog:visual_range=80"],
+    ["atmosphere.rain:intensity=10"],
+    ["atmosphere.snow:intensity=1.5"],
+    ["atmosphere.road_wet:water_film=1.5"],
+    ["cover.dirt:transmission=0.7"],
+    ["cover.water:transmission=0.8"],
+    ["sensor.sun:irradiance=400"],
+    ["spray:water_film=1.0,actor=100"],
+    ["atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400"],
+    ["cover.dirt:transmission=0.7", "spray:water_film=1.0,actor=100"],
+]
+
+
+def case_scenario(base: Scenario, hidden: list[str]) -> Scenario:
+    """``base`` for a recovery case: the scala4 at bumper height, level, sees almost no road, so
+    a hidden road effect is measured with the sensor pitched 3 deg down (road in view)."""
+    if not any(h.startswith("atmosphere.road_wet") for h in hidden):
+        return base
+    mount = base.sensor.mount.model_copy(update={"pitch_deg": 3.0})
+    return base.model_copy(update={"sensor": base.sensor.model_copy(update={"mount": mount})})
