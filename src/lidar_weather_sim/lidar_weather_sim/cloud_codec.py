@@ -9,6 +9,7 @@ classes and rosbags' typestore classes both work (see :class:`MessageTypes`).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any, Callable, Literal, Sequence
 
@@ -33,6 +34,11 @@ NanPolicy = Literal["drop", "keep", "reject"]
 
 class CloudFormatError(ValueError):
     """A PointCloud2 that cannot be decoded; the message names the field or size at fault."""
+
+    @property
+    def cause(self) -> str:
+        """The message with its numbers blanked: one key per kind of fault (log once per cause)."""
+        return re.sub(r"[-+]?\d+(\.\d+)?", "#", str(self))
 
 
 @dataclass(frozen=True)
@@ -107,7 +113,10 @@ def dtype_from_fields(fields: Sequence[Any], point_step: int) -> np.dtype:
         names.append(name)
         formats.append(base if count == 1 else np.dtype((base, (count,))))
         offsets.append(int(field.offset))
-    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+    try:
+        return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+    except (ValueError, TypeError) as exc:  # names numpy refuses, sizes past a C int
+        raise CloudFormatError(f"fields {names} with point_step {point_step}: {exc}") from None
 
 
 def nonfinite_mask(points: np.ndarray) -> np.ndarray:
@@ -143,6 +152,8 @@ def decode(
     for axis in ("x", "y", "z"):
         if axis not in dtype.names:
             raise CloudFormatError(f"missing field '{axis}'")
+        if dtype[axis].shape:
+            raise CloudFormatError(f"field '{axis}' has count {dtype[axis].shape[0]}: x, y and z must be scalars")
     width, height, row_step = int(width), int(height), int(row_step)
     if width < 0 or height < 0:
         raise CloudFormatError(f"negative size width={width} height={height}")

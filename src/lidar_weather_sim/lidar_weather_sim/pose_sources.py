@@ -137,8 +137,8 @@ def set_static_mount(buffer: TransformBuffer, base_frame: str, sensor_frame: str
     buffer.set_transform(base_frame, sensor_frame, 0, mount.translation, mount.rotation, static=True)
 
 
-def add_odometry(buffer: TransformBuffer, msg, fixed_frame: str, base_frame: str) -> int:
-    """Store a nav_msgs/Odometry pose as the fixed -> base edge; returns its stamp (ns).
+def parse_odometry(msg, fixed_frame: str, base_frame: str) -> tuple[int, Transform]:
+    """Stamp (ns) and pose of the base frame in the fixed frame from a nav_msgs/Odometry.
 
     Empty ``header.frame_id`` / ``child_frame_id`` mean ``fixed_frame`` / ``base_frame``;
     other frame ids, non-finite values or a zero quaternion raise ValueError naming them.
@@ -154,5 +154,11 @@ def add_odometry(buffer: TransformBuffer, msg, fixed_frame: str, base_frame: str
         raise ValueError(f"odometry frame_id '{frame}' is not the fixed frame '{fixed_frame}'")
     if child not in ("", base_frame.lstrip("/")):
         raise ValueError(f"odometry child_frame_id '{child}' is not the base frame '{base_frame}'")
-    buffer.set_transform(fixed_frame, base_frame, st, translation, rotation)
+    return st, Transform(translation, rotation)  # validates: finite, non-zero quaternion
+
+
+def add_odometry(buffer: TransformBuffer, msg, fixed_frame: str, base_frame: str) -> int:
+    """Store a nav_msgs/Odometry pose as the fixed -> base edge (:func:`parse_odometry`); returns its stamp (ns)."""
+    st, pose = parse_odometry(msg, fixed_frame, base_frame)
+    buffer.set_transform(fixed_frame, base_frame, st, pose.translation, pose.rotation)
     return st

@@ -42,7 +42,8 @@ from lidar_weather_sim.config import ConfigError
 from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP
 from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.player import matrix_quaternion
-from lidar_weather_sim.pose_sources import TfPoseSource, add_odometry, add_tf_message, mount_transform, set_static_mount
+from lidar_weather_sim.pose_gate import PoseGate
+from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message, mount_transform, parse_odometry, set_static_mount
 from lidar_weather_sim.ros.conversions import cloud_to_msg
 from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.scenario import load_scenario
@@ -102,6 +103,10 @@ class LidarSimNode(Node):
         self.max_frames = p("max_frames", 0, "Stop after publishing this many clouds (0 = run until shut down)", (0, 2**31 - 1))
         wait = p("wait_for_subscriber", False, "tf/odometry: subscribe to the poses once /lidar/points has a subscriber")
         self.exit_when_input_ends = p("exit_when_input_ends", False, "tf/odometry: exit once the pose publishers have left")
+        gap = p("odometry_max_gap_s", 1.0, "Odometry: skip a stamp this far (s) from the last, unless the next confirms it",
+                (1e-3, 3600.0))
+        speed = p("odometry_max_speed_m_s", 100.0, "Odometry: skip a pose reached faster than this (m/s)", (0.1, 1e4))
+        self._gate = PoseGate(gap, speed)
         self.inputs = 0  # pose messages (/tf or odometry) received
         self.published = 0
         self.session = SimSession(self.world, self._settings_with({}), backend=backend, ground_truth=ground_truth)
@@ -128,7 +133,7 @@ class LidarSimNode(Node):
             self._statics: dict[str, TransformStamped] = {}  # newest /tf_static edge per child, for restarts
             self._mount = mount_transform(xyz, rpy) if mode == "odometry" else None
             self.source = TfPoseSource(self._new_buffer(), self.fixed, self.frame, player.actor_poses, -1)
-            self._gate = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if wait else None
+            self._wait = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if wait else None
             self._subscribe_input(odom_topic)
         self.get_logger().info(
             f"scenario '{scenario.name}', profile '{self.world.profile.name}', pose source {mode}, "
@@ -138,11 +143,11 @@ class LidarSimNode(Node):
 
     def _subscribe_input(self, odom_topic: str) -> None:
         """Subscribe to /tf_static and /tf or odometry (with the wait_for_subscriber gate: once it opens)."""
-        if self._gate is not None:
+        if self._wait is not None:
             if self._points.get_subscription_count() == 0:
                 return
-            self.destroy_timer(self._gate)
-            self._gate = None
+            self.destroy_timer(self._wait)
+            self._wait = None
         self.create_subscription(TFMessage, TOPIC_TF_STATIC, self._on_tf_static, TF_STATIC_QOS)
         if self.mode == "tf":
             self._input = self.create_subscription(TFMessage, TOPIC_TF, self._on_tf, TF_QOS)
@@ -224,7 +229,13 @@ class LidarSimNode(Node):
     def _on_odometry(self, msg: Odometry) -> None:
         self.inputs += 1
         try:
-            stamp = add_odometry(self.source.buffer, msg, self.fixed, self.base)
+            stamp, pose = parse_odometry(msg, self.fixed, self.base)
+            refused = self._gate.check(stamp, pose.translation)
+            if refused:
+                raise ValueError(f"implausible pose: {refused}, at {stamp * 1e-9:.9f} s")
+            if self._gate.jumped and self.session.last_time_s is not None:
+                self._restart("odometry jumped")
+            self.source.buffer.set_transform(self.fixed, self.base, stamp, pose.translation, pose.rotation)
         except ValueError as exc:
             return self._once(f"odometry: {str(exc).split(':')[0]}", f"odometry: {exc}")
         self._step([stamp])
@@ -264,14 +275,16 @@ class LidarSimNode(Node):
         if last is not None and t <= last:
             if t > last - BACKWARDS_RESTART_S:
                 return None  # old or repeated stamp
-            self.get_logger().warning(f"time jumped back {last - t:.3f} s: restarting the scan")
-            self.session.restart()
-            self.source.buffer, self.source.time_origin_ns = self._new_buffer(), -1
-            return None
+            return self._restart(f"time jumped back {last - t:.3f} s")
         try:
             self._publish(self.session.advance(t, source))
         except (TransformError, ValueError) as exc:
             self._once(f"cast: {type(exc).__name__}", f"cannot cast up to {stamp * 1e-9:.9f} s: {exc}")
+
+    def _restart(self, why: str) -> None:
+        self.get_logger().warning(f"{why}: restarting the scan")
+        self.session.restart()
+        self.source.buffer, self.source.time_origin_ns = self._new_buffer(), -1
 
     @property
     def finished(self) -> bool:

@@ -74,7 +74,7 @@ class WeatherFilterNode(Node):
         try:
             points = msg_to_cloud(msg).points
         except CloudFormatError as exc:
-            self._once(f"malformed:{exc}", f"skipped malformed cloud: {exc}", "error")
+            self._once(f"malformed:{exc.cause}", f"skipped malformed cloud: {exc}", "error")
             return
         filt = self._filter
         missing = filt.missing_fields(points)
