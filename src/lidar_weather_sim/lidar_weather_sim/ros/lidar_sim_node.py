@@ -7,7 +7,8 @@ simulated time and publishes /clock, and with ``publish_tf`` /tf and
 base_frame -> sensor_frame from /tf_static or ``mount_xyz_m``/``mount_rpy_deg``).
 With ``wait_for_subscriber`` the tf/odometry input is subscribed to only once
 /lidar/points has a subscriber (bag replay: no frame is cast before its recorder
-listens, and the player, waiting for this node's subscriptions, starts after);
+listens, and the player, waiting for this node's subscriptions, starts after),
+and in scenario mode simulated time starts only then (a recorder keeps frame 0);
 with ``exit_when_input_ends`` the node exits once every publisher of that input
 has left and all it sent is cast (the end of a bag replay).
 The map and the actors always come from ``scenario``. Each pose update casts
@@ -101,7 +102,7 @@ class LidarSimNode(Node):
         p("sun_irradiance_w_m2", sun, "Sun irradiance (W/m^2; default: the scenario's weather)", (0.0, 1400.0), False)
         p("seed", scenario.seed, "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
         self.max_frames = p("max_frames", 0, "Stop after publishing this many clouds (0 = run until shut down)", (0, 2**31 - 1))
-        wait = p("wait_for_subscriber", False, "tf/odometry: subscribe to the poses once /lidar/points has a subscriber")
+        wait = p("wait_for_subscriber", False, "Start the poses (scenario: the clock) once /lidar/points has a subscriber")
         self.exit_when_input_ends = p("exit_when_input_ends", False, "tf/odometry: exit once the pose publishers have left")
         gap = p("odometry_max_gap_s", 1.0, "Odometry: skip a stamp this far (s) from the last, unless the next confirms it",
                 (1e-3, 3600.0))
@@ -128,6 +129,7 @@ class LidarSimNode(Node):
                 mount_tf = _transform(self.base, self.frame, 0, m[:3, 3], matrix_quaternion(m[:3, :3]))
                 self._static.publish(TFMessage(transforms=[mount_tf]))
             self.create_subscription(Float64, TOPIC_CMD_SPEED, self._on_speed, 10)
+            self._hold = wait  # until /lidar/points has a subscriber
             self.create_timer(dt / rtf if rtf > 0 else 0.0, self._on_tick, clock=steady)
         else:
             self._statics: dict[str, TransformStamped] = {}  # newest /tf_static edge per child, for restarts
@@ -138,7 +140,7 @@ class LidarSimNode(Node):
         self.get_logger().info(
             f"scenario '{scenario.name}', profile '{self.world.profile.name}', pose source {mode}, "
             f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
-            + (f"; poses taken once {TOPIC_POINTS} has a subscriber" if mode != "scenario" and wait else "")
+            + (f"; starts once {TOPIC_POINTS} has a subscriber" if wait else "")
         )
 
     def _subscribe_input(self, odom_topic: str) -> None:
@@ -250,6 +252,10 @@ class LidarSimNode(Node):
 
     # -- time ----------------------------------------------------------------------------
     def _on_tick(self) -> None:
+        if self._hold:
+            if self._points.get_subscription_count() == 0:
+                return
+            self._hold = False
         self._tick += 1
         self._t = t = self._tick * self._dt
         ns = round(t * 1e9)
@@ -325,6 +331,7 @@ def _spin_once(executor: SingleThreadedExecutor, timeout_sec: float) -> bool:
 
 
 def main(args: list[str] | None = None) -> None:
+    node = None
     try:
         with rclpy.init(args=args):
             try:
@@ -340,6 +347,9 @@ def main(args: list[str] | None = None) -> None:
                     break  # ... and cast
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    finally:
+        if node is not None:
+            print(f"lidar_sim_node: published {node.published} clouds", flush=True)
 
 
 if __name__ == "__main__":
