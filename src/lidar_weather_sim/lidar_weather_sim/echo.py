@@ -113,7 +113,7 @@ def detect_echoes(
     valid until its next use.
     """
     if len(beam) > 1 and np.any(beam[1:] < beam[:-1]):
-        order = np.argsort(beam, kind="stable")
+        order = _beam_order(np.ascontiguousarray(beam, np.int64))
         beam, range_m, amplitude, label, object_id = (x[order] for x in (beam, range_m, amplitude, label, object_id))
     out = _detect(
         np.ascontiguousarray(beam, np.int64),
@@ -128,6 +128,21 @@ def detect_echoes(
         scratch,
     )
     return Echoes(*out)
+
+
+@numba.njit(cache=True)
+def _beam_order(beam):
+    """``np.argsort(beam, kind="stable")`` of beam indices >= 0: a counting sort."""
+    start = np.zeros(beam.max() + 2, np.int64)
+    for b in beam:
+        start[b + 1] += 1
+    for b in range(len(start) - 1):
+        start[b + 1] += start[b]
+    order = np.empty(len(beam), np.int64)
+    for i in range(len(beam)):
+        order[start[beam[i]]] = i
+        start[beam[i]] += 1
+    return order
 
 
 @numba.njit(cache=True, inline="always")
@@ -191,18 +206,32 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
     dx = s / 8.0
     lo = 1e300
     hi = -1e300
+    total = 0.0
+    r_min = 1e300
+    r_max = -1e300
     for i in range(c0, c1):
         h = _reach(a[i], thr, s)
         lo = min(lo, r[i] - h)
         hi = max(hi, r[i] + h)
+        total += a[i]
+        r_min = min(r_min, r[i])
+        r_max = max(r_max, r[i])
+    if total <= thr:  # w <= total everywhere
+        return 0
     steps = int((hi - lo) / dx) + 2
+    # The waveform is below the threshold farther than s sqrt(2 ln(total / thr)) from every pulse
+    # (w <= total exp(-d^2 / 2s^2)): only the samples of that window are computed, from one below
+    # it to one above it, which finds the same crossings and maxima as the whole grid.
+    bound = s * (np.sqrt(2.0 * np.log(total / thr)) + 1e-6)
+    first = max(int((r_min - bound - lo) / dx) - 2, 0)
+    end = min(int((r_max + bound - lo) / dx) + 3, steps)
     written = 0
     inside = False
     prev_w = 0.0
     start = 0.0
     best_w = 0.0
     best_x = 0.0
-    for k in range(steps):
+    for k in range(first, end):
         x = lo + k * dx
         w = 0.0
         for i in range(c0, c1):

@@ -329,7 +329,7 @@ class LidarSimulator:
         sc_amp = peak_amplitude(C, rays.weights[s], sc.reflectance, sc.range_m, t2, overlap)
         extra = [b, s, sc.range_m, sc_amp, sc.label, sc.object_id, sc.occlusion]
         cols = [np.concatenate([a, e]) for a, e in zip(cols, extra)]
-        cols[3] = _occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6])
+        cols[3] = _occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6], n * n_sub)
         beam, _, rng_m, amp, label, obj, _ = cols
         keep = amp > 0
         return beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)
@@ -385,10 +385,11 @@ class LidarSimulator:
         return self._geo
 
 
-def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray) -> np.ndarray:
+def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray,
+             n_keys: int) -> np.ndarray:  # fmt: skip
     """Scale each candidate by the two-way light left after the candidates in front of it on the
-    same sub-ray (``key``): prod over nearer ones of (1 - occlusion)^2."""
-    order = np.lexsort((range_m, key))
+    same sub-ray (``key``, 0..n_keys - 1): prod over nearer ones of (1 - occlusion)^2."""
+    order = _sub_ray_order(key, range_m, n_keys)
     k, occ = key[order], np.clip(occlusion[order], 0.0, 1.0)
     log_t = 2.0 * np.log(np.maximum(1.0 - occ, 1e-30))
     cum = np.cumsum(log_t)
@@ -399,6 +400,35 @@ def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlus
     out = np.empty_like(amplitude)
     out[order] = amplitude[order] * np.exp(before)
     return out
+
+
+@numba.njit(cache=True)
+def _sub_ray_order(key, range_m, n_keys):
+    """``np.lexsort((range_m, key))`` for keys 0..n_keys - 1 with few candidates each: a counting
+    sort by key, then an insertion sort by range per key (both stable; NaN last, as numpy)."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for k in key:
+        start[k + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    for k in range(n_keys):
+        for q in range(start[k] + 1, start[k + 1]):
+            i = order[q]
+            r = range_m[i]
+            p = q
+            while p > start[k]:
+                before = range_m[order[p - 1]]
+                if not (before > r or (np.isnan(before) and not np.isnan(r))):
+                    break
+                order[p] = order[p - 1]
+                p -= 1
+            order[p] = i
+    return order
 
 
 # -- kernels ---------------------------------------------------------------------------

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim import workers
-from lidar_weather_sim.echo import overlap_factor, peak_amplitude, surface_reflectance
+from lidar_weather_sim.echo import _beam_order, overlap_factor, peak_amplitude, surface_reflectance
 from lidar_weather_sim.materials import MaterialTable
 from lidar_weather_sim.mesh import TriangleMesh, box_mesh
 from lidar_weather_sim.points import POINT_DTYPE, Label
@@ -14,7 +14,13 @@ from lidar_weather_sim.raycast import SceneCaster, available_backends
 from lidar_weather_sim.raycast.scene_caster import _padded_size
 from lidar_weather_sim.scene import Scene
 from lidar_weather_sim.sensor_profile import SensorProfile
-from lidar_weather_sim.simulator import LidarSimulator, _surface_returns, _world_rays, quaternion_matrices
+from lidar_weather_sim.simulator import (
+    LidarSimulator,
+    _sub_ray_order,
+    _surface_returns,
+    _world_rays,
+    quaternion_matrices,
+)
 
 MATERIALS = MaterialTable.default()
 
@@ -98,6 +104,21 @@ def test_world_rays_match_numpy_rotation():
     assert d64.tobytes() == world.tobytes()
     assert d32.tobytes() == world.astype(np.float32).tobytes()
     assert o32.tobytes() == np.repeat(translation, 15, axis=0).astype(np.float32).tobytes()
+
+
+def test_sub_ray_and_beam_orders_match_numpy_sorts():
+    """Counting sorts of the occlusion and echo stages: the same order as numpy's stable sorts,
+    with ties, misses (inf), NaN, empty keys and keys in any order."""
+    rng = np.random.default_rng(4)
+    n_keys = 500
+    key = np.concatenate([np.arange(n_keys), rng.integers(0, n_keys, 700)])
+    key[:n_keys] = key[:n_keys][rng.permutation(n_keys)]
+    key = key[key % 7 != 3]  # keys without candidates
+    r = rng.uniform(0, 50, len(key))
+    for value, share in ((np.inf, 0.2), (np.nan, 0.05), (5.0, 0.1)):
+        r[rng.random(len(r)) < share] = value
+    assert np.array_equal(_sub_ray_order(key, r, n_keys), np.lexsort((r, key)))
+    assert np.array_equal(_beam_order(key), np.argsort(key, kind="stable"))
 
 
 @pytest.mark.parametrize("effects", [False, True])
