@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from lidar_weather_sim.graph import available_graphs, command_line, load_graph, resolve
+from lidar_weather_sim.graph import available_graphs, command_line, load_graph, resolve, resolve_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = sorted((ROOT / "launch").glob("*.launch.py"))
@@ -36,12 +36,17 @@ def fake_launch(monkeypatch):
     launch = types.ModuleType("launch")
     launch.LaunchDescription = lambda entities: list(entities)
     actions = types.ModuleType("launch.actions")
-    for name in ("DeclareLaunchArgument", "OpaqueFunction", "Shutdown"):
+    for name in ("DeclareLaunchArgument", "OpaqueFunction", "Shutdown", "RegisterEventHandler", "EmitEvent", "ExecuteProcess"):
         setattr(actions, name, _Recorder(name))
+    handlers, events, process = (types.ModuleType(f"launch.{m}") for m in ("event_handlers", "events", "events.process"))
+    handlers.OnProcessExit, process.SignalProcess = _Recorder("OnProcessExit"), _Recorder("SignalProcess")
+    events.matches_action = lambda action: ("matches", action)
     launch_ros = types.ModuleType("launch_ros")
     ros_actions = types.ModuleType("launch_ros.actions")
     ros_actions.Node = _Recorder("Node")
-    for name, mod in {"launch": launch, "launch.actions": actions, "launch_ros": launch_ros, "launch_ros.actions": ros_actions}.items():
+    modules = {"launch": launch, "launch.actions": actions, "launch.event_handlers": handlers, "launch.events": events,
+               "launch.events.process": process, "launch_ros": launch_ros, "launch_ros.actions": ros_actions}  # fmt: skip
+    for name, mod in modules.items():
         monkeypatch.setitem(sys.modules, name, mod)
 
 
@@ -70,20 +75,44 @@ def test_launch_file_starts_what_up_starts(fake_launch, path, variant):
     given = {**REQUIRED_ARGS.get(graph_name, {})}
     if variant == "options":
         given.update({k: v for k, v in options.items() if k in graph.arguments})
-    name, declared, nodes = _run_launch_file(path, given)
+    name, declared, entities = _run_launch_file(path, given)
     assert name == graph_name
     assert declared == {n: a.default for n, a in graph.arguments.items()}
-    plans = resolve(graph, given)
+    plans, steps = resolve(graph, given), resolve_steps(graph, given)
+    nodes = [e for e in entities if e.kind == "Node"]
     assert [n.kwargs["name"] for n in nodes] == [p.name for p in plans]
     for node, plan in zip(nodes, plans):
         kw = node.kwargs
         assert (kw["package"], kw["executable"]) == (plan.package, plan.executable)
         assert kw["parameters"] == [*(str(f) for f in plan.parameter_files), plan.parameters]
         assert kw["remappings"] == list(plan.remappings)
-        assert ("on_exit" in kw) == plan.required
+        assert ("on_exit" in kw) == (plan.required and not steps)
         cmd = command_line(plan, Path("/tmp/p.yaml"))
         assert cmd[cmd.index("-m") + 1] == plan.module
         assert all(str(f) in cmd for f in plan.parameter_files)
+    _check_after_steps(entities, nodes, plans, steps)
+
+
+def _check_after_steps(entities, nodes, plans, steps):
+    """The launch handlers do what `up` does: the required node's exit SIGINTs the rest; when all exited, the steps."""
+    handlers = [e.args[0].kwargs for e in entities if e.kind == "RegisterEventHandler"]
+    if not steps:
+        assert handlers == []
+        return
+    on_exit = {id(h["target_action"]): h["on_exit"] for h in handlers}
+    required = next(n for n, p in zip(nodes, plans) if p.required)
+    others = [n for n in nodes if n is not required]
+    signals = on_exit[id(required)](None, None)  # a required node exits first
+    assert [e.kwargs["event"].kwargs["process_matcher"] for e in signals] == [("matches", n) for n in others]
+    assert all(e.kwargs["event"].kwargs["signal_number"] == signal.SIGINT for e in signals)
+    results = [on_exit[id(n)](None, None) for n in others]  # then the others, stopped by that signal
+    assert results[:-1] == [None] * (len(others) - 1)
+    (first,) = results[-1]  # the last one to exit starts the first step
+    chain = [first]
+    while chain[-1].kind == "ExecuteProcess":
+        (following,) = on_exit[id(chain[-1])]
+        chain.append(following)
+    assert [(e.kwargs["name"], e.kwargs["cmd"]) for e in chain[:-1]] == steps and chain[-1].kind == "Shutdown"
 
 
 def test_resolve_types_conditions_and_errors():

@@ -3,11 +3,13 @@
 The input bag is an offline run of highway_clear (``lidar-weather-sim run``):
 /tf and /clock every 10 ms, a cloud every 40 ms. Replayed through the graph
 ``replay_compare``, the node sees the same poses, so the recorded clouds carry
-the bag's scan-start stamps and the same geometry. (The ``compare`` step of
-issue 7 is not available yet: the comparison here is stamps, fields and point counts.)
+the bag's scan-start stamps and the same geometry; the graph's ``after`` step
+then runs ``lidar-weather-sim compare`` on the bag and the recording.
 """
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 
@@ -25,6 +27,7 @@ def test_replayed_poses_give_the_recorded_clouds_again(processes, cli, tmp_path)
     assert up.wait(timeout=300) == 0, processes.output(up)
     log = processes.output(up)
     assert "[up] bag_player_node exited with status 0" in log and "[up] recorder_node exited with status 0" in log
+    assert "[up] compare exited with status 0" in log
     original = list(read_clouds(source))
     replayed = list(read_clouds(out))
     info = bag_info(out)
@@ -40,3 +43,7 @@ def test_replayed_poses_give_the_recorded_clouds_again(processes, cli, tmp_path)
         assert set(np.unique(b.points["object_id"])) == set(np.unique(a.points["object_id"]))
     # log time of the recording is the replayed sim time: each cloud is logged after its scan start
     assert all(f.log_time_ns >= f.stamp_ns for f in replayed)
+    # compare (the graph's after step): the replay is the recording again
+    metrics = json.loads((tmp_path / "replayed_compare" / "metrics.json").read_text())
+    assert metrics["frames"]["paired"] == len(replayed)
+    assert metrics["gap"] < 0.01 and metrics["bev"]["pearson"] > 0.99, (metrics["gap"], metrics["bev"])

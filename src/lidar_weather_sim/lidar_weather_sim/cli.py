@@ -91,17 +91,20 @@ def _cmd_up(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from lidar_weather_sim.graph import command_line, load_graph, parameter_yaml, parse_assignments, resolve, run
+    from lidar_weather_sim.graph import command_line, load_graph, parameter_yaml, parse_assignments, resolve, resolve_steps, run
 
-    plans = resolve(load_graph(args.graph), parse_assignments(args.arguments))
+    graph, given = load_graph(args.graph), parse_assignments(args.arguments)
+    plans, steps = resolve(graph, given), resolve_steps(graph, given)
     run_dir = Path(args.run_dir or tempfile.mkdtemp(prefix=f"lws_{args.graph}_"))
     if args.dry_run:  # the parameter files are written, so the printed commands run as they are
         run_dir.mkdir(parents=True, exist_ok=True)
         for plan in plans:
             (run_dir / f"{plan.name}.params.yaml").write_text(parameter_yaml(plan))
             print(" ".join(command_line(plan, run_dir / f"{plan.name}.params.yaml")))
+        for _, cmd in steps:
+            print(" ".join(cmd))
         return 0
-    return run(plans, run_dir, emit=lambda line: print(line, flush=True))
+    return run(plans, run_dir, emit=lambda line: print(line, flush=True), steps=steps)
 
 
 def _node_args(pairs: list[tuple[str, object]]) -> list[str]:
@@ -306,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
     record.set_defaults(func=_cmd_record)
 
     closed = commands.add_parser("closed-loop", help="adaptive cruise demo over DDS: speed traces with/without filter, report")
-    closed.add_argument("--scenario", default="highway_spray", help="scenario name or YAML path")
+    closed.add_argument("--scenario", default="highway_spray_crosswind", help="scenario name or YAML path")
     closed.add_argument("--seconds", type=float, default=6.0, help="simulated seconds per run")
     closed.add_argument("--box-at", type=float, default=3.0, help="box variant: the box appears at this time (s)")
     closed.add_argument("--out", default="closed_loop_report", help="report directory (report.md, speed.png, traces)")

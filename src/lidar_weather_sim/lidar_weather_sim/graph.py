@@ -16,6 +16,12 @@ parameter whose argument is empty is left out (the node's default applies).
 Conditions: ``if: NAME`` starts the node only when the argument is true,
 ``unless: NAME`` only when it is false. ``required: true``: when that node
 exits, the whole graph shuts down (launch's ``on_exit=Shutdown()``).
+``after:`` steps (commands, e.g. ``lidar-weather-sim compare`` on what the
+graph recorded) run one after the other once every node has exited; their
+arguments may contain ``$(arg NAME)`` anywhere. Under ``ros2 launch`` the
+required node's exit then stops the other nodes with SIGINT instead of a
+shutdown, the first step starts when the last node has exited, and the last
+step's exit shuts launch down.
 
 No ROS import at module level: ``launch`` is imported only by :func:`launch_description`.
 """
@@ -35,6 +41,7 @@ from lidar_weather_sim.config import ConfigError, ConfigModel, load_yaml
 from lidar_weather_sim.paths import config_dir
 
 _ARG = re.compile(r"^\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)$")
+_ARG_ANYWHERE = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
 TRUE, FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off", "")
 
 
@@ -60,11 +67,18 @@ class GraphNode(ConfigModel):
     required: bool = Field(False, description="Its exit shuts the graph down")
 
 
+class GraphStep(ConfigModel):
+    name: str = Field(description="Step name (also the prefix of its output lines)")
+    module: str = Field(description="Python module run with -m")
+    args: list[str] = Field(default_factory=list, description="Arguments; $(arg NAME) is substituted anywhere")
+
+
 class Graph(ConfigModel):
     name: str
     description: str = ""
     arguments: dict[str, Argument] = Field(default_factory=dict)
     nodes: list[GraphNode] = Field(min_length=1)
+    after: list[GraphStep] = Field(default_factory=list, description="Commands run once every node has exited")
 
 
 @dataclass(frozen=True)
@@ -105,6 +119,10 @@ def load_graph(name_or_path: str | Path) -> Graph:
         for file in node.parameter_files:
             if not (path.parent / file).is_file():
                 raise ConfigError(f"{path}: node '{node.name}': parameter file {file} not found")
+    for step in graph.after:
+        for ref in (m.group(1) for a in step.args for m in _ARG_ANYWHERE.finditer(a)):
+            if ref not in graph.arguments:
+                raise ConfigError(f"{path}: step '{step.name}' uses undeclared argument '{ref}'")
     return graph
 
 
@@ -188,6 +206,13 @@ def resolve(graph: Graph, given: dict[str, str] | None = None) -> list[NodePlan]
     return plans
 
 
+def resolve_steps(graph: Graph, given: dict[str, str] | None = None) -> list[tuple[str, list[str]]]:
+    """(name, command line) of each ``after`` step for these argument values."""
+    values = argument_values(graph, given or {})
+    sub = lambda text: _ARG_ANYWHERE.sub(lambda m: values[m.group(1)], text)  # noqa: E731
+    return [(step.name, [sys.executable, "-m", step.module, *map(sub, step.args)]) for step in graph.after]
+
+
 def parameter_yaml(plan: NodePlan) -> str:
     """The plan's inline parameters as a ROS 2 parameter file (wildcard node name)."""
     return yaml.safe_dump({"/**": {"ros__parameters": plan.parameters}}, sort_keys=False)
@@ -212,16 +237,17 @@ def launch_description(name: str):
     graph = load_graph(name)
 
     def nodes(context):
-        actions = []
         given = {k: v for k, v in context.launch_configurations.items() if k in graph.arguments}
-        for plan in resolve(graph, given):
-            extra = {"on_exit": Shutdown()} if plan.required else {}
+        plans, steps = resolve(graph, given), resolve_steps(graph, given)
+        actions = []
+        for plan in plans:
+            extra = {"on_exit": Shutdown()} if plan.required and not steps else {}
             actions.append(Node(
                 package=plan.package, executable=plan.executable, name=plan.name, output="screen",
                 parameters=[*(str(f) for f in plan.parameter_files), plan.parameters],
                 remappings=list(plan.remappings), **extra,
             ))  # fmt: skip
-        return actions
+        return actions + (_after_steps(plans, actions, steps) if steps else [])
 
     declared = [
         DeclareLaunchArgument(n, default_value=a.default, description=a.description, **({"choices": a.choices} if a.choices else {}))
@@ -230,18 +256,51 @@ def launch_description(name: str):
     return LaunchDescription([*declared, OpaqueFunction(function=nodes)])
 
 
+def _after_steps(plans: list[NodePlan], nodes: list, steps: list[tuple[str, list[str]]]) -> list:
+    """launch event handlers: a required node's exit SIGINTs the others; when all have exited, the steps run in turn."""
+    import signal
+
+    from launch.actions import EmitEvent, ExecuteProcess, RegisterEventHandler, Shutdown
+    from launch.event_handlers import OnProcessExit
+    from launch.events import matches_action
+    from launch.events.process import SignalProcess
+
+    processes = [ExecuteProcess(cmd=cmd, name=step, output="screen") for step, cmd in steps]
+    exited: set[int] = set()
+
+    def node_exit(plan: NodePlan, action):
+        def handler(event, context):
+            exited.add(id(action))
+            if len(exited) == len(nodes):
+                return [processes[0]]
+            if plan.required:
+                return [EmitEvent(event=SignalProcess(signal_number=signal.SIGINT, process_matcher=matches_action(other)))
+                        for other in nodes if id(other) not in exited]  # fmt: skip
+            return None
+
+        return RegisterEventHandler(OnProcessExit(target_action=action, on_exit=handler))
+
+    handlers = [node_exit(plan, action) for plan, action in zip(plans, nodes)]
+    for current, following in zip(processes, [*processes[1:], None]):
+        handlers.append(RegisterEventHandler(OnProcessExit(target_action=current, on_exit=[following or Shutdown()])))
+    return handlers
+
+
 
 # --- running a graph as separate processes (lidar-weather-sim up) ---------------------------------
 
 
-def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0) -> int:
-    """Start every plan as its own process, prefix their output lines, stop them all cleanly.
+def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
+        steps: list[tuple[str, list[str]]] = ()) -> int:  # fmt: skip
+    """Start every plan as its own process, prefix their output lines, stop them all cleanly, then run ``steps``.
 
     SIGINT and SIGTERM received here are forwarded as SIGINT to every node (the
     ``ros2 launch`` behaviour); a node still running ``grace_s`` later gets
     SIGTERM, then SIGKILL. The graph stops when a ``required`` node exits or
-    when every node has exited. Returns 0 if every node exited cleanly (status
-    0, or stopped by the forwarded signal), otherwise 1.
+    when every node has exited. Then, unless interrupted or a node failed, the
+    ``after`` steps (:func:`resolve_steps`) run one after the other. Returns 0
+    if every node exited cleanly (status 0, or stopped by the forwarded signal)
+    and every step with status 0, otherwise 1.
     """
     import os
     import signal
@@ -297,4 +356,13 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0)
         ok = code == 0 or (proc.pid in stopped and code in (-signal.SIGINT, 128 + signal.SIGINT))
         clean &= ok
         emit(f"[up] {plan.name} exited with status {code}{'' if ok else ' (failure)'}")
+    for name, cmd in steps if clean and not received else ():
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
+        emit(f"[up] started {name} (pid {proc.pid})")
+        pump(name, proc.stdout)
+        code = proc.wait()
+        clean &= code == 0
+        emit(f"[up] {name} exited with status {code}{'' if code == 0 else ' (failure)'}")
+        if code:
+            break
     return 0 if clean else 1
