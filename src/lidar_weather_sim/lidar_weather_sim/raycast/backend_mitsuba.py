@@ -109,7 +109,9 @@ class Caster(CasterBase):
         import drjit as dr
 
         with _variant() as mi:
-            ray = mi.Ray3f(mi.Point3f(o.T), mi.Vector3f(d.T))
+            # one contiguous array per coordinate: Dr.Jit converts a strided (o.T) view element by element
+            o_t, d_t = np.ascontiguousarray(o.T), np.ascontiguousarray(d.T)
+            ray = mi.Ray3f(mi.Point3f(*map(mi.Float, o_t)), mi.Vector3f(*map(mi.Float, d_t)))
             pi = self._scene.ray_intersect_preliminary(ray, coherent=True)
             valid = pi.is_valid()
             t = dr.select(valid, pi.t, dr.inf)
