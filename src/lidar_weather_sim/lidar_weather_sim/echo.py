@@ -112,11 +112,12 @@ def detect_echoes(
     (:class:`lidar_weather_sim.workers.Scratch`) the echoes are views of its arrays,
     valid until its next use.
     """
-    if len(beam) > 1 and np.any(beam[1:] < beam[:-1]):
-        order = _beam_order(np.ascontiguousarray(beam, np.int64))
+    beam = np.ascontiguousarray(beam, np.int64)
+    if not _ascending(beam):
+        order = _beam_order(beam)
         beam, range_m, amplitude, label, object_id = (x[order] for x in (beam, range_m, amplitude, label, object_id))
     out = _detect(
-        np.ascontiguousarray(beam, np.int64),
+        beam,
         np.ascontiguousarray(range_m, np.float64),
         np.ascontiguousarray(amplitude, np.float64),
         np.ascontiguousarray(label, np.uint8),
@@ -128,6 +129,14 @@ def detect_echoes(
         scratch,
     )
     return Echoes(*out)
+
+
+@numba.njit(cache=True)
+def _ascending(beam):
+    for i in range(1, len(beam)):
+        if beam[i] < beam[i - 1]:
+            return False
+    return True
 
 
 @numba.njit(cache=True)

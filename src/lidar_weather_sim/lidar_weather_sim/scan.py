@@ -74,12 +74,14 @@ class ScanPattern:
         self.subray_weight = np.outer(wh, wv).ravel()
         self.n_subrays = len(self.subray_weight)
         self._tables: dict[tuple[int, ...], np.ndarray] = {}
+        schedule = profile.scan.layer_schedule or [range(self.n_channels)]
+        self._channels = [np.array(sorted(layers), dtype=np.int64) for layers in schedule]
+        for channels in self._channels:
+            channels.flags.writeable = False
 
     def active_channels(self, frame_index: int) -> np.ndarray:
-        schedule = self.profile.scan.layer_schedule
-        if not schedule:
-            return np.arange(self.n_channels)
-        return np.array(sorted(schedule[frame_index % len(schedule)]), dtype=np.int64)
+        """Channel numbers fired in frame ``frame_index``, ascending (read-only, shared)."""
+        return self._channels[frame_index % len(self._channels)]
 
     def rays_per_frame(self, frame_index: int = 0) -> int:
         return self.n_columns * len(self.active_channels(frame_index)) * self.n_subrays

@@ -20,6 +20,7 @@ one buffer.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -585,6 +586,7 @@ def _surface_returns_run(distance, normal, material, actor, object_id, direction
     return count - c0 * n_beams * n_sub
 
 
+@functools.cache
 def _padding_bytes(dtype: np.dtype) -> np.ndarray:
     """Offsets of the bytes of a point that belong to no field (written as zeros)."""
     used = np.zeros(dtype.itemsize, bool)

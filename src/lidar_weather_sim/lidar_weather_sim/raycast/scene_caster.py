@@ -152,9 +152,7 @@ class SceneCaster:
         best, tri = self._cast_part(self._static, o, d)
         best = np.ascontiguousarray(best, dtype=np.float32)
         new = workers.allocator(self._scratch if reuse else None)
-        hit_actor = new("hit_actor", len(o), np.int32)
-        hit_actor.fill(-1)
-        normal, material, object_id, origin_box, axis, half_angle = _static_pass(
+        normal, material, object_id, hit_actor, origin_box, axis, half_angle = _static_pass(
             best, np.ascontiguousarray(tri, dtype=np.int64), np.float32(max_range_m), o, d, self._static,
             bool(actor_poses) and len(o) > 0, new,
         )  # fmt: skip
@@ -244,20 +242,21 @@ CHUNK_RAYS = 32768
 
 def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, new):
     """Static-mesh hits to per-ray attributes (see :func:`_static_run`; ``new(name, shape, dtype)``
-    allocates them), and with ``blocks`` the origins' bounding box (centre, radius) and the cones
-    of the blocks of rays (else None)."""
+    allocates them; the actor ids are -1), and with ``blocks`` the origins' bounding box (centre,
+    radius) and the cones of the blocks of rays (else None)."""
     n = len(best)
     normal = new("normal", (n, 3), np.float32)
     material = new("material", n, np.int32)
     object_id = new("object_id", n, np.uint32)
+    hit_actor = new("hit_actor", n, np.int32)
     axis = np.empty((n // _BLOCK if blocks else 0, 3))
     half = np.empty(len(axis))
     cuts = workers.bounds(n, CHUNK_RAYS, align=_BLOCK)
     boxes = np.zeros((len(cuts) - 1, 6))
     workers.run_chunks(
         lambda c: _static_run(best, tri, max_range, o, d, part.normals, part.material, part.object_id, cuts[c],
-                              cuts[c + 1], blocks, _BLOCK, _COS_MARGIN, normal, material, object_id, axis, half,
-                              boxes[c]),  # fmt: skip
+                              cuts[c + 1], blocks, _BLOCK, _COS_MARGIN, normal, material, object_id, hit_actor, axis,
+                              half, boxes[c]),  # fmt: skip
         len(cuts) - 1,
     )
     box = None
@@ -265,17 +264,17 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, new):
         lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
         e = hi - lo
         box = 0.5 * (lo + hi), float(0.5 * np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]))
-    return normal, material, object_id, box, axis, half
+    return normal, material, object_id, hit_actor, box, axis, half
 
 
 @numba.njit(cache=True, nogil=True)
 def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, hi, blocks, block, cos_margin,
-                normal, material, object_id, axis, half, box):  # fmt: skip
+                normal, material, object_id, hit_actor, axis, half, box):  # fmt: skip
     """Rays lo..hi (lo a multiple of ``block``). In place: hits beyond ``max_range`` (float32)
     become misses. Writes the gathered normal (facing the ray), material and object id per ray
-    (a miss gathers the tables' last row); with ``blocks`` also the bounding cone (unit axis,
-    half-angle widened by ``cos_margin``) of each full block of ``block`` consecutive rays and
-    the origins' min (box[:3]) and max (box[3:])."""
+    (a miss gathers the tables' last row) and actor id -1; with ``blocks`` also the bounding
+    cone (unit axis, half-angle widened by ``cos_margin``) of each full block of ``block``
+    consecutive rays and the origins' min (box[:3]) and max (box[3:])."""
     miss = len(materials) - 1
     for i in range(lo, hi):
         t = tri[i]
@@ -291,6 +290,7 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
         material[i] = materials[t]
         object_id[i] = object_ids[t]
+        hit_actor[i] = -1
     if not blocks or hi <= lo:
         return
     lo0, lo1, lo2 = o[lo, 0], o[lo, 1], o[lo, 2]
