@@ -19,3 +19,27 @@ def test_recorder_keeps_every_cloud_for_60_s(tmp_path):
     assert summary["stamp_gaps"] == 0, summary  # one cloud per 40 ms, none repeated
     assert summary["tf_recorded"] >= 60 * 100 - 10 and summary["clock_recorded"] == summary["tf_recorded"], summary
     assert run.returncode == 0
+
+
+def test_recorder_stops_on_sigint_while_recording(processes, cli, tmp_path):
+    """SIGINT mid-recording: rclpy stops the node (its handler stays installed), the bag is closed with its index."""
+    import signal
+    import time
+
+    from lidar_weather_sim.bags import bag_info
+
+    pattern = processes.start(*cli, "pattern", "--rate", "50", "--count", "100000")
+    for i, after_s in enumerate((0.0, 0.5, 2.0)):
+        out = tmp_path / f"bag{i}"
+        rec = processes.start(sys.executable, "-m", "lidar_weather_sim.ros.recorder_node", "--ros-args",
+                              "-p", f"out:={out}", "-p", "topics:=[/lidar/points]")  # fmt: skip
+        deadline = time.monotonic() + 60
+        while "subscribed to /lidar/points" not in processes.output(rec) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(after_s)  # recording
+        rec.send_signal(signal.SIGINT)
+        assert rec.wait(timeout=15) == 0, processes.output(rec)
+        assert "recorder_node: recorded" in processes.output(rec)
+        info = bag_info(out)
+        assert not info.damaged, processes.output(rec)
+    assert pattern.poll() is None

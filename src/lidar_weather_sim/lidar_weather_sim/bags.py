@@ -323,11 +323,15 @@ class BagWriter:
     While open, SIGINT and SIGTERM (when opened in the main thread) and interpreter
     exit first close the bag, so a recording always ends with a valid index. The
     previous handler then runs; a default SIGTERM exits with status 143 (128 + 15).
+    Inside an rclpy process pass ``handle_signals=False``: rclpy's own handler
+    (installed below Python's ``signal`` module, so invisible to it) must stay in
+    place to shut the context down, and the node closes the bag when it stops.
     """
 
     _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def __init__(self, path: str | Path, storage: str = "mcap", overwrite: bool = False) -> None:
+    def __init__(self, path: str | Path, storage: str = "mcap", overwrite: bool = False,
+                 handle_signals: bool = True) -> None:  # fmt: skip
         if storage not in _STORAGES:
             raise ValueError(f"storage must be one of {sorted(_STORAGES)}, not {storage!r}")
         self.path = Path(path)
@@ -345,7 +349,7 @@ class BagWriter:
         self._owner: int | None = None  # thread inside a write or close
         self._pending: int | None = None
         self._previous: dict[int, Any] = {}
-        if threading.current_thread() is threading.main_thread():
+        if handle_signals and threading.current_thread() is threading.main_thread():
             self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self._SIGNALS}
         atexit.register(self.close)
 

@@ -70,12 +70,12 @@ def _build_region(scenario_name: str):
 
 def main(argv=None) -> None:
     import rclpy
-    from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
     from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import MarkerArray
 
     from lidar_weather_sim.ros.conversions import rclpy_message_types
+    from lidar_weather_sim.ros.node_main import run_node
     from lidar_weather_sim.cloud_codec import build_message
 
     class SprayNode(Node):
@@ -109,15 +109,13 @@ def main(argv=None) -> None:
             if self.max_steps and self.steps >= self.max_steps:
                 raise SystemExit(0)
 
-    rclpy.init(args=argv)
-    node = SprayNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException, SystemExit):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    def spin(node: SprayNode) -> None:
+        try:
+            rclpy.spin(node)
+        except SystemExit:  # max_steps reached
+            pass
+
+    run_node("spray_node", SprayNode, spin, finish=SprayNode.destroy_node, args=argv)
 
 
 if __name__ == "__main__":

@@ -29,19 +29,18 @@ from __future__ import annotations
 
 import importlib
 import itertools
-import sys
 import time
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from lidar_weather_sim.bags import BagError, read_messages, typestore
 from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_TF_STATIC
+from lidar_weather_sim.ros.node_main import run_node
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -156,21 +155,16 @@ class BagPlayerNode(Node):
             time.sleep(min(left, 0.01))
 
 
+def _spin(node: BagPlayerNode) -> None:
+    node.wait_for_subscribers()
+    node.play()
+    node.finish()
+    while node.stay_after_playing and rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
 def main(args: list[str] | None = None) -> None:
-    try:
-        with rclpy.init(args=args):
-            try:
-                node = BagPlayerNode()
-            except (BagError, ValueError) as exc:
-                print(f"bag_player_node: {exc}", file=sys.stderr)
-                sys.exit(2)
-            node.wait_for_subscribers()
-            node.play()
-            node.finish()
-            while node.stay_after_playing and rclpy.ok():
-                rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    run_node("bag_player_node", BagPlayerNode, _spin, config_errors=(BagError, ValueError), args=args)
 
 
 if __name__ == "__main__":

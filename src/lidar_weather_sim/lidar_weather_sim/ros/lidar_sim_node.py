@@ -23,7 +23,6 @@ start; the log gives the time of the request and the stamp of that frame.
 from __future__ import annotations
 
 import math
-import sys
 
 import rclpy
 from builtin_interfaces.msg import Time
@@ -31,7 +30,7 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, ShutdownException, SingleThreadedExecutor, TimeoutException
+from rclpy.executors import ShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -46,6 +45,7 @@ from lidar_weather_sim.player import matrix_quaternion
 from lidar_weather_sim.pose_gate import PoseGate
 from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message, mount_transform, parse_odometry, set_static_mount
 from lidar_weather_sim.ros.conversions import cloud_to_msg
+from lidar_weather_sim.ros.node_main import run_node
 from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
@@ -330,26 +330,18 @@ def _spin_once(executor: SingleThreadedExecutor, timeout_sec: float) -> bool:
     return True
 
 
+def _spin(node: LidarSimNode) -> None:
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    while rclpy.ok() and not node.finished:
+        ended = node.input_ended  # then all the input sent is queued here
+        if not _spin_once(executor, 0.1) and ended:
+            break  # ... and cast
+
+
 def main(args: list[str] | None = None) -> None:
-    node = None
-    try:
-        with rclpy.init(args=args):
-            try:
-                node = LidarSimNode()
-            except ConfigError as exc:
-                print(f"lidar_sim_node: {exc}", file=sys.stderr)
-                sys.exit(2)
-            executor = SingleThreadedExecutor()
-            executor.add_node(node)
-            while rclpy.ok() and not node.finished:
-                ended = node.input_ended  # then all the input sent is queued here
-                if not _spin_once(executor, 0.1) and ended:
-                    break  # ... and cast
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            print(f"lidar_sim_node: published {node.published} clouds", flush=True)
+    run_node("lidar_sim_node", LidarSimNode, _spin, config_errors=(ConfigError,), args=args,
+             finish=lambda node: print(f"lidar_sim_node: published {node.published} clouds", flush=True))
 
 
 if __name__ == "__main__":

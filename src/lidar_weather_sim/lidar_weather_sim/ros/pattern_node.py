@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
 from lidar_weather_sim.names import FRAME_LIDAR, TOPIC_POINTS
 from lidar_weather_sim.ros.conversions import cloud_to_msg
+from lidar_weather_sim.ros.node_main import run_node
 from lidar_weather_sim.synthetic_pattern import synthetic_frame
 
 
@@ -63,14 +63,13 @@ class PatternNode(Node):
         self._frame += 1
 
 
+def _spin(node: PatternNode) -> None:
+    while rclpy.ok() and not node.finished:
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
 def main(args: list[str] | None = None) -> None:
-    try:
-        with rclpy.init(args=args):
-            node = PatternNode()
-            while rclpy.ok() and not node.finished:
-                rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    run_node("pattern_node", PatternNode, _spin, args=args)
 
 
 if __name__ == "__main__":

@@ -7,8 +7,10 @@ that is /clock, and topics are subscribed to only once /clock has arrived: no
 message is logged at a time the node does not know yet.
 PointCloud2 topics are read with SensorDataQoS (matches best-effort and
 reliable writers) at depth ``queue_depth``, /tf_static transient-local, the rest
-reliable. SIGINT/SIGTERM close the bag with a valid index (BagWriter); a
-SIGKILLed recording is recovered by ``lidar-weather-sim recover``.
+reliable. SIGINT/SIGTERM stop the node (rclpy) and the bag is closed with a
+valid index (``finish`` of :func:`~lidar_weather_sim.ros.node_main.run_node`,
+also at interpreter exit); a SIGKILLed recording is recovered by
+``lidar-weather-sim recover``.
 
 Parameters: ``out`` (bag directory), ``topics`` (string array), ``overwrite``
 (bool), ``queue_depth`` (int), ``max_messages`` (int, 0 = until shut down: the
@@ -17,18 +19,16 @@ node exits after recording that many messages).
 
 from __future__ import annotations
 
-import sys
-
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from lidar_weather_sim.bags import POINTCLOUD2, BagError, BagWriter
 from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF_STATIC
+from lidar_weather_sim.ros.node_main import run_node
 
 
 class RecorderNode(Node):
@@ -42,7 +42,7 @@ class RecorderNode(Node):
         self.max_messages = self.declare_parameter("max_messages", 0, d("Exit after this many (0 = never)")).value
         if not out:
             raise BagError("parameter 'out' is empty: give the bag directory to write")
-        self.writer = BagWriter(out, storage="mcap", overwrite=overwrite)
+        self.writer = BagWriter(out, storage="mcap", overwrite=overwrite, handle_signals=False)  # closed by main()
         self.counts = {t: 0 for t in self.wanted}
         self._subs = {}
         self._clock_sub = None  # with use_sim_time: until the first /clock message
@@ -86,23 +86,18 @@ class RecorderNode(Node):
         return 0 < self.max_messages <= sum(self.counts.values())
 
 
+def _spin(node: RecorderNode) -> None:
+    while rclpy.ok() and not node.finished:
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
+def _finish(node: RecorderNode) -> None:
+    node.writer.close()
+    print(f"recorder_node: recorded {node.counts}", flush=True)
+
+
 def main(args: list[str] | None = None) -> None:
-    node = None
-    try:
-        with rclpy.init(args=args):
-            try:
-                node = RecorderNode()
-            except (BagError, ValueError) as exc:
-                print(f"recorder_node: {exc}", file=sys.stderr)
-                sys.exit(2)
-            while rclpy.ok() and not node.finished:
-                rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.writer.close()
-            print(f"recorder_node: recorded {node.counts}", flush=True)
+    run_node("recorder_node", RecorderNode, _spin, config_errors=(BagError, ValueError), finish=_finish, args=args)
 
 
 if __name__ == "__main__":
