@@ -171,11 +171,10 @@ class SceneCaster:
                 u, angle = reach_axis / reach, float(np.arcsin((part.radius + box_radius) / reach))
             else:
                 u, angle = np.array([1.0, 0.0, 0.0]), -1.0  # every block is a candidate
-            idx, shift, d64 = _cull(o, d, axis, half_angle, u, angle, _BLOCK, np.asarray(centre, np.float64),
-                                    float(part.radius), best, float(max_range_m))  # fmt: skip
+            idx, shift, start, d64 = _cull(o, d, axis, half_angle, u, angle, np.asarray(centre, np.float64),
+                                           float(part.radius), best, float(max_range_m), self._scratch)  # fmt: skip
             if not len(idx):
                 continue
-            start = o[idx] + shift[:, None] * d64
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
             dist_b, tri_b = self._cast_part(
                 part, ((start - trans) @ rot).astype(np.float32), (d64 @ rot).astype(np.float32)
@@ -321,32 +320,45 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         half[b] = np.arccos(min(max(np.float64(min_cos) - cos_margin, -1.0), 1.0))
 
 
-@numba.njit(cache=True)
-def _cull(o, d, axis, half_angle, u, angle, block, centre, radius, best, max_range):
+def _cull(o, d, axis, half_angle, u, angle, centre, radius, best, max_range, scratch):
     """Rays that may hit the sphere (centre, radius) before ``best`` and ``max_range`` (m).
 
     Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of
     the unit vector ``u`` (all blocks if ``angle`` < 0) plus the rays after the last
     full block; each gets the exact float64 test (numpy's operation order). Returns
     the rays' indices (ascending), the float64 distance (m, >= 0) at which each may
-    start without skipping the sphere, and their float64 unit directions.
+    start without skipping the sphere, the float64 start points (origin + shift x
+    direction) and unit directions. Chunks of blocks are shared between threads.
     """
-    n = len(o)
-    nb = len(axis)
-    idx = np.empty(n, np.int64)
-    shift = np.empty(n)
-    d64 = np.empty((n, 3))
-    far = np.float32(max_range)
-    r2 = radius * radius
+    n, nb = len(o), len(axis)
+    out = (scratch.get("cull_idx", n, np.int64), scratch.get("cull_shift", n, np.float64),
+           scratch.get("cull_start", (n, 3), np.float64), scratch.get("cull_d64", (n, 3), np.float64))  # fmt: skip
     # Block pre-filter: a block is tested (arccos) only if its axis is within the widest
     # block's cone of u, with a margin: the cheap test never rejects a block the exact one keeps.
-    widest = 0.0
-    for b in range(nb):
-        widest = max(widest, half_angle[b])
-    limit = widest + angle + 1e-6 + 1e-7
+    limit = (float(half_angle.max()) if nb else 0.0) + angle + 1e-6 + 1e-7
     min_cos = np.cos(limit) - 1e-9 if limit < np.pi else -2.0
-    count = 0
-    for b in range(nb + 1):
+    cuts = workers.bounds(nb + 1, CHUNK_RAYS // _BLOCK)  # block nb: the rays after the last full block
+    counts = workers.run_chunks(
+        lambda c: _cull_run(o, d, axis, half_angle, u, angle, min_cos, _BLOCK, centre, radius, best, max_range,
+                            cuts[c], cuts[c + 1], *out),  # fmt: skip
+        len(cuts) - 1,
+    )
+    if len(counts) == 1:
+        return tuple(x[: counts[0]] for x in out)
+    return tuple(np.concatenate([x[k * _BLOCK : k * _BLOCK + m] for k, m in zip(cuts, counts)]) for x in out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _cull_run(o, d, axis, half_angle, u, angle, min_cos, block, centre, radius, best, max_range, b0, b1, idx, shift,
+              start, d64):  # fmt: skip
+    """Blocks b0..b1 of :func:`_cull` (block ``len(axis)``: the rays after the last full one),
+    written from ray index b0 * block on; returns how many."""
+    n = len(o)
+    nb = len(axis)
+    far = np.float32(max_range)
+    r2 = radius * radius
+    first = count = b0 * block
+    for b in range(b0, b1):
         if b < nb:
             if angle >= 0:
                 cos_gap = axis[b, 0] * u[0] + axis[b, 1] * u[1] + axis[b, 2] * u[2]
@@ -380,8 +392,12 @@ def _cull(o, d, axis, half_angle, u, angle, block, centre, radius, best, max_ran
                 continue
             if not along - radius < min(best[i], far):
                 continue
+            s = max(along - radius, 0.0)
             idx[count] = i
-            shift[count] = max(along - radius, 0.0)
+            shift[count] = s
+            start[count, 0] = np.float64(o[i, 0]) + s * x
+            start[count, 1] = np.float64(o[i, 1]) + s * y
+            start[count, 2] = np.float64(o[i, 2]) + s * z
             d64[count, 0], d64[count, 1], d64[count, 2] = x, y, z
             count += 1
-    return idx[:count], shift[:count], d64[:count]
+    return count - first
