@@ -64,17 +64,16 @@ class Frame:
     rays: int
 
 
+@numba.njit(cache=True)
 def quaternion_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) of unit quaternions (N, 4) in x, y, z, w order."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    """Rotation matrices (N, 3, 3) of unit quaternions (N, 4) float64 in x, y, z, w order."""
+    m = np.empty((len(q), 3, 3))
+    for k in range(len(q)):
+        x, y, z, w = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+        m[k, 0, 0], m[k, 0, 1], m[k, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+        m[k, 1, 0], m[k, 1, 1], m[k, 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+        m[k, 2, 0], m[k, 2, 1], m[k, 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+    return m
 
 
 @dataclass

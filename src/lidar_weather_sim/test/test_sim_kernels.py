@@ -93,6 +93,18 @@ def chunked(monkeypatch):
     monkeypatch.setattr(echo, "CHUNK_CANDIDATES", 40)
 
 
+def test_quaternion_matrices_match_numpy():
+    q = np.random.default_rng(6).normal(size=(50, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    expected = np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)  # fmt: skip
+    assert quaternion_matrices(q).tobytes() == expected.tobytes()
+
+
 def test_world_rays_match_numpy_rotation():
     rng = np.random.default_rng(1)
     q = rng.normal(size=(17, 4))

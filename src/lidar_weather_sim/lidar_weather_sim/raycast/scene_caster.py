@@ -179,14 +179,10 @@ class SceneCaster:
             dist_b, tri_b = self._cast_part(
                 part, ((start - trans) @ rot).astype(np.float32), (d64 @ rot).astype(np.float32)
             )
-            dist_a = shift + dist_b
-            closer = (dist_a < best[idx]) & (dist_a <= max_range_m)
-            sel, tri_b = idx[closer], tri_b[closer]
-            best[sel] = dist_a[closer]
-            normal[sel] = _facing(part.normals[tri_b] @ rot.T.astype(np.float32), d[sel])
-            material[sel] = part.material[tri_b]
-            object_id[sel] = part.object_id[tri_b]
-            hit_actor[sel] = actor_id
+            closer = _closer(idx, shift, dist_b, best, float(max_range_m))
+            tri_b = tri_b[closer]
+            _set_hits(idx[closer], tri_b, part.normals[tri_b] @ rot.T.astype(np.float32), d, part.material,
+                      part.object_id, actor_id, normal, material, object_id, hit_actor)  # fmt: skip
         return Hits(best, normal, material, object_id, hit_actor)
 
 
@@ -226,13 +222,38 @@ def _is_rotation(rot):
     return det >= 0
 
 
-def _facing(normal: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """float32 normals (K, 3) flipped where they point along the ray (normal . direction > 0)."""
-    dot = normal[:, 0] * d[:, 0]
-    dot += normal[:, 1] * d[:, 1]
-    dot += normal[:, 2] * d[:, 2]
-    normal[dot > 0] *= -1
-    return normal
+@numba.njit(cache=True)
+def _closer(idx, shift, dist_b, best, max_range):
+    """Where an actor's hits (distance ``shift + dist_b`` along rays ``idx``) are nearer than
+    ``best`` and within ``max_range``: their positions in ``idx``; ``best`` takes them (float32)."""
+    out = np.empty(len(idx), np.int64)
+    count = 0
+    for j in range(len(idx)):
+        i = idx[j]
+        dist = shift[j] + np.float64(dist_b[j])
+        if dist < best[i] and dist <= max_range:
+            best[i] = dist
+            out[count] = j
+            count += 1
+    return out[:count]
+
+
+@numba.njit(cache=True)
+def _set_hits(sel, tri, normals, d, materials, object_ids, actor_id, normal, material, object_id, hit_actor):
+    """Rays ``sel`` hit the actor's triangles ``tri``: its map-frame float32 normals (flipped to
+    face the ray, float32 dot product as numpy), material, object id and actor id."""
+    for j in range(len(sel)):
+        i = sel[j]
+        n0, n1, n2 = normals[j, 0], normals[j, 1], normals[j, 2]
+        dot = n0 * d[i, 0]
+        dot += n1 * d[i, 1]
+        dot += n2 * d[i, 2]
+        if dot > 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
+        material[i] = materials[tri[j]]
+        object_id[i] = object_ids[tri[j]]
+        hit_actor[i] = actor_id
 
 
 #: Rays per chunk when a cast's per-ray passes are shared between threads (:mod:`lidar_weather_sim.workers`).
