@@ -69,13 +69,12 @@ def _build_region(scenario_name: str):
 
 
 def main(argv=None) -> None:
-    import rclpy
     from rclpy.node import Node
     from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import MarkerArray
 
     from lidar_weather_sim.ros.conversions import rclpy_message_types
-    from lidar_weather_sim.ros.node_main import run_node
+    from lidar_weather_sim.ros.node_main import run_node, spin_until_stopped
     from lidar_weather_sim.cloud_codec import build_message
 
     class SprayNode(Node):
@@ -111,7 +110,7 @@ def main(argv=None) -> None:
 
     def spin(node: SprayNode) -> None:
         try:
-            rclpy.spin(node)
+            spin_until_stopped(node)
         except SystemExit:  # max_steps reached
             pass
 

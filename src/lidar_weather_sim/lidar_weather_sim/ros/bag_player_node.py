@@ -40,7 +40,7 @@ from rosgraph_msgs.msg import Clock
 
 from lidar_weather_sim.bags import BagError, read_messages, typestore
 from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_TF_STATIC
-from lidar_weather_sim.ros.node_main import run_node
+from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -98,7 +98,7 @@ class BagPlayerNode(Node):
     def wait_for_subscribers(self) -> None:
         """Until each ``wait_for_topics`` topic has a subscriber; meanwhile /clock stands at the bag's start."""
         deadline = time.monotonic() + self.wait_timeout_s
-        while time.monotonic() < deadline and not all(self._subscribed(t) for t in self.wait_for):
+        while time.monotonic() < deadline and not stop_requested() and not all(self._subscribed(t) for t in self.wait_for):
             if self._clock is not None and self.messages:
                 self._clock.publish(Clock(clock=_time(self.messages[0].log_time_ns)))
             rclpy.spin_once(self, timeout_sec=0.05)
@@ -123,6 +123,8 @@ class BagPlayerNode(Node):
         start, clock_step_ns = time.monotonic(), round(1e9 / self.clock_hz)
         next_clock = t0
         for m in itertools.compress(self.messages, [not f for f in first]):
+            if stop_requested():
+                return
             while True:  # /clock ticks (and spinning) until this message is due
                 due = start + (m.log_time_ns - t0) * 1e-9 / self.rate
                 tick_due = start + (next_clock - t0) * 1e-9 / self.rate
@@ -151,16 +153,18 @@ class BagPlayerNode(Node):
         self._pubs, self._clock = {}, None
 
     def _sleep_until(self, deadline: float) -> None:
-        while (left := deadline - time.monotonic()) > 0:
+        while (left := deadline - time.monotonic()) > 0 and not stop_requested():
             time.sleep(min(left, 0.01))
 
 
 def _spin(node: BagPlayerNode) -> None:
     node.wait_for_subscribers()
     node.play()
+    if stop_requested():
+        return
     node.finish()
-    while node.stay_after_playing and rclpy.ok():
-        rclpy.spin_once(node, timeout_sec=0.1)
+    while node.stay_after_playing and not stop_requested():
+        rclpy.spin_once(node, timeout_sec=POLL_S)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -45,7 +45,7 @@ from lidar_weather_sim.player import matrix_quaternion
 from lidar_weather_sim.pose_gate import PoseGate
 from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message, mount_transform, parse_odometry, set_static_mount
 from lidar_weather_sim.ros.conversions import cloud_to_msg
-from lidar_weather_sim.ros.node_main import run_node
+from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
@@ -333,9 +333,9 @@ def _spin_once(executor: SingleThreadedExecutor, timeout_sec: float) -> bool:
 def _spin(node: LidarSimNode) -> None:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    while rclpy.ok() and not node.finished:
+    while not stop_requested() and not node.finished:
         ended = node.input_ended  # then all the input sent is queued here
-        if not _spin_once(executor, 0.1) and ended:
+        if not _spin_once(executor, POLL_S) and ended:
             break  # ... and cast
 
 

@@ -1,47 +1,75 @@
-"""The ``main()`` of every node: init, build, spin, finish; a signal at any moment ends it cleanly.
+"""The ``main()`` of every node: init, build, spin, finish; SIGINT/SIGTERM at any moment end it cleanly.
 
-rclpy turns SIGINT/SIGTERM into a shutdown of the context. Arriving while the
-node is still being built (slow imports, kernel compilation, a loaded machine),
-that shutdown surfaces as an ``RCLError`` from whatever rcl call comes next
-("publisher's context is invalid"); :func:`run_node` treats it, like
-``KeyboardInterrupt`` and ``ExternalShutdownException``, as the requested stop:
-exit status 0, ``finish`` still called.
+rclpy's own signal handler lives below Python's ``signal`` module: anything
+that later installs a Python handler replaces it without a trace, a signal
+during start-up surfaces as an ``RCLError`` from the next rcl call, and a
+signal that lands while the executor is being set up can be lost (seen: a
+weather_filter_node and a recorder_node still spinning minutes after SIGINT).
+So rclpy is initialised without signal handlers and :func:`run_node`
+installs plain Python ones. The first SIGINT only records the request: every
+spin loop waits at most :data:`POLL_S` and checks :func:`stop_requested`, so
+an idle node stops within that time, a busy one after its callback. SIGTERM,
+or a second SIGINT, raises ``KeyboardInterrupt`` at once, wherever the node
+is (a long numba compilation of a cold cache in its first cast can take 10 s
+or more on a loaded machine): the escalation of ``ros2 launch`` and
+``lidar-weather-sim up`` (SIGINT, then SIGTERM after a grace period) ends
+even a busy node. ``finish`` always runs (the recorder closes its bag there).
 """
 
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable
 from typing import TypeVar
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.signals import SignalHandlerOptions
 
 N = TypeVar("N")
+POLL_S = 0.1  # longest wait in a spin loop (s): the reaction time to a signal
+_requested: list[int] = []
 
 
-def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] | None = None, *,
+def stop_requested() -> bool:
+    """True once SIGINT or SIGTERM arrived (with :func:`run_node`'s handlers) or the rclpy context is down."""
+    return bool(_requested) or not rclpy.ok()
+
+
+def spin_until_stopped(node) -> None:
+    """The default spin: callbacks until a stop is requested."""
+    while not stop_requested():
+        rclpy.spin_once(node, timeout_sec=POLL_S)
+
+
+def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] = spin_until_stopped, *,
              config_errors: tuple[type[BaseException], ...] = (), finish: Callable[[N], None] | None = None,
              args: list[str] | None = None) -> None:  # fmt: skip
-    """Run a node: ``build()`` it, ``spin(node)`` (default :func:`rclpy.spin`) until done or stopped, ``finish(node)``.
+    """Run a node: ``build()`` it, ``spin(node)`` until done or stopped, then ``finish(node)``.
 
-    ``config_errors`` raised by ``build`` print ``name: reason`` on stderr and exit with status 2.
+    ``spin`` must return soon after :func:`stop_requested` turns true. ``config_errors``
+    raised by ``build`` print ``name: reason`` on stderr and exit with status 2.
     """
     node = None
     try:
-        with rclpy.init(args=args):
-            try:
-                node = _build(name, build, config_errors)
-                (spin or rclpy.spin)(node)
-            except _rclpy.RCLError:
-                if rclpy.ok():
-                    raise  # a real failure, not a context stopped by a signal
-    except (KeyboardInterrupt, ExternalShutdownException):
+        with rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO):
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, _on_signal)
+            node = _build(name, build, config_errors)
+            if not stop_requested():
+                spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):  # escalated, or before the handlers were in place
         pass
     finally:
         if node is not None and finish is not None:
             finish(node)
+
+
+def _on_signal(signum: int, _frame) -> None:
+    if signum == signal.SIGTERM or _requested:
+        raise KeyboardInterrupt  # escalation: stop now, wherever the node is
+    _requested.append(signum)
 
 
 def _build(name: str, build: Callable[[], N], config_errors: tuple[type[BaseException], ...]) -> N:

@@ -15,7 +15,7 @@ from sensor_msgs.msg import PointCloud2
 
 from lidar_weather_sim.names import FRAME_LIDAR, TOPIC_POINTS
 from lidar_weather_sim.ros.conversions import cloud_to_msg
-from lidar_weather_sim.ros.node_main import run_node
+from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.synthetic_pattern import synthetic_frame
 
 
@@ -64,8 +64,8 @@ class PatternNode(Node):
 
 
 def _spin(node: PatternNode) -> None:
-    while rclpy.ok() and not node.finished:
-        rclpy.spin_once(node, timeout_sec=0.1)
+    while not stop_requested() and not node.finished:
+        rclpy.spin_once(node, timeout_sec=POLL_S)
 
 
 def main(args: list[str] | None = None) -> None:

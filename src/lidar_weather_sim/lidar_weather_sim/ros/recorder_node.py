@@ -28,7 +28,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from lidar_weather_sim.bags import POINTCLOUD2, BagError, BagWriter
 from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF_STATIC
-from lidar_weather_sim.ros.node_main import run_node
+from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 
 
 class RecorderNode(Node):
@@ -87,8 +87,8 @@ class RecorderNode(Node):
 
 
 def _spin(node: RecorderNode) -> None:
-    while rclpy.ok() and not node.finished:
-        rclpy.spin_once(node, timeout_sec=0.1)
+    while not stop_requested() and not node.finished:
+        rclpy.spin_once(node, timeout_sec=POLL_S)
 
 
 def _finish(node: RecorderNode) -> None:
