@@ -104,16 +104,19 @@ def detect_echoes(
     fwhm_m: float,
     resolution_m: float,
     max_echoes: int,
+    segments: tuple[np.ndarray, np.ndarray] | None = None,
     scratch=None,
 ) -> Echoes:
     """Echoes of candidate returns of the beams of a batch (fastest when grouped by beam).
 
-    Candidates with zero amplitude or non-finite range are ignored. With ``scratch``
-    (:class:`lidar_weather_sim.workers.Scratch`) the echoes are views of its arrays,
-    valid until its next use.
+    Candidates with zero amplitude or non-finite range are ignored. ``segments``
+    (starts, counts): the candidates are only these runs of the arrays, grouped by beam
+    in beam order, as the simulator's kernels leave them (None: all of the arrays).
+    With ``scratch`` (:class:`lidar_weather_sim.workers.Scratch`) the echoes are views
+    of its arrays, valid until its next use.
     """
     beam = np.ascontiguousarray(beam, np.int64)
-    if not _ascending(beam):
+    if segments is None and not _ascending(beam):
         order = _beam_order(beam)
         beam, range_m, amplitude, label, object_id = (x[order] for x in (beam, range_m, amplitude, label, object_id))
     out = _detect(
@@ -127,6 +130,7 @@ def detect_echoes(
         float(resolution_m),
         int(max_echoes),
         scratch,
+        segments,
     )
     return Echoes(*out)
 
@@ -284,20 +288,24 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
 CHUNK_CANDIDATES = 8192
 
 
-def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None):
+def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None, segments=None):
     n = len(beam)
     cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
     new = workers.allocator(scratch)
     out = tuple(new(f"echo_{k}", cap, dtype) for k, dtype in
                 enumerate((np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)))  # fmt: skip
-    cuts = workers.bounds(n, CHUNK_CANDIDATES)
-    if len(cuts) > 2:
-        cuts = _beam_starts(beam, cuts)
+    if segments is None:
+        cuts = workers.bounds(n, CHUNK_CANDIDATES)
+        if len(cuts) > 2:
+            cuts = _beam_starts(beam, cuts)
+        starts, ends = cuts[:-1], cuts[1:]
+    else:
+        starts, ends = segments[0], segments[0] + segments[1]
     counts = np.array(workers.run_chunks(
-        lambda c: _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, cuts[c], cuts[c + 1], *out),
-        len(cuts) - 1,
+        lambda c: _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, starts[c], ends[c], *out),
+        len(starts),
     ), np.int64)  # fmt: skip
-    count = _compact(out, cuts, counts)
+    count = _compact(out, starts, counts)
     return tuple(x[:count] for x in out)
 
 
@@ -320,12 +328,13 @@ def _beam_starts(beam, cuts):
 
 
 @numba.njit(cache=True)
-def _compact(out, cuts, counts):
-    """Move each chunk's echoes (written from its first candidate's index on) together; returns the count."""
+def _compact(out, starts, counts):
+    """Move each chunk's echoes (written from its first candidate's index ``starts`` on) together;
+    returns the count."""
     eb, ee, er, ea, ew, el, eo = out
     count = 0
-    for c in range(len(cuts) - 1):
-        src = cuts[c]
+    for c in range(len(counts)):
+        src = starts[c]
         if src != count:
             for k in range(counts[c]):
                 eb[count + k], ee[count + k], er[count + k] = eb[src + k], ee[src + k], er[src + k]

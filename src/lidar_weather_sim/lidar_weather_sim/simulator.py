@@ -268,14 +268,15 @@ class LidarSimulator:
                 region.apply(ray_batch, region_rng(self.seed, acc.index, name, first)) for name, region in self.regions
             ]
             effect = combine(effects, shape)
-        candidates = self._candidates(hits, directions, rotation, ray_batch, effect)
-        candidates = self._add_false_alarms(candidates, n, acc.index, first)
+        candidates, segments = self._candidates(hits, directions, rotation, ray_batch, effect)
+        candidates, segments = self._add_false_alarms(candidates, segments, n, acc.index, first)
         echoes = detect_echoes(
             *candidates,
             threshold=self.threshold(),
             fwhm_m=profile.pulse.fwhm_m,
             resolution_m=profile.range.resolution_m,
             max_echoes=profile.detection.max_echoes,
+            segments=segments,
             scratch=self._scratch,
         )
         self._points(echoes, columns, n_beams, acc, first)
@@ -287,8 +288,9 @@ class LidarSimulator:
         translation = np.ascontiguousarray(translation, dtype=np.float64)
         return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64))
 
-    def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect) -> tuple[np.ndarray, ...]:
-        """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers.
+    def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect):
+        """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers,
+        and the runs of those arrays that hold them (see :func:`_surface_returns`; None: all).
 
         ``rays`` and ``effect`` are None without regions (no scaling, offset or losses)."""
         profile = self.profile
@@ -308,14 +310,14 @@ class LidarSimulator:
             t2 = np.ascontiguousarray(np.broadcast_to(t2, (n, n_sub)), np.float64)
         else:
             scale = offset = t2 = np.zeros((1, 1))
-        beam, rng_m, amp, label, obj = _surface_returns(
+        beam, rng_m, amp, label, obj, segments = _surface_returns(
             hits.distance, hits.normal, hits.material, hits.hit_actor, hits.object_id, directions, rotation,
             self._reflectivity, self._retro, self._material_label, self._actor_label, self.pattern.subray_weight,
             float(C), float(optics.overlap_start_m), float(optics.overlap_full_m), effect is not None, scale, offset,
             t2, sc is None, self._scratch,
         )  # fmt: skip
         if sc is None:
-            return beam, rng_m, amp, label, obj
+            return (beam, rng_m, amp, label, obj), segments
         # scatterers: every sub-ray stays a candidate until the occlusion is applied
         beam = np.broadcast_to(np.arange(n)[:, None], shape=(n, n_sub))
         subray = np.broadcast_to(np.arange(n_sub)[None, :], shape=(n, n_sub))
@@ -332,12 +334,14 @@ class LidarSimulator:
         cols[3] = _occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6], n * n_sub)
         beam, _, rng_m, amp, label, obj, _ = cols
         keep = amp > 0
-        return beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)
+        return (beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)), None
 
-    def _add_false_alarms(self, candidates, n_beams: int, frame: int, first_column: int):
+    def _add_false_alarms(self, candidates, segments, n_beams: int, frame: int, first_column: int):
         rate = self.profile.detection.false_alarms_per_beam
         if rate <= 0:
-            return candidates
+            return candidates, segments
+        if segments is not None:
+            candidates = _compact_candidates(candidates, segments)
         rng = region_rng(self.seed, frame, "noise_floor", first_column)
         count = rng.poisson(rate, n_beams)
         beam = np.repeat(np.arange(n_beams), count)
@@ -345,7 +349,7 @@ class LidarSimulator:
         ranges = rng.uniform(lo, self.profile.range.max_m, len(beam))
         amp = self.threshold().level * (1.0 + rng.exponential(0.2, len(beam)))
         extra = (beam, ranges, amp, np.full(len(beam), Label.NOISE, np.uint8), np.zeros(len(beam), np.uint32))
-        return tuple(np.concatenate([a, e]) for a, e in zip(candidates, extra))
+        return tuple(np.concatenate([a, e]) for a, e in zip(candidates, extra)), None
 
     def _points(self, echoes, columns: np.ndarray, n_beams: int, acc: _FrameAccumulator, first_column: int) -> None:
         """Append to the frame the points of the echoes at or beyond the minimum range after range
@@ -483,10 +487,11 @@ def _surface_returns(distance, normal, material, actor, object_id, directions, r
     """Range and peak amplitude (LIDAR equation) of every sub-ray's scene hit.
 
     ``compact``: the candidates with amplitude > 0 as (beam, range, amplitude, label,
-    object id), beam-major (in ``scratch`` if given). Else range (inf for a miss) and
-    amplitude (0 for a miss) of every sub-ray, flat (the other outputs empty). With
-    ``effects`` the regions' reflectance scale, range offset and two-way transmission
-    (N, S) apply.
+    object id), beam-major (in ``scratch`` if given), each chunk's from its first ray's
+    index on, and these runs as (starts, counts): the echo stage reads them where they
+    are. Else range (inf for a miss) and amplitude (0 for a miss) of every sub-ray, flat
+    (the other outputs empty; runs None). With ``effects`` the regions' reflectance
+    scale, range offset and two-way transmission (N, S) apply.
     """
     n_cols, n_beams, n_sub = directions.shape[:3]
     m = n_cols * n_beams * n_sub
@@ -504,14 +509,18 @@ def _surface_returns(distance, normal, material, actor, object_id, directions, r
         len(cuts) - 1,
     )  # fmt: skip
     if not compact:
-        return out
-    count = _compact_candidates(out, cuts * (n_beams * n_sub), np.array(counts, np.int64))
-    return tuple(x[:count] for x in out)
+        return *out, None
+    return *out, (cuts[:-1] * (n_beams * n_sub), np.array(counts, np.int64))
+
+
+def _compact_candidates(candidates, segments):
+    """The candidates of ``segments`` (starts, counts) moved together (in place): flat arrays."""
+    count = _compact_run(tuple(candidates), *segments)
+    return tuple(x[:count] for x in candidates)
 
 
 @numba.njit(cache=True)
-def _compact_candidates(out, starts, counts):
-    """Move each chunk's candidates (written from its first ray's index on) together; returns the count."""
+def _compact_run(out, starts, counts):
     beam, rng, amp, label, obj = out
     count = 0
     for c in range(len(counts)):

@@ -16,6 +16,7 @@ from lidar_weather_sim.scene import Scene
 from lidar_weather_sim.sensor_profile import SensorProfile
 from lidar_weather_sim.simulator import (
     LidarSimulator,
+    _compact_candidates,
     _sub_ray_order,
     _surface_returns,
     _world_rays,
@@ -176,12 +177,13 @@ def test_surface_returns_match_the_lidar_equation_in_numpy(effects, overlap):
 
     args = (distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro, material_label,
             actor_label, weights, 1.0e5, *map(float, overlap), effects, scale, offset, two_way)  # fmt: skip
-    beam, got_rng, got_amp, got_label, got_obj = _surface_returns(*args, True)
+    *compact, segments = _surface_returns(*args, True)
+    beam, got_rng, got_amp, got_label, got_obj = _compact_candidates(compact, segments)
     assert got_amp.tobytes() == amp.ravel()[keep].tobytes()
     assert got_rng.tobytes() == rng_m.ravel()[keep].tobytes()
     assert np.array_equal(beam, np.repeat(np.arange(shape[0]), n_sub)[keep])
     assert np.array_equal(got_label, label.ravel()[keep]) and np.array_equal(got_obj, object_id[keep])
-    _, full_rng, full_amp, _, _ = _surface_returns(*args, False)
+    _, full_rng, full_amp, _, _, _ = _surface_returns(*args, False)
     assert full_amp.tobytes() == amp.ravel().tobytes() and full_rng.tobytes() == rng_m.ravel().tobytes()
 
 
