@@ -222,6 +222,24 @@ def _is_rotation(rot):
     return det >= 0
 
 
+@numba.njit(cache=True, inline="always")
+def _origin_box(o, lo, hi, box):
+    """Min (box[:3]) and max (box[3:]) of the origins lo..hi, in two independent lanes."""
+    lo0, lo1, lo2 = o[lo, 0], o[lo, 1], o[lo, 2]
+    hi0, hi1, hi2 = lo0, lo1, lo2
+    mo0, mo1, mo2, mx0, mx1, mx2 = lo0, lo1, lo2, lo0, lo1, lo2
+    for i in range(lo + 1, hi - 1, 2):
+        lo0, hi0 = min(lo0, o[i, 0]), max(hi0, o[i, 0])
+        lo1, hi1 = min(lo1, o[i, 1]), max(hi1, o[i, 1])
+        lo2, hi2 = min(lo2, o[i, 2]), max(hi2, o[i, 2])
+        mo0, mx0 = min(mo0, o[i + 1, 0]), max(mx0, o[i + 1, 0])
+        mo1, mx1 = min(mo1, o[i + 1, 1]), max(mx1, o[i + 1, 1])
+        mo2, mx2 = min(mo2, o[i + 1, 2]), max(mx2, o[i + 1, 2])
+    e0, e1, e2 = o[hi - 1, 0], o[hi - 1, 1], o[hi - 1, 2]
+    box[0], box[1], box[2] = min(min(lo0, mo0), e0), min(min(lo1, mo1), e1), min(min(lo2, mo2), e2)
+    box[3], box[4], box[5] = max(max(hi0, mx0), e0), max(max(hi1, mx1), e1), max(max(hi2, mx2), e2)
+
+
 @numba.njit(cache=True)
 def _closer(idx, shift, dist_b, best, max_range):
     """Where an actor's hits (distance ``shift + dist_b`` along rays ``idx``) are nearer than
@@ -313,31 +331,28 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         hit_actor[i] = -1
     if not blocks or hi <= lo:
         return
-    lo0, lo1, lo2 = o[lo, 0], o[lo, 1], o[lo, 2]
-    hi0, hi1, hi2 = lo0, lo1, lo2
-    for i in range(lo + 1, hi):
-        lo0, hi0 = min(lo0, o[i, 0]), max(hi0, o[i, 0])
-        lo1, hi1 = min(lo1, o[i, 1]), max(hi1, o[i, 1])
-        lo2, hi2 = min(lo2, o[i, 2]), max(hi2, o[i, 2])
-    box[0], box[1], box[2], box[3], box[4], box[5] = lo0, lo1, lo2, hi0, hi1, hi2
+    _origin_box(o, lo, hi, box)
     for b in range(lo // block, min(hi // block, len(axis))):
-        sx = sy = sz = 0.0
-        for i in range(b * block, (b + 1) * block):
-            sx += d[i, 0]
-            sy += d[i, 1]
-            sz += d[i, 2]
-        norm = np.sqrt(sx * sx + sy * sy + sz * sz)
+        # a cone only has to hold its rays (the exact test decides): sums and minima in two
+        # independent lanes (block is even), which the CPU runs side by side
+        i0 = b * block
+        x0 = y0 = z0 = x1 = y1 = z1 = 0.0
+        for i in range(i0, i0 + block, 2):
+            x0, y0, z0 = x0 + d[i, 0], y0 + d[i, 1], z0 + d[i, 2]
+            x1, y1, z1 = x1 + d[i + 1, 0], y1 + d[i + 1, 1], z1 + d[i + 1, 2]
+        x, y, z = x0 + x1, y0 + y1, z0 + z1
+        norm = np.sqrt(x * x + y * y + z * z)
         if norm > 0:
-            ax, ay, az = sx / norm, sy / norm, sz / norm
+            ax, ay, az = x / norm, y / norm, z / norm
         else:
             ax, ay, az = 1.0, 0.0, 0.0
         axis[b, 0], axis[b, 1], axis[b, 2] = ax, ay, az
         a0, a1, a2 = np.float32(ax), np.float32(ay), np.float32(az)
-        min_cos = np.float32(1.0)
-        for i in range(b * block, (b + 1) * block):
-            c = d[i, 0] * a0 + d[i, 1] * a1 + d[i, 2] * a2
-            if c < min_cos:
-                min_cos = c
+        m0 = m1 = np.float32(1.0)
+        for i in range(i0, i0 + block, 2):
+            m0 = min(m0, d[i, 0] * a0 + d[i, 1] * a1 + d[i, 2] * a2)
+            m1 = min(m1, d[i + 1, 0] * a0 + d[i + 1, 1] * a1 + d[i + 1, 2] * a2)
+        min_cos = min(m0, m1)
         half[b] = np.arccos(min(max(np.float64(min_cos) - cos_margin, -1.0), 1.0))
 
 
