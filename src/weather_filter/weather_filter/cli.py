@@ -1,7 +1,11 @@
 """``weather-filter``: evaluate the weather filters on a bag and train the learned filter.
 
     weather-filter eval BAG [--method M] [--fallback dror|dsor] [--topic T] [--out FILE.json] [--param NAME=VALUE ...]
-    weather-filter train [BAG ...] [--synthetic-frames N] [--out MODEL.joblib]
+    weather-filter train [BAG ...] [--sim SCENARIO:SEED:FRAMES[:PROFILE] ...] [--synthetic-frames N] [--out MODEL.joblib]
+    weather-filter train-weather --sim SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]] ... [--k K] [--out MODEL.joblib]
+
+``--preset shipped`` trains on the runs of the shipped model; a model stores its command with the
+runs written out, so rerunning that command reproduces the file byte for byte.
 
 Errors print one line naming the problem and exit 2.
 """
@@ -59,26 +63,89 @@ def _synthetic_frames(n: int, seed: int):
                             spray=i % 2 == 0, obstacle_in_spray=i % 3 == 0)  # fmt: skip
 
 
-def _cmd_train(args: argparse.Namespace) -> int:
-    import itertools
+def _training_sources(args: argparse.Namespace) -> tuple[list, list[str]]:
+    """Frame sequences (one per bag / simulation run / synthetic set) and their descriptions."""
+    from weather_filter.simdata import SimSpec, frames_of, simulate
 
-    from lidar_weather_sim.bags import read_clouds
-
-    from weather_filter.learned import DEFAULT_MODEL, train
-
-    sources = [(frame.points for frame in read_clouds(bag, args.topic)) for bag in args.bags]
+    sources, described = [], []
+    for spec in map(SimSpec.parse, args.sim):
+        bag = simulate(spec, args.cache)
+        print(f"simulation {spec}: {bag}", file=sys.stderr)
+        sources.append(frames_of(bag, args.topic))
+        described.append(f"sim:{spec}")
+    for bag in args.bags:
+        sources.append(frames_of(bag, args.topic))
+        described.append(bag)
     if args.synthetic_frames:
         sources.append(_synthetic_frames(args.synthetic_frames, args.seed))
+        described.append(f"synthetic:{args.synthetic_frames}@seed{args.seed}")
     if not sources:
-        raise ValueError("nothing to train on: give labelled bags and/or --synthetic-frames N")
-    frames = (p for p in itertools.chain.from_iterable(sources) if "label" in p.dtype.names)
-    described = [*args.bags] + ([f"synthetic:{args.synthetic_frames}@seed{args.seed}"] if args.synthetic_frames else [])
-    command = "weather-filter " + " ".join(shlex.quote(a) for a in args.argv)
-    report = train(frames, args.out or DEFAULT_MODEL, trained_on=", ".join(described), command=command, seed=args.seed)
+        raise ValueError("nothing to train on: give --sim specs, labelled bags and/or --synthetic-frames N")
+    return sources, described
+
+
+def _preset_specs(command: str) -> tuple[str, ...]:  # noqa: D401
+    """The runs of the shipped model of ``command`` (``--preset shipped``)."""
+    if command == "train":
+        from weather_filter.simdata import TRAIN_SPECS
+
+        return TRAIN_SPECS
+    from weather_filter.weather_class import KNN_TRAIN_SPECS
+
+    return KNN_TRAIN_SPECS
+
+
+def _stored_command(args: argparse.Namespace) -> str:
+    """The command as stored in a model: every input and hyper-parameter written out (``--preset`` as its
+    --sim runs, defaults explicit), without --out and --cache (where files go changes nothing)."""
+    argv = [args.command, *args.bags] if args.command == "train" else [args.command]
+    for spec in args.sim:
+        argv += ["--sim", spec]
+    if args.topic != TOPIC_POINTS:
+        argv += ["--topic", args.topic]
+    if args.command == "train":
+        if args.synthetic_frames:
+            argv += ["--synthetic-frames", str(args.synthetic_frames)]
+        argv += ["--hidden", args.hidden, "--spray-weight", repr(args.spray_weight), "--solid-weight", repr(args.solid_weight)]
+        if args.threshold is not None:
+            argv += ["--threshold", repr(args.threshold)]
+        argv += ["--seed", str(args.seed)]
+    else:
+        argv += ["--k", str(args.k)]
+    return "weather-filter " + " ".join(shlex.quote(a) for a in argv)
+
+
+def _apply_preset(args: argparse.Namespace) -> None:
+    if args.preset:
+        args.sim = [*_preset_specs(args.command), *args.sim]
+    if args.command == "train-weather" and not args.sim:
+        raise ValueError("nothing to train on: give --sim specs or --preset shipped")
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from weather_filter.learned import DEFAULT_MODEL, train
+
+    _apply_preset(args)
+    sources, described = _training_sources(args)
+    hidden = tuple(int(h) for h in args.hidden.split(",") if h)
+    report = train(sources, args.out or DEFAULT_MODEL, trained_on=", ".join(described), command=_stored_command(args),
+                   seed=args.seed, hidden=hidden, threshold=args.threshold, spray_weight=args.spray_weight,
+                   solid_weight=args.solid_weight)  # fmt: skip
     print(
-        f"trained on {report.frames} frames ({report.points} points, {report.weather_points} weather): "
-        f"train precision {report.train_precision:.3f}, recall {report.train_recall:.3f}; wrote {report.output}"
+        f"trained on {report.frames} frames ({report.points} points, {report.weather_points} weather): threshold "
+        f"{report.threshold:.2f}, train precision {report.train_precision:.4f}, recall {report.train_recall:.4f}, "
+        f"object recall {report.train_object_recall:.4f}; wrote {report.output}"
     )
+    return 0
+
+
+def _cmd_train_weather(args: argparse.Namespace) -> int:
+    from weather_filter.weather_class import DEFAULT_KNN_MODEL, train_knn
+
+    _apply_preset(args)
+    report = train_knn(args.sim, args.out or DEFAULT_KNN_MODEL, command=_stored_command(args), k=args.k,
+                       cache_dir=args.cache, topic=args.topic)  # fmt: skip
+    print(f"trained KNN (k={args.k}) on {report.frames} frames {report.per_class}; wrote {report.output}")
     return 0
 
 
@@ -96,13 +163,32 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="filter parameter override")
     ev.set_defaults(func=_cmd_eval)
 
-    tr = commands.add_parser("train", help="train the learned per-point filter on labelled bags / synthetic frames")
+    tr = commands.add_parser("train", help="train the learned per-point filter on labelled simulation runs / bags")
     tr.add_argument("bags", nargs="*", metavar="BAG", help="labelled rosbag2 directories or .mcap files")
+    tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE]",
+                    help="simulate this labelled run (cached under --cache) and train on it; repeatable")  # fmt: skip
+    tr.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (simdata.TRAIN_SPECS)")
+    tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     tr.add_argument("--synthetic-frames", type=int, default=0, help="add N constructed frames (weather_filter.synthetic)")
+    tr.add_argument("--hidden", default="16", help="hidden layer sizes, comma-separated (default 16; paper 4: 10)")
+    tr.add_argument("--spray-weight", type=float, default=20.0, help="weight of spray points in the fit (default 20)")
+    tr.add_argument("--solid-weight", type=float, default=3.0, help="weight of solid points in the fit (default 3)")
+    tr.add_argument("--threshold", type=float, help="weather probability threshold (default: chosen on the training "
+                    "points for the best F1 at >= 99.9 %% object recall)")  # fmt: skip
     tr.add_argument("--seed", type=int, default=0, help="random seed of sampling, synthetic frames and the MLP")
     tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib)")
     tr.set_defaults(func=_cmd_train)
+
+    tw = commands.add_parser("train-weather", help="train the per-frame weather classifier (KNN) on simulation runs")
+    tw.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE]",
+                    help="simulate this run; its weather class comes from the scenario's weather block; repeatable")  # fmt: skip
+    tw.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (weather_class.KNN_TRAIN_SPECS)")
+    tw.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
+    tw.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
+    tw.add_argument("--k", type=int, default=5, help="neighbours (default 5)")
+    tw.add_argument("--out", help="model file (default: the packaged models/weather_knn_v<N>.joblib)")
+    tw.set_defaults(func=_cmd_train_weather)
     return parser
 
 

@@ -1,28 +1,68 @@
 """Per-frame weather classification (clear / rain / fog / snow) with KNN, as in paper 2.
 
 The 12 per-frame features of paper 2 (Fig. 4) come from the shared extractor
-``lidar_weather_sim.features`` (issue 4, atmosphere region); it is imported
-lazily so this module loads without it. Until it lands,
-:func:`frame_feature_extractor` raises ``ImportError`` and the node publishes
-no weather class. The classifier is a scikit-learn KNN (paper: KNN) whose
-confidence is the share of the k neighbours voting for the chosen class.
+``lidar_weather_sim.features.frame_features``, applied to the detections of the
+atmosphere region (horizontal distance x along the sensor's axis within
+[0, 5) m, as the paper's region; :class:`RegionFeatures`). Empty-region NaNs
+become fixed values (distances: the region's far end; EPW: 0) so that a clear
+frame without near detections is a point in feature space too. The classifier
+is a scikit-learn KNN (paper: KNN) on standardised features whose confidence is
+the share of the k neighbours voting for the chosen class.
+
+The shipped model ``models/weather_knn_v<N>.joblib`` is trained on labelled
+simulation runs (:mod:`weather_filter.simdata`) whose class is the scenario's
+weather (``lidar_weather_sim.regions_atmosphere.classify``: rain or snow when it
+precipitates, else fog below 1 km visual range, else clear; spray and cover dirt
+do not change it); ``weather-filter train-weather --sim ...`` (the ``command``
+stored in the model) reproduces it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
 
 CLASSES = ("clear", "rain", "fog", "snow")
+KNN_VERSION = 1
+DEFAULT_KNN_MODEL = Path(__file__).resolve().parent / "models" / f"weather_knn_v{KNN_VERSION}.joblib"
+#: Training runs of the shipped KNN (scala4, 20 frames each): three base scenarios (config/scenarios/wf_knn_*.yaml:
+#: clean cover / two kinds of dirt) under a range of each class' intensity, and two dry scenarios without an
+#: atmosphere region; classes from the runs' weather.
+KNN_WEATHERS = ("clear", "rain1", "rain3", "rain8", "rain3+fog400", "snow0.5", "snow1", "snow3", "snow1+fog500",
+                "fog100", "fog250", "fog700")  # fmt: skip
+KNN_BASES = ("wf_knn_highway", "wf_knn_curved_dirt", "wf_knn_highway_dirt")
+KNN_TRAIN_SPECS = (*(f"{s}:{31 + i}:20::{w}" for s in KNN_BASES for i, w in enumerate(KNN_WEATHERS)),
+                   "curved_clear:31:20", "proving_ground_48:31:20")  # fmt: skip
+#: Unseen seeds of the training scenarios, and scenarios never trained on (benchmarks/weather_filter_eval.py).
+KNN_TEST_SEEDS_SPECS = (*(f"{s}:{61 + i}:10::{w}" for s in KNN_BASES for i, w in enumerate(KNN_WEATHERS)),
+                        "curved_clear:61:10", "proving_ground_48:61:10")  # fmt: skip
+KNN_TEST_SCENARIO_SPECS = ("highway_spray:100:40", "proving_ground_60:100:40", "wf_heldout_mixed:100:40",
+                           "wf_train_rain_spray:1:40", "wf_train_fog:1:40", "wf_train_snow:1:40",
+                           "wf_train_clear_spray:1:40", "wf_train_fog_rain:1:40", "highway_clear:41:20")  # fmt: skip
 
 
 def frame_feature_extractor() -> Callable[[np.ndarray], np.ndarray]:
-    """The shared 12-parameter extractor (``lidar_weather_sim.features.frame_features``)."""
-    from lidar_weather_sim.features import frame_features  # noqa: PLC0415 (owned by the atmosphere issue)
+    """The shared 12-parameter extractor on the atmosphere region of a cloud (:class:`RegionFeatures`)."""
+    return RegionFeatures()
 
-    return frame_features
+
+class RegionFeatures:
+    """points -> the 12 paper-2 parameters (``lidar_weather_sim.features.FEATURES`` order) of the detections
+    with lo_m <= x < hi_m (x: horizontal distance along the sensor axis, sensor frame), NaN-free."""
+
+    def __init__(self, lo_m: float = 0.0, hi_m: float = 5.0) -> None:
+        self.lo_m, self.hi_m = float(lo_m), float(hi_m)
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        from lidar_weather_sim.features import FEATURES, frame_features
+
+        values = frame_features(points["x"], points["echo"], points["epw"], self.lo_m, self.hi_m)
+        fill = {"x_max": self.hi_m, "x_mean": self.hi_m, "x_sigma": 0.0, "x_90": self.hi_m, "n_dd": 0.0,
+                "epw_mean": 0.0, "epw_std": 0.0}  # fmt: skip
+        return np.array([fill.get(k, 0.0) if not np.isfinite(values[k]) else values[k] for k in FEATURES], float)
 
 
 @dataclass(frozen=True)
@@ -61,3 +101,65 @@ class FrameWeatherClassifier:
     def classify(self, points: np.ndarray) -> WeatherEstimate:
         extractor = self._extractor or frame_feature_extractor()
         return self.classify_features(extractor(points))
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> "FrameWeatherClassifier":
+        import joblib
+
+        path = Path(path) if path else DEFAULT_KNN_MODEL
+        if not path.exists():
+            raise FileNotFoundError(f"weather classifier not found: {path} (train one with 'weather-filter train-weather')")
+        bundle = joblib.load(path)
+        return cls(bundle["model"], RegionFeatures(**bundle.get("region", {})))
+
+
+def spec_weather_class(spec) -> str:
+    """The weather class of a run's weather block (``regions_atmosphere.classify``)."""
+    from lidar_weather_sim.regions_atmosphere import classify
+
+    weather = spec.load_scenario().weather
+    return classify(weather.fog.visual_range_m, weather.precipitation.type)
+
+
+def run_features(specs: Iterable[str], cache_dir=None, topic: str | None = None, extractor=None):
+    """(features (n, 12), labels, spec per frame) of simulated runs, labelled by their scenario's weather."""
+    from lidar_weather_sim.names import TOPIC_POINTS
+
+    from weather_filter.simdata import SimSpec, frames_of, simulate
+
+    extractor = extractor or RegionFeatures()
+    xs, ys, names = [], [], []
+    for spec in map(SimSpec.parse, specs):
+        label = spec_weather_class(spec)
+        for points in frames_of(simulate(spec, cache_dir), topic or TOPIC_POINTS):
+            xs.append(extractor(points))
+            ys.append(label)
+            names.append(str(spec))
+    return np.array(xs), ys, names
+
+
+@dataclass(frozen=True)
+class KnnReport:
+    frames: int
+    per_class: dict
+    output: Path
+
+
+def train_knn(specs: Iterable[str], output: str | Path, *, command: str, k: int = 5, cache_dir=None,
+              topic: str | None = None) -> KnnReport:  # fmt: skip
+    """Fit :class:`FrameWeatherClassifier` on simulated runs and write ``{model, region, classes, ...}``."""
+    import joblib
+    import sklearn
+
+    specs = list(specs)
+    region = RegionFeatures()
+    x, y, _ = run_features(specs, cache_dir, topic, region)
+    clf = FrameWeatherClassifier.fit(x, y, k=k)
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    bundle = {"model": clf.model, "region": {"lo_m": region.lo_m, "hi_m": region.hi_m}, "classes": CLASSES,
+              "k": k, "sklearn_version": sklearn.__version__, "version": KNN_VERSION,
+              "trained_on": ", ".join(f"sim:{s}" for s in specs), "command": command}  # fmt: skip
+    joblib.dump(bundle, output, compress=3)
+    labels, counts = np.unique(y, return_counts=True)
+    return KnnReport(len(y), dict(zip(labels.tolist(), counts.tolist())), output)

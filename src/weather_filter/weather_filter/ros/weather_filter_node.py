@@ -3,8 +3,8 @@
 Subscribes ``/lidar/points`` (remap it), publishes ``/lidar/points/filtered``
 and ``/lidar/points/removed`` (same fields as the input, SensorDataQoS) and a
 ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` per frame (points in/out
-per label when the cloud has ``label``, filter time, method, weather class when
-the per-frame classifier is available). A malformed cloud is logged once per
+per label when the cloud has ``label``, filter time, method, and ``weather`` /
+``weather_confidence`` from the shipped per-frame KNN when the cloud has x, echo and EPW). A malformed cloud is logged once per
 cause and skipped. A cloud lacking the fields of ``method`` (EPW, echo...) is
 filtered with ``fallback_method`` (geometry only, with
 ``weather_filter.filters.FALLBACK_PARAMS``), with a warning once.
@@ -49,13 +49,23 @@ class WeatherFilterNode(Node):
         self._filter = make_filter(method, **extra)
         self._fallback = make_fallback_filter(fallback)
         self._logged: set[str] = set()
-        self._weather = None
+        self._weather = self._load_weather_classifier()
         self.frames = 0
         self._pub_filtered = self.create_publisher(PointCloud2, TOPIC_POINTS_FILTERED, qos_profile_sensor_data)
         self._pub_removed = self.create_publisher(PointCloud2, TOPIC_POINTS_REMOVED, qos_profile_sensor_data)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, TOPIC_POINTS, self._on_cloud, qos_profile_sensor_data)
         self.get_logger().info(f"filtering {TOPIC_POINTS} with '{method}' (fallback '{fallback}')")
+
+    def _load_weather_classifier(self):
+        """The shipped per-frame KNN (weather_filter.weather_class), or None (logged) if it cannot load."""
+        from weather_filter.weather_class import FrameWeatherClassifier
+
+        try:
+            return FrameWeatherClassifier.load()
+        except (OSError, ImportError, ValueError, KeyError) as exc:
+            self.get_logger().warning(f"per-frame weather classification off: {exc}")
+            return None
 
     def _once(self, key: str, text: str, level: str = "warning") -> None:
         # rclpy forbids one call site logging at several severities: one call per level
@@ -99,6 +109,9 @@ class WeatherFilterNode(Node):
         if self._weather is None:
             self._once("noweather", "per-frame weather classification unavailable (no trained KNN / "
                        "lidar_weather_sim.features): not published", "info")  # fmt: skip
+            return []
+        if not {"x", "echo", "epw"} <= set(points.dtype.names or ()):
+            self._once("noweatherfields", "cloud lacks x, echo or epw: no per-frame weather class", "info")
             return []
         estimate = self._weather.classify(points)
         return [KeyValue(key="weather", value=estimate.weather), KeyValue(key="weather_confidence", value=f"{estimate.confidence:.3f}")]

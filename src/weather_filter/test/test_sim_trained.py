@@ -1,0 +1,122 @@
+"""Issue 6 on labelled simulation: the shipped learned filter and per-frame weather KNN on runs simulated here
+with fixed seeds (scenarios and seeds never used in training), the numba feature pass against a direct
+numpy/scipy computation, and the reproducibility of ``weather-filter train --sim``."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from lidar_weather_sim.points import Label
+from weather_filter.evaluate import evaluate_frames
+from weather_filter.features import CELL_SHAPES, CORNER, FEATURE_NAMES, HORIZONTAL, IMPULSE, PointFeatures, radial_histogram
+from weather_filter.filters import make_filter
+from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, frames_of, simulate
+
+# Floors a little below the figures measured on these runs with the shipped model (src/weather_filter/README.md):
+# spec -> (weather_f1, object_recall, object_recall_roi); measured wf_heldout_mixed:202:12 0.923 / 0.977 / 1.0,
+# highway_spray:202:12 0.961 / 1.0 / 1.0. Snow in fog on the curved road (never trained on) is the weak case.
+HELDOUT_FLOORS = {"wf_heldout_mixed:202:12": (0.90, 0.97, 0.995), "highway_spray:202:12": (0.94, 0.998, 0.998)}
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("sim")
+
+
+def _frames(spec, cache):
+    return list(frames_of(simulate(spec, cache)))
+
+
+def test_features_equal_a_direct_computation():
+    spec = "wf_heldout_mixed:5:2"
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        first, points = _frames(spec, tmp)
+    extractor = PointFeatures()
+    extractor(first)
+    out = extractor(points)
+    assert out.shape == (len(points), len(FEATURE_NAMES)) and np.isfinite(out).all()
+    x, y, e = points["x"].astype(float), points["y"].astype(float), 30.0
+    for col, name in enumerate(("x", "y", "z", "echo", "channel", "epw", "intensity")):
+        assert np.allclose(out[:, col], points[name].astype(np.float32)), name
+    assert np.allclose(out[:, 7], np.hypot(x, y), atol=1e-4)
+    now, idx = radial_histogram(points)
+    before, _ = radial_histogram(first)
+    assert np.array_equal(out[:, 8], now[idx]) and np.array_equal(out[:, 13], np.abs(now - before)[idx])
+    for col, (name, cx, cy) in enumerate(CELL_SHAPES, start=9):
+        nx, ny = int(np.ceil(2 * e / cx)), int(np.ceil(2 * e / cy))
+        flat = np.clip(((x + e) / cx).astype(int), 0, nx - 1) * ny + np.clip(((y + e) / cy).astype(int), 0, ny - 1)
+        counts = np.bincount(flat, minlength=nx * ny)
+        assert np.array_equal(out[:, col], counts[flat]), name
+        if name == "small":
+            grid = counts.reshape(nx, ny).astype(np.float32)
+            inside = (np.abs(x) < e) & (np.abs(y) < e)
+            for k, kernel in enumerate((HORIZONTAL, CORNER, np.rot90(CORNER), IMPULSE)):
+                response = ndimage.correlate(grid, kernel, mode="constant").ravel()
+                assert np.allclose(out[:, 14 + k], np.where(inside, response[flat], 0)), k
+
+
+def test_sim_specs_parse_and_name_their_bags():
+    spec = SimSpec.parse("wf_knn_highway:3:5::rain2+fog300")
+    assert (spec.scenario, spec.seed, spec.frames, spec.profile, spec.weather) == ("wf_knn_highway", 3, 5, None, "rain2+fog300")
+    assert str(spec) == "wf_knn_highway:3:5::rain2+fog300"
+    weather = spec.load_scenario().weather
+    assert weather.precipitation.type == "rain" and weather.precipitation.intensity_mm_h == 2 and weather.fog.visual_range_m == 300
+    assert SimSpec.parse("a:1:2:os1_128_1024").bag_name == "a_s1_n2_os1_128_1024"
+    for bad in ("a:1", "a:x:2", "a:1:0", "a:1:2::hail3"):
+        with pytest.raises(ValueError):
+            SimSpec.parse(bad)
+    held = {SimSpec.parse(s).scenario for s in HELDOUT_SPECS}
+    assert not held & {SimSpec.parse(s).scenario for s in TRAIN_SPECS}
+
+
+def test_learned_filter_keeps_a_box_standing_inside_a_spray_cloud(cache):
+    frames = _frames("wf_test_box_in_spray:7:40", cache)[10:]  # the cloud has formed after 0.4 s
+    filt = make_filter("learned")
+    filt.reset()
+    removed = [(p, filt(p).remove) for p in frames]
+    box = np.concatenate([r[p["label"] == Label.OBSTACLE] for p, r in removed])
+    spray = np.concatenate([r[p["label"] == Label.SPRAY] for p, r in removed])
+    assert len(box) >= 100 and len(spray) >= 100, (len(box), len(spray))
+    assert box.mean() <= 0.005, f"box points removed: {box.sum()} of {len(box)}"
+    assert spray.mean() >= 0.1, f"spray removed: {spray.mean():.3f}"  # measured 0.14: spray in dry air is the weak case
+
+
+@pytest.mark.parametrize("spec", sorted(HELDOUT_FLOORS))
+def test_shipped_model_meets_its_floor_on_held_out_runs(spec, cache):
+    result = evaluate_frames(make_filter("learned"), _frames(spec, cache))
+    f1, objects, roi = HELDOUT_FLOORS[spec]
+    assert result["weather_f1"] >= f1, result
+    assert result["object_recall"] >= objects, result
+    assert result["object_recall_roi"] >= roi, result
+
+
+# spec -> (class, least share of frames named so); measured 0.65, 1.0, 1.0 (rain in highway_spray alternates with
+# fog on the scala4's odd frames: its light 2 mm/h rain is between the trained rain and fog runs).
+KNN_FLOORS = {"highway_spray:203:20": ("rain", 0.6), "highway_clear:203:20": ("clear", 0.95),
+              "wf_heldout_mixed:203:20": ("snow", 0.95)}  # fmt: skip
+
+
+@pytest.mark.parametrize("spec", sorted(KNN_FLOORS))
+def test_shipped_weather_classifier_on_unseen_runs(spec, cache):
+    from weather_filter.weather_class import FrameWeatherClassifier
+
+    expected, share = KNN_FLOORS[spec]
+    estimates = [FrameWeatherClassifier.load().classify(p) for p in _frames(spec, cache)]
+    assert np.mean([e.weather == expected for e in estimates]) >= share, estimates
+    assert all(0.0 < e.confidence <= 1.0 for e in estimates) and np.mean([e.confidence for e in estimates]) > 0.7
+
+
+def test_train_from_simulation_is_reproducible(tmp_path, cache):
+    from weather_filter.cli import main
+
+    args = ["train", "--sim", "wf_train_snow:9:3", "--sim", "wf_train_clear_spray:9:3", "--seed", "4", "--cache", str(cache)]
+    assert main([*args, "--out", str(tmp_path / "a.joblib")]) == 0
+    assert main([*args, "--out", str(tmp_path / "b.joblib")]) == 0
+    assert (tmp_path / "a.joblib").read_bytes() == (tmp_path / "b.joblib").read_bytes()
+    import joblib
+
+    bundle = joblib.load(tmp_path / "a.joblib")
+    assert bundle["command"] == "weather-filter " + " ".join(args[:-4]) + " --hidden 16 --spray-weight 20.0 --solid-weight 3.0 --seed 4"
+    assert bundle["trained_on"] == "sim:wf_train_snow:9:3, sim:wf_train_clear_spray:9:3"
