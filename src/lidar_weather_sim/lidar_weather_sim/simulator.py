@@ -357,7 +357,8 @@ class LidarSimulator:
         (0 = at threshold, 255 = ``intensity_dynamic_range`` times above it)."""
         profile = self.profile
         rng = region_rng(self.seed, acc.index, "range_noise", first_column)
-        ranges = echoes.range_m + rng.normal(0.0, profile.range.noise_sigma_m, len(echoes.range_m))
+        ranges = rng.normal(0.0, profile.range.noise_sigma_m, len(echoes.range_m))
+        ranges += echoes.range_m  # in place: no temporary per batch
         kept = np.flatnonzero(ranges >= max(profile.range.min_m, 0.0))
         if acc.points is None:
             # at most max_echoes per beam: one allocation per frame, no copies (pages never written cost nothing)
@@ -368,7 +369,9 @@ class LidarSimulator:
         if not len(kept):
             return
         span = np.log(profile.detection.intensity_dynamic_range)
-        log_ratio = np.log(np.maximum(echoes.amplitude[kept], 1e-12) / self.dark_threshold())
+        log_ratio = np.maximum(echoes.amplitude if len(kept) == len(ranges) else echoes.amplitude[kept], 1e-12)
+        log_ratio /= self.dark_threshold()
+        np.log(log_ratio, out=log_ratio)
         geo = self._point_tables()
         _fill_points(
             points, kept, ranges, echoes.beam, echoes.echo, echoes.epw_m, log_ratio, float(span),
