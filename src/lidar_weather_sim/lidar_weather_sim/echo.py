@@ -206,16 +206,8 @@ def _reach(a, thr, s):
 
 @numba.njit(cache=True, inline="always")
 def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, out_o, out0, room):
-    """Echoes of the overlapping pulses c0..c1, written from out0 on; returns how many (<= room)."""
-    if c1 - c0 == 1:  # closed form for an isolated pulse
-        if a[c0] <= thr or room == 0:
-            return 0
-        out_r[out0] = r[c0]
-        out_a[out0] = a[c0]
-        out_w[out0] = 2.0 * s * np.sqrt(2.0 * np.log(a[c0] / thr))
-        out_l[out0] = lab[c0]
-        out_o[out0] = obj[c0]
-        return 1
+    """Echoes of the overlapping pulses c0..c1 (two or more), written from out0 on; returns how
+    many (<= room)."""
     dx = s / 8.0
     lo = 1e300
     hi = -1e300
@@ -353,6 +345,8 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
     ma = np.empty(size)
     ml = np.empty(size, np.uint8)
     mo = np.empty(size, np.uint32)
+    isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
+    n_isolated = 0
     count = lo
     i = lo
     while i < hi:
@@ -366,7 +360,15 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
             c1 = c0 + 1
             while c1 < m and mr[c1] - mr[c1 - 1] < _reach(ma[c1 - 1], thr, s) + _reach(ma[c1], thr, s):
                 c1 += 1  # pulses that may overlap above the threshold form one cluster
-            got = _cluster_echoes(mr, ma, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count, max_echoes - found)
+            if c1 - c0 > 1:
+                got = _cluster_echoes(mr, ma, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count, max_echoes - found)
+            else:
+                got = 0
+                if ma[c0] > thr:
+                    er[count], ea[count], ew[count], el[count], eo[count] = mr[c0], ma[c0], ma[c0] / thr, ml[c0], mo[c0]
+                    isolated[n_isolated] = count
+                    n_isolated += 1
+                    got = 1
             for k in range(got):
                 eb[count + k] = beam[i]
                 ee[count + k] = found + k + 1
@@ -374,4 +376,7 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
             found += got
             c0 = c1
         i = j
+    for q in range(n_isolated):  # independent of each other: the CPU overlaps the logarithms
+        k = isolated[q]
+        ew[k] = 2.0 * s * np.sqrt(2.0 * np.log(ew[k]))
     return count - lo
