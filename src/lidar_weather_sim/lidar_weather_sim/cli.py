@@ -7,6 +7,7 @@ returns an exit code; errors print one line naming the problem and exit 2.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from lidar_weather_sim.names import TOPIC_POINTS
@@ -329,6 +330,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
+    except BrokenPipeError:  # the reader went away (`... | head`): stop quietly, as cat does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (ValueError, LookupError, OSError) as exc:
         reason = "; ".join(line for line in str(exc).splitlines() if line.strip())
         print(f"lidar-weather-sim {args.command}: error: {reason}", file=sys.stderr)
