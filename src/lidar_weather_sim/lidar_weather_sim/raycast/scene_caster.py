@@ -27,6 +27,7 @@ each), and culled actor batches would otherwise have a new count on every cast.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -156,6 +157,12 @@ class SceneCaster:
             best, np.ascontiguousarray(tri, dtype=np.int64), np.float32(max_range_m), o, d, self._static,
             bool(actor_poses) and len(o) > 0, new,
         )  # fmt: skip
+        if actor_poses and len(o):
+            n = len(o)
+            widest = float(half_angle.max()) if len(half_angle) else 0.0  # the widest block cone (rad)
+            cull_out = (self._scratch.get("cull_idx", n, np.int64), self._scratch.get("cull_shift", n, np.float64),
+                        self._scratch.get("cull_start", (n, 3), np.float64),
+                        self._scratch.get("cull_d64", (n, 3), np.float64))  # fmt: skip
         for actor_id, pose in actor_poses.items():
             if not len(o):
                 break
@@ -163,16 +170,17 @@ class SceneCaster:
             rot, trans = _rigid(pose, actor_id)
             centre = rot @ part.centre + trans
             box_centre, box_radius = origin_box
-            reach_axis = centre - box_centre
-            reach = float(np.linalg.norm(reach_axis))
+            # u and angle only pre-select blocks (with margins): Python floats are enough
+            ux, uy, uz = (float(v) for v in centre - box_centre)
+            reach = math.sqrt(ux * ux + uy * uy + uz * uz)
             if reach > part.radius + box_radius:
                 # a ray from o hitting the sphere means the same direction from the box centre
                 # hits the sphere grown by box_radius, seen within this half-angle
-                u, angle = reach_axis / reach, float(np.arcsin((part.radius + box_radius) / reach))
+                u, angle = np.array([ux / reach, uy / reach, uz / reach]), math.asin((part.radius + box_radius) / reach)
             else:
                 u, angle = np.array([1.0, 0.0, 0.0]), -1.0  # every block is a candidate
-            idx, shift, start, d64 = _cull(o, d, axis, half_angle, u, angle, np.asarray(centre, np.float64),
-                                           float(part.radius), best, float(max_range_m), self._scratch)  # fmt: skip
+            idx, shift, start, d64 = _cull(o, d, axis, half_angle, widest, u, angle, centre, float(part.radius), best,
+                                           float(max_range_m), cull_out)  # fmt: skip
             if not len(idx):
                 continue
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
@@ -356,7 +364,7 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         half[b] = np.arccos(min(max(np.float64(min_cos) - cos_margin, -1.0), 1.0))
 
 
-def _cull(o, d, axis, half_angle, u, angle, centre, radius, best, max_range, scratch):
+def _cull(o, d, axis, half_angle, widest, u, angle, centre, radius, best, max_range, out):
     """Rays that may hit the sphere (centre, radius) before ``best`` and ``max_range`` (m).
 
     Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of
@@ -364,15 +372,14 @@ def _cull(o, d, axis, half_angle, u, angle, centre, radius, best, max_range, scr
     full block; each gets the exact float64 test (numpy's operation order). Returns
     the rays' indices (ascending), the float64 distance (m, >= 0) at which each may
     start without skipping the sphere, the float64 start points (origin + shift x
-    direction) and unit directions. Chunks of blocks are shared between threads.
+    direction) and unit directions, as views of ``out`` (buffers for all rays) or new
+    arrays. Chunks of blocks are shared between threads.
     """
-    n, nb = len(o), len(axis)
-    out = (scratch.get("cull_idx", n, np.int64), scratch.get("cull_shift", n, np.float64),
-           scratch.get("cull_start", (n, 3), np.float64), scratch.get("cull_d64", (n, 3), np.float64))  # fmt: skip
+    nb = len(axis)
     # Block pre-filter: a block is tested (arccos) only if its axis is within the widest
     # block's cone of u, with a margin: the cheap test never rejects a block the exact one keeps.
-    limit = (float(half_angle.max()) if nb else 0.0) + angle + 1e-6 + 1e-7
-    min_cos = np.cos(limit) - 1e-9 if limit < np.pi else -2.0
+    limit = widest + angle + 1e-6 + 1e-7
+    min_cos = math.cos(limit) - 1e-9 if limit < math.pi else -2.0
     cuts = workers.bounds(nb + 1, CHUNK_RAYS // _BLOCK)  # block nb: the rays after the last full block
     counts = workers.run_chunks(
         lambda c: _cull_run(o, d, axis, half_angle, u, angle, min_cos, _BLOCK, centre, radius, best, max_range,
