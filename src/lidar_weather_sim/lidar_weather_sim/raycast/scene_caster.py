@@ -401,6 +401,8 @@ def _cull_run(o, d, axis, half_angle, u, angle, min_cos, block, centre, radius, 
     far = np.float32(max_range)
     r2 = radius * radius
     first = count = b0 * block
+    o0 = o1 = o2 = np.float32(np.nan)  # the origin of the previous ray: rays share origins (a column's)
+    v0 = v1 = v2 = vv = limit = 0.0
     for b in range(b0, b1):
         if b < nb:
             if angle >= 0:
@@ -414,16 +416,19 @@ def _cull_run(o, d, axis, half_angle, u, angle, min_cos, block, centre, radius, 
         else:
             i0, i1 = nb * block, n
         for i in range(i0, i1):
-            v0 = centre[0] - np.float64(o[i, 0])
-            v1 = centre[1] - np.float64(o[i, 1])
-            v2 = centre[2] - np.float64(o[i, 2])
+            if not (o[i, 0] == o0 and o[i, 1] == o1 and o[i, 2] == o2):
+                o0, o1, o2 = o[i, 0], o[i, 1], o[i, 2]
+                v0 = centre[0] - np.float64(o0)
+                v1 = centre[1] - np.float64(o1)
+                v2 = centre[2] - np.float64(o2)
+                vv = v0 * v0 + v1 * v1 + v2 * v2
+                limit = r2 + 1e-6 * vv + 1e-9
             x, y, z = np.float64(d[i, 0]), np.float64(d[i, 1]), np.float64(d[i, 2])
             # cheap rejection before normalising: |v|^2 |d|^2 - (v.d)^2 is |d|^2 times the squared
             # perpendicular distance, computed within ~1e-15 |v|^2 |d|^2 (the tolerance is far wider)
-            vv = v0 * v0 + v1 * v1 + v2 * v2
             dd = x * x + y * y + z * z
             vd = v0 * x + v1 * y + v2 * z
-            if vv * dd - vd * vd > (r2 + 1e-6 * vv + 1e-9) * dd:
+            if vv * dd - vd * vd > limit * dd:
                 continue
             norm = np.sqrt(x * x + y * y + z * z)
             x, y, z = x / norm, y / norm, z / norm
