@@ -137,6 +137,7 @@ def detect_echoes(
 
 @numba.njit(cache=True)
 def _ascending(beam):
+    """The beams are in ascending order (grouped)."""
     for i in range(1, len(beam)):
         if beam[i] < beam[i - 1]:
             return False

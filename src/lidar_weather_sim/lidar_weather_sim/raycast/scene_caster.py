@@ -360,8 +360,9 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         for i in range(i0, i0 + block, 2):
             m0 = min(m0, d[i, 0] * a0 + d[i, 1] * a1 + d[i, 2] * a2)
             m1 = min(m1, d[i + 1, 0] * a0 + d[i + 1, 1] * a1 + d[i + 1, 2] * a2)
-        min_cos = min(m0, m1)
-        half[b] = np.arccos(min(max(np.float64(min_cos) - cos_margin, -1.0), 1.0))
+        half[b] = min(max(np.float64(min(m0, m1)) - cos_margin, -1.0), 1.0)
+    for b in range(lo // block, min(hi // block, len(axis))):  # independent: the CPU overlaps them
+        half[b] = np.arccos(half[b])
 
 
 def _cull(o, d, axis, half_angle, widest, u, angle, centre, radius, best, max_range, out):
