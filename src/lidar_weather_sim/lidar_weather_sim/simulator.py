@@ -633,13 +633,17 @@ def _fill_ground_truth_run(points, kept, j0, j1, label, object_id):
 def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_ratio, span, columns, channels, n_beams,
                      cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, padding):  # fmt: skip
     """Points j0..j1 of :func:`_fill_points` (``raw``: the same memory as bytes, (N, itemsize))."""
+    first = -n_beams  # first beam of the current column (none yet): divisions only where it changes
+    col = 0
     for j in range(j0, j1):
         for b in padding:
             raw[j, b] = 0
         i = kept[j]
         bm = beam[i]
-        col = columns[bm // n_beams]
-        ch = channels[bm % n_beams]
+        if not first <= bm < first + n_beams:
+            col = columns[bm // n_beams]
+            first = bm // n_beams * n_beams
+        ch = channels[bm - first]
         r = ranges[i]
         p = points[j]
         p["x"] = r * cos_el[ch] * cos_az[col, ch]
