@@ -14,9 +14,9 @@ for its own calls and switches back to any other variant that was set.
 Dr.Jit's worker threads (nanothread) spin on its task queue for ~20-30 ms after
 every kernel before they sleep: on a small machine they would take the cores
 from the simulator's kernels that follow each cast (+15 ms per OS1-128 frame on
-2 cores). A large cast therefore starts the workers (Dr.Jit's thread count, all
-cores by default) and stops them when it is done (~30 us); smaller casts, where
-threads gain nothing, run on the calling thread alone.
+2 cores). A large cast (or a scene build) therefore starts the workers (Dr.Jit's
+thread count, all cores by default) and stops them when it is done (~30 us);
+smaller casts, where threads gain nothing, run on the calling thread alone.
 """
 
 from __future__ import annotations
@@ -73,10 +73,22 @@ def check() -> None:
 
 @cache
 def _threads() -> int:
-    """Dr.Jit's thread count before the first cast (all cores unless the user set it)."""
+    """Dr.Jit's thread count before our first use (all cores unless the user set it)."""
     import drjit as dr
 
     return dr.thread_count()
+
+
+@contextmanager
+def _workers(active: bool):
+    """Dr.Jit's worker threads during the block if ``active`` (else the calling thread alone), none after it."""
+    import drjit as dr
+
+    dr.set_thread_count(_threads() if active else 1)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(1)  # no spinning workers afterwards
 
 
 @contextmanager
@@ -97,7 +109,7 @@ class Caster(CasterBase):
     """Vertices (V, 3) float32 m, triangles (T, 3) uint32; rays in the same frame."""
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
-        with _variant() as mi:
+        with _variant() as mi, _workers(True):
             mesh = mi.Mesh("mesh", len(vertices), len(triangles))
             params = mi.traverse(mesh)
             params["vertex_positions"] = mi.Float(vertices.ravel())
@@ -116,9 +128,6 @@ class Caster(CasterBase):
             valid = pi.is_valid()
             t = dr.select(valid, pi.t, dr.inf)
             prim = dr.select(valid, mi.Int32(pi.prim_index), -1)
-            dr.set_thread_count(_threads() if len(o) >= PARALLEL_RAYS else 1)
-            try:
+            with _workers(len(o) >= PARALLEL_RAYS):
                 dr.eval(t, prim)
-            finally:
-                dr.set_thread_count(1)  # no spinning workers after the cast
             return t.numpy().astype(np.float32, copy=False), prim.numpy().astype(np.int64)
