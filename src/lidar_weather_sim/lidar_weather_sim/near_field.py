@@ -11,7 +11,9 @@ probability follows from the echo stage: the overlap factor O(R) rises from
 the overlap peak of the paper's histograms (snow: maximum near 1.8 m).
 
 Strength: cover returns get a log-normal peak amplitude relative to the
-sensor's dark threshold (median ``amplitude_median``, log-sd ``amplitude_sigma_ln``);
+sensor's dark threshold (median ``amplitude_median``, log-sd ``amplitude_sigma_ln``),
+times exp(-R / ``cover_amp_scale_m``) when that is > 0 (longer multipath paths inside
+the housing lose more: a raised threshold, e.g. sunlight, keeps only the closest);
 volume returns get the same distribution *at* ``overlap_full_m`` and scale with
 1/R^2 elsewhere (a particle's backscatter). A scatterer occludes the share
 amplitude / ``occlusion_amplitude`` (capped at 1) of its sub-ray behind it. Both are converted into the
@@ -38,6 +40,7 @@ class NearFieldModel:
     volume_range_m: tuple[float, float] = (0.5, 5.0)
     cover_max_m: float = 0.5
     occlusion_amplitude: float = 100.0  # a peak this many times the dark threshold blocks the whole sub-ray
+    cover_amp_scale_m: float = 0.0  # > 0: cover amplitude x exp(-R / scale) (longer multipath paths are weaker)
 
 
 def truncated_exponential(rng: np.random.Generator, scale_m: float, max_m: float, n: int) -> np.ndarray:
@@ -61,6 +64,8 @@ def sample_near_field(model: NearFieldModel, n_beams: int, weights: np.ndarray, 
     lo, hi = model.volume_range_m
     rng_m = np.where(cover, truncated_exponential(rng, model.cover_scale_m, model.cover_max_m, n), rng.uniform(lo, hi, n))
     amp = model.amplitude_median * np.exp(model.amplitude_sigma_ln * rng.standard_normal(n))
+    if model.cover_amp_scale_m > 0:
+        amp = np.where(cover, amp * np.exp(-rng_m / model.cover_amp_scale_m), amp)
     det = profile.detection
     dark = det.noise_mean + det.threshold_sigma * det.noise_sigma
     full = max(profile.optics.overlap_full_m, MIN_RANGE_M)

@@ -15,8 +15,10 @@ Effects per batch (world frame rays, ranges in m along the ray):
   the overlap peak); their rate scales with alpha / alpha_reference of the fit.
   Their EPW and echo numbers come from the echo stage;
 - drops in front of the street: per beam hitting the scene beyond the near field,
-  Poisson scatterers between 5 m and the hit (at least ``path_gap_m`` before it),
-  which turn street returns into second echoes;
+  Poisson scatterers between the end of the near field and the hit, at least ``path_gap_m``
+  from both (the near field ends ``near_field_max_m`` ahead horizontally along the sensor's
+  axis, the paper's x: at (5 m + gap) / (cos(elevation) cos(azimuth)) along a ray), which turn
+  street returns into second echoes;
 - road surface (scene hits on up-facing surfaces, |n_z| > 0.9): wetness w scales the
   reflectance by (rho_wet / rho_dry)^w (materials ``asphalt_wet`` / ``asphalt_dry``).
   w is the weather class's fitted wetness, or, when ``road_water_film_mm`` h is given,
@@ -47,6 +49,7 @@ VOLUME_LABEL = {"clear": Label.NOISE, "rain": Label.RAIN, "fog": Label.FOG, "sno
 FOG_VISUAL_RANGE_LIMIT_M = 1000.0  # fog: visibility below 1 km (WMO)
 
 
+
 class ClassParams(ConfigModel):
     """Physical parameters of one weather class (fitted; see benchmarks/fit_atmosphere.py)."""
 
@@ -58,6 +61,7 @@ class ClassParams(ConfigModel):
     path_rate_per_beam: float = Field(0.0, ge=0, description="Scatterers between 5 m and the scene hit per beam and frame")
     path_amplitude_median: float = Field(1.0, gt=0, description="Median peak of path scatterers over the dark threshold")
     wetness: float = Field(0.0, ge=0, le=1, description="Road wetness: reflectance x (rho_wet/rho_dry)^wetness")
+    cover_amp_scale_m: float = Field(0.0, ge=0, description="Cover multipath amplitude falls as exp(-R / scale) (0: flat)")
     snow_depth_m: float = Field(0.0, ge=0, description="Snow cover on up-facing surfaces (m)")
 
 
@@ -65,6 +69,8 @@ class FitFile(ConfigModel):
     source: str = ""
     reference: dict[str, float] = Field(description="Reference weather of the fit: fog_visual_range_m, rain_mm_h, snow_mm_h")
     day_irradiance_w_m2: float = Field(343.0, ge=0, description="Irradiance used for the 'with sun' rows of the fit (W/m^2)")
+    street_gain: float = Field(1.0, gt=0, description="Rooftop scene only: backscatter of the lot's asphalt at 46 deg "
+                                                      "relative to a Lambertian surface of its albedo (fitted on clear)")
     classes: dict[Literal["clear", "rain", "fog", "snow"], ClassParams]
     fit_report: dict = Field(default_factory=dict)
 
@@ -133,7 +139,8 @@ class AtmosphereRegion:
         self._snow_refl = mats["snow"].reflectivity
         self.near_field = NearFieldModel(self.c.rate_per_beam, self.c.cover_share, self.c.cover_scale_m,
                                          self.c.amplitude_median, self.c.amplitude_sigma_ln,
-                                         volume_range_m=(0.5, params.near_field_max_m))  # fmt: skip
+                                         volume_range_m=(0.5, params.near_field_max_m),
+                                         cover_amp_scale_m=self.c.cover_amp_scale_m)  # fmt: skip
 
     def step(self, t0_s: float, t1_s: float) -> None:
         """Stationary weather: nothing to advance."""
@@ -170,13 +177,19 @@ class AtmosphereRegion:
         core = int(np.argmax(w))
         hit = batch.distance[:, core]
         far = np.where(np.isfinite(hit), hit - p.path_gap_m, -np.inf)
-        eligible = far > p.near_field_max_m
+        # the near-field volume ends near_field_max_m ahead horizontally along the sensor's axis (the
+        # paper's x, not the range); path drops keep path_gap_m from it, as from the hit
+        horizontal = np.hypot(batch.directions[:, core, 0], batch.directions[:, core, 1])
+        sd = batch.sensor_directions[:, core]
+        cos_az = sd[:, 0] / np.maximum(np.hypot(sd[:, 0], sd[:, 1]), 1e-9)
+        near = (p.near_field_max_m + p.path_gap_m) / np.maximum(horizontal * cos_az, 0.1)
+        eligible = far > near
         counts = rng.poisson(c.path_rate_per_beam * self.rate_scale, len(hit)) * eligible
         beam = np.repeat(np.arange(len(hit)), counts)
         m = len(beam)
         if m == 0:
             return None
-        r = rng.uniform(p.near_field_max_m, far[beam])
+        r = rng.uniform(near[beam], far[beam])
         amp = c.path_amplitude_median * np.exp(c.amplitude_sigma_ln * rng.standard_normal(m))
         det = self.profile.detection
         dark = det.noise_mean + det.threshold_sigma * det.noise_sigma

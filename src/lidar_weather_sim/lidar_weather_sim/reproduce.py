@@ -25,21 +25,15 @@ import yaml
 
 from lidar_weather_sim.features import FEATURES, UNITS, frame_features, summarize
 from lidar_weather_sim.materials import MaterialTable
-from lidar_weather_sim.mesh import TriangleMesh
 from lidar_weather_sim.regions import REGISTRY, RegionContext
 from lidar_weather_sim.regions_atmosphere import WEATHER_CLASSES, FitFile, fit_path
-from lidar_weather_sim.rooftop import ATMOSPHERE_REGION_M, LOT_OBJECT_ID, STREET_REGION_X_M, RooftopPose
+from lidar_weather_sim.rooftop import ATMOSPHERE_REGION_M, STREET_REGION_X_M, RooftopPose, bounded_lot_scene
 from lidar_weather_sim.scenario import Weather, load_scenario
 from lidar_weather_sim.scene import Scene
 from lidar_weather_sim.sensor_profile import load_profile
 from lidar_weather_sim.simulator import LidarSimulator
 from lidar_weather_sim.config import load_yaml
 
-#: Width of the asphalt lot across the sensor axis (m): ~100 of the 580 columns (+-12.5 deg)
-#: see it at 48.6 m slant range, i.e. a few hundred street beams per frame, the order of the
-#: paper's street detections (Table 4: n_e2 130-300 per frame).
-LOT_WIDTH_M = 22.0
-LOT_LENGTH_M = 400.0
 REGIONS = {"atmosphere": ATMOSPHERE_REGION_M, "street": STREET_REGION_X_M}
 STREET_OFFSET_M = 34.0
 #: thesis_tables key per (region, feature) and the factor/offset to the paper's unit
@@ -56,13 +50,27 @@ def default_tables_path() -> Path:
     return config_dir().parent.parent / "shared" / "data" / "thesis_tables.yaml"
 
 
-def lot_scene(width_m: float = LOT_WIDTH_M, materials: MaterialTable | None = None) -> Scene:
-    """The dry asphalt lot at z = 0: ``LOT_LENGTH_M`` along x (centred below the sensor), ``width_m`` across."""
+LOT_MATERIAL = "asphalt_rooftop"
+
+
+def lot_scene(materials: MaterialTable | None = None, street_gain: float = 1.0) -> Scene:
+    """The asphalt the sensor sees (config/rooftop.yaml ``lot``) at z = 0.
+
+    Its material is ``asphalt_dry`` (albedo 0.12, paper 2) with a retro-reflective share chosen so
+    that its backscatter at 46 deg is ``street_gain`` times the Lambertian one: the paper's 0.12
+    is a broadband (solar) albedo [43], not the 905 nm backscatter, which the fit calibrates on
+    clear weather (``street_gain`` in config/atmosphere_fit.yaml).
+    """
+    from lidar_weather_sim.echo import RETRO_GAIN
+    from lidar_weather_sim.mesh import Material
+
     materials = materials or MaterialTable.default()
-    h, w = 0.5 * LOT_LENGTH_M, 0.5 * width_m
-    vertices = np.array([[-h, -w, 0.0], [h, -w, 0.0], [h, w, 0.0], [-h, w, 0.0]])
-    lot = TriangleMesh(vertices, np.array([[0, 1, 2], [0, 2, 3]]), materials.index("asphalt_dry"), LOT_OBJECT_ID)
-    return Scene(materials, lot, object_names={LOT_OBJECT_ID: "parking lot (asphalt_dry)"})
+    dry = materials["asphalt_dry"]
+    cos_ref = float(np.cos(np.deg2rad(46.0)))
+    retro = float(np.clip(cos_ref * (street_gain - 1.0) / (RETRO_GAIN - cos_ref), 0.0, 1.0))
+    if LOT_MATERIAL not in materials:
+        materials = MaterialTable([*materials.materials, Material(LOT_MATERIAL, dry.reflectivity, retro, dry.label)])
+    return bounded_lot_scene(LOT_MATERIAL, materials)
 
 
 def reference_weather(weather_class: str, fit: FitFile) -> Weather:
@@ -84,11 +92,14 @@ class Condition:
 
 def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file: str | None = None,
              scenario: str = "rooftop_static", overrides: dict | None = None) -> Condition:  # fmt: skip
-    """Per-frame features of one condition; ``overrides`` replace atmosphere class parameters (fitting)."""
+    """Per-frame features of one condition; ``overrides`` replace atmosphere class parameters and
+    ``street_gain`` (fitting)."""
+    overrides = dict(overrides or {})
+    street_gain = overrides.pop("street_gain", None)
     sc = load_scenario(scenario)
     profile = load_profile(sc.sensor.profile)
     fit = load_yaml(fit_file or fit_path(), FitFile)
-    scene = lot_scene(materials=MaterialTable.default())
+    scene = lot_scene(MaterialTable.default(), fit.street_gain if street_gain is None else street_gain)
     context = RegionContext(profile, reference_weather(weather_class, fit), scene.materials)
     regions = []
     for name in sc.regions:
@@ -130,7 +141,8 @@ def _with_class_params(region, overrides: dict):
     c = region.c.model_copy(update=overrides)
     region.c = c
     region.near_field = NearFieldModel(c.rate_per_beam, c.cover_share, c.cover_scale_m, c.amplitude_median,
-                                       c.amplitude_sigma_ln, volume_range_m=region.near_field.volume_range_m)  # fmt: skip
+                                       c.amplitude_sigma_ln, volume_range_m=region.near_field.volume_range_m,
+                                       cover_amp_scale_m=c.cover_amp_scale_m)  # fmt: skip
     mats = MaterialTable.default()
     region._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** c.wetness
     assert isinstance(region, AtmosphereRegion)

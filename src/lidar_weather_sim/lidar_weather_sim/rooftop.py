@@ -2,34 +2,71 @@
 asphalt parking lot, 46 deg incidence at the street region 33-37 m away (x distance).
 
 Used to calibrate the background-light model and to reproduce the paper's per-frame statistics.
-The sensor height follows from the geometry: h = 35 m / tan(46 deg) = 33.8 m; its x axis is
-pitched down by 90 - 46 = 44 deg so the beams meet the lot at the paper's incidence angle.
+The geometry is read from ``config/rooftop.yaml`` (:class:`RooftopGeometry`, documented there):
+the street layer's central beam meets the lot at ``incidence_deg`` at horizontal distance
+``street_layer_x_m``, so the sensor height is h = x / tan(incidence) and its x axis is pitched
+down by 90 deg - incidence - elevation(street layer).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
+from pydantic import Field
 
+from lidar_weather_sim.config import ConfigModel, load_yaml
 from lidar_weather_sim.materials import MaterialTable
 from lidar_weather_sim.mesh import TriangleMesh
 from lidar_weather_sim.player import matrix_quaternion, rpy_matrix
 from lidar_weather_sim.scene import Scene
 
-INCIDENCE_DEG = 46.0
-STREET_CENTRE_X_M = 35.0
 STREET_REGION_X_M = (33.0, 37.0)
 ATMOSPHERE_REGION_M = (0.0, 5.0)
 LOT_OBJECT_ID = 1
 
 
+class LotExtent(ConfigModel):
+    x_near_m: float = Field(description="Near edge of the asphalt along the axis (horizontal, m)")
+    x_far_m: float = Field(description="Far edge of the asphalt along the axis (horizontal, m)")
+    half_width_m: float = Field(gt=0, description="Half width of the asphalt across the axis (m)")
+
+
+class RooftopGeometry(ConfigModel):
+    incidence_deg: float = Field(gt=0, lt=90, description="Beam to surface normal at the street layer (deg)")
+    street_layer: int = Field(ge=0, description="Channel of the sensor profile whose central beam defines the incidence")
+    street_layer_x_m: float = Field(gt=0, description="Horizontal distance where that beam meets the lot (m)")
+    lot: LotExtent
+
+    def height_m(self) -> float:
+        return self.street_layer_x_m / np.tan(np.deg2rad(self.incidence_deg))
+
+    def pitch_deg(self, layer_elevation_deg: float) -> float:
+        return 90.0 - self.incidence_deg + layer_elevation_deg  # depression of the layer = pitch - elevation
+
+
+@lru_cache(maxsize=1)
+def geometry() -> RooftopGeometry:
+    from lidar_weather_sim.paths import config_dir
+
+    return load_yaml(config_dir() / "rooftop.yaml", RooftopGeometry)
+
+
+def _street_layer_elevation_deg(profile_name: str = "scala4") -> float:
+    from lidar_weather_sim.sensor_profile import load_profile
+
+    profile = load_profile(profile_name)
+    channels = np.argsort([b.elevation_deg for b in profile.beams], kind="stable")  # channel 0 = lowest
+    return float(profile.beams[int(channels[geometry().street_layer])].elevation_deg)
+
+
 def sensor_height_m() -> float:
-    return STREET_CENTRE_X_M / np.tan(np.deg2rad(INCIDENCE_DEG))
+    return geometry().height_m()
 
 
 def rooftop_scene(surface: str = "asphalt_dry", materials: MaterialTable | None = None, size_m: float = 400.0) -> Scene:
-    """A flat lot of ``surface`` (a material name) at z = 0, ``size_m`` wide, centred below the sensor."""
+    """A flat, unbounded lot of ``surface`` (a material name) at z = 0, ``size_m`` wide, centred below the sensor."""
     materials = materials or MaterialTable.default()
     h = 0.5 * size_m
     vertices = np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
@@ -37,12 +74,23 @@ def rooftop_scene(surface: str = "asphalt_dry", materials: MaterialTable | None 
     return Scene(materials, lot, object_names={LOT_OBJECT_ID: f"parking lot ({surface})"})
 
 
+def bounded_lot_scene(surface: str = "asphalt_dry", materials: MaterialTable | None = None,
+                      lot: LotExtent | None = None) -> Scene:  # fmt: skip
+    """The asphalt the sensor sees in the paper's set-up (``config/rooftop.yaml`` ``lot``), at z = 0."""
+    materials = materials or MaterialTable.default()
+    lot = lot or geometry().lot
+    x0, x1, w = lot.x_near_m, lot.x_far_m, lot.half_width_m
+    vertices = np.array([[x0, -w, 0.0], [x1, -w, 0.0], [x1, w, 0.0], [x0, w, 0.0]])
+    mesh = TriangleMesh(vertices, np.array([[0, 1, 2], [0, 2, 3]]), materials.index(surface), LOT_OBJECT_ID)
+    return Scene(materials, mesh, object_names={LOT_OBJECT_ID: f"parking lot ({surface})"})
+
+
 @dataclass(frozen=True)
 class RooftopPose:
-    """Static pose source: the sensor at (0, 0, h) pitched down by 90 deg - incidence."""
+    """Static pose source: the sensor at (0, 0, h) pitched down so the street layer meets the lot at the incidence."""
 
-    height_m: float = sensor_height_m()
-    pitch_deg: float = 90.0 - INCIDENCE_DEG
+    height_m: float = field(default_factory=sensor_height_m)
+    pitch_deg: float = field(default_factory=lambda: geometry().pitch_deg(_street_layer_elevation_deg()))
 
     def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = len(np.atleast_1d(times_s))
