@@ -29,7 +29,7 @@ from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS
 from weather_filter.features import FEATURE_NAMES, REQUIRED_FIELDS, PointFeatures
 from weather_filter.filters import PointFilter
 
-MODEL_VERSION = 2
+MODEL_VERSION = 3
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 DEFAULT_MODEL = MODELS_DIR / f"weather_point_mlp_v{MODEL_VERSION}.joblib"
 #: Threshold selection at training: the weather probability threshold is the highest-F1 one among those

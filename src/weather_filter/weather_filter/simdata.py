@@ -119,11 +119,13 @@ _TRAIN_SCENARIOS = ("wf_train_rain_spray", "wf_train_fog", "wf_train_snow", "wf_
 #: Runs the shipped learned filter is trained on (``weather-filter train --sim ...``, see the model's
 #: ``command``): rain + spray + dirt at 100 km/h, fog at 60 km/h, snow at 40 km/h on the curved road, spray in
 #: dry air at 70 km/h, rain in fog at 80 km/h (config/scenarios/wf_train_*.yaml) and the proving ground's spray at 39 and 48 km/h;
-#: scala4 and a 128-channel profile.
+#: scala4 and a 128-channel profile at 1024 and 2048 columns (the histogram counts scale with the scan's
+#: resolution: a model trained without a resolution fails on it).
 TRAIN_SPECS = (
     *(f"{s}:{seed}:40" for s in _TRAIN_SCENARIOS for seed in (1, 2)),
     "proving_ground_39:1:40", "proving_ground_48:1:40",
     *(f"{s}:3:6:os1_128_1024" for s in _TRAIN_SCENARIOS),
+    *(f"{s}:4:3:os1_128_2048" for s in _TRAIN_SCENARIOS),
 )  # fmt: skip
 #: Held-out runs: scenarios and seeds never used in training (highway_spray: rain + spray at 89 km/h;
 #: proving_ground_55/60: spray at 55/60 km/h; wf_heldout_mixed: snow + fog + dirt + spray, curved road, 90 km/h).
