@@ -17,7 +17,7 @@ loss sum(max(0, |z| - 0.8)^2) + 0.01 sum z^2, z = (sim - paper) / paper_sigma:
    cover_scale_m, amplitude_median, amplitude_sigma_ln, cover_amp_scale_m;
 2. street (Table 4: n_peak, x_mean, x_sigma, n_e2, EPW): path_rate_per_beam, path_amplitude_median; wetness
    (rain, fog: the water film; clear is dry by definition, snow is covered); snow_depth_m
-   (snow only).
+   (snow only); splash_rate_per_beam (rain, snow: precipitation hitting the street).
 Before the classes, street_gain (the dry asphalt's 905 nm backscatter relative to a Lambertian
 surface of the paper's broadband albedo 0.12; a property of the scene shared by all classes)
 is fitted alone on the clear-night street EPW (Table 4, 1.48 m): the EPW measures the
@@ -50,16 +50,18 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "config" / "atmosphere_fit.yaml"
 NEAR = {"rate_per_beam": "log", "cover_share": "logit", "cover_scale_m": "log", "amplitude_median": "log",
         "amplitude_sigma_ln": "log", "cover_amp_scale_m": "log"}
-STREET = {"path_rate_per_beam": "log", "path_amplitude_median": "log", "wetness": "logit", "snow_depth_m": "log"}
+STREET = {"path_rate_per_beam": "log", "path_amplitude_median": "log", "wetness": "logit", "snow_depth_m": "log",
+          "splash_rate_per_beam": "log"}
 #: start values of parameters a class has not had yet (0 cannot be encoded)
-START = {"cover_amp_scale_m": 0.3, "street_gain": 3.0, "snow_depth_m": 0.05}
+START = {"cover_amp_scale_m": 0.3, "street_gain": 3.0, "snow_depth_m": 0.05, "splash_rate_per_beam": 0.3}
 TARGETS = {"near": {"atmosphere": ["n_total", "n_peak", "x_sigma", "n_e1", "epw_mean"]},
            "street": {"street": ["n_peak", "x_mean", "x_sigma", "n_e2", "epw_mean"]}}
 
 
 def street_params(weather: str) -> dict:
     """The street-stage parameters a class fits (see the module doc)."""
-    skip = {"clear": ("wetness", "snow_depth_m"), "snow": ("wetness",)}
+    skip = {"clear": ("wetness", "snow_depth_m", "splash_rate_per_beam"), "snow": ("wetness",),
+            "fog": ("snow_depth_m", "splash_rate_per_beam")}
     skip = skip.get(weather, ("snow_depth_m",))
     return {k: v for k, v in STREET.items() if k not in skip}
 

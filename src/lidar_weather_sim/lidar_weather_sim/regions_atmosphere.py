@@ -18,7 +18,9 @@ Effects per batch (world frame rays, ranges in m along the ray):
   Poisson scatterers between the end of the near field and the hit, at least ``path_gap_m``
   from both (the near field ends ``near_field_max_m`` ahead horizontally along the sensor's
   axis, the paper's x: at (5 m + gap) / (cos(elevation) cos(azimuth)) along a ray), which turn
-  street returns into second echoes;
+  street returns into second echoes; and (class parameter ``splash_rate_per_beam``) splash
+  drops above up-facing hits, in the last ``splash_depth_m`` of range before that gap (paper 2:
+  the street region "includes reflections coming from water drops splash");
 - road surface (scene hits on up-facing surfaces, |n_z| > 0.9): wetness w scales the
   reflectance by (rho_wet / rho_dry)^w (materials ``asphalt_wet`` / ``asphalt_dry``).
   w is the weather class's fitted wetness, or, when ``road_water_film_mm`` h is given,
@@ -60,6 +62,8 @@ class ClassParams(ConfigModel):
     amplitude_sigma_ln: float = Field(ge=0, description="Log-sd of the near-field peak amplitude")
     path_rate_per_beam: float = Field(0.0, ge=0, description="Scatterers between 5 m and the scene hit per beam and frame")
     path_amplitude_median: float = Field(1.0, gt=0, description="Median peak of path scatterers over the dark threshold")
+    splash_rate_per_beam: float = Field(0.0, ge=0, description="Splash drops per beam and frame just above an up-facing "
+                                                                 "hit (the paper's street region includes splash, line 1550)")
     wetness: float = Field(0.0, ge=0, le=1, description="Road wetness: reflectance x (rho_wet/rho_dry)^wetness")
     cover_amp_scale_m: float = Field(0.0, ge=0, description="Cover multipath amplitude falls as exp(-R / scale) (0: flat)")
     snow_depth_m: float = Field(0.0, ge=0, description="Snow cover on up-facing surfaces (m)")
@@ -89,6 +93,7 @@ class AtmosphereParams(ConfigModel):
     intensity_mm_h: float | None = Field(None, ge=0, description="Overrides weather.precipitation.intensity_mm_h (mm/h)")
     near_field_max_m: float = Field(5.0, gt=0.5, description="Far end of the near-field volume (m)")
     path_gap_m: float = Field(0.8, ge=0, description="Path scatterers end this far before the scene hit (m)")
+    splash_depth_m: float = Field(1.5, gt=0, description="Splash drops lie up to this far (range) before the path gap (m)")
     air: bool = Field(True, description="Extinction and scatterers in the air; false: only the road surface changes")
     road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Water film on the road (mm); "
                                                                            "none = the weather class's wetness")
@@ -171,7 +176,7 @@ class AtmosphereRegion:
     def _path_scatterers(self, batch: RayBatch, rng: np.random.Generator, label: int) -> Scatterers | None:
         """Drops between the near field and the scene hit of each beam (on the central sub-ray's hit range)."""
         c, p = self.c, self.p
-        if c.path_rate_per_beam <= 0:
+        if c.path_rate_per_beam <= 0 and c.splash_rate_per_beam <= 0:
             return None
         w = np.asarray(batch.weights, dtype=np.float64)
         core = int(np.argmax(w))
@@ -186,10 +191,18 @@ class AtmosphereRegion:
         eligible = far > near
         counts = rng.poisson(c.path_rate_per_beam * self.rate_scale, len(hit)) * eligible
         beam = np.repeat(np.arange(len(hit)), counts)
+        r = rng.uniform(near[beam], far[beam])
+        if c.splash_rate_per_beam > 0:
+            # splash: drops bouncing off a surface hit from above (up-facing), in the last splash_depth_m
+            # of the path before the gap
+            up = eligible & (np.abs(batch.normal[:, core, 2]) > 0.9)
+            n_splash = rng.poisson(c.splash_rate_per_beam * self.rate_scale, len(hit)) * up
+            b_splash = np.repeat(np.arange(len(hit)), n_splash)
+            r_splash = far[b_splash] - rng.uniform(0.0, p.splash_depth_m, len(b_splash))
+            beam, r = np.concatenate([beam, b_splash]), np.concatenate([r, np.maximum(r_splash, near[b_splash])])
         m = len(beam)
         if m == 0:
             return None
-        r = rng.uniform(near[beam], far[beam])
         amp = c.path_amplitude_median * np.exp(c.amplitude_sigma_ln * rng.standard_normal(m))
         det = self.profile.detection
         dark = det.noise_mean + det.threshold_sigma * det.noise_sigma
