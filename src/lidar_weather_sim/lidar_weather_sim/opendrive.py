@@ -81,8 +81,16 @@ class _Cubic:
     def __init__(self, records: list[tuple[float, float, float, float, float]]) -> None:
         rec = np.array(sorted(records, key=lambda r: r[0]) or [(0.0, 0.0, 0.0, 0.0, 0.0)], dtype=np.float64)
         self.s0, self.a, self.b, self.c, self.d = rec.T
+        # one record (the common case): its coefficients as floats, no per-call lookup
+        self.single = tuple(float(v[0]) for v in rec.T) if len(rec) == 1 else None
 
     def __call__(self, s: np.ndarray, deriv: bool = False) -> np.ndarray:
+        if self.single is not None:  # the same expressions with scalar coefficients
+            s0, a, b, c, d = self.single
+            ds = s - s0
+            if deriv:
+                return b + ds * (2 * c + 3 * d * ds)
+            return a + ds * (b + ds * (c + ds * d))
         i = np.clip(np.searchsorted(self.s0, s, side="right") - 1, 0, None)
         ds = s - self.s0[i]
         if deriv:
@@ -196,18 +204,25 @@ class _PlanView:
     def __init__(self, geoms: list[_Geometry]) -> None:
         self.geoms = sorted(geoms, key=lambda g: g.s0)
         self.s0 = np.array([g.s0 for g in self.geoms])
+        self._cos_sin = [(np.cos(g.hdg), np.sin(g.hdg)) for g in self.geoms]
 
     def __call__(self, s: np.ndarray):
         """x, y, heading, curvature of the reference line at ``s`` (arrays like ``s``)."""
-        i = np.clip(np.searchsorted(self.s0, s, side="right") - 1, 0, len(self.geoms) - 1)
+        i = np.searchsorted(self.s0, s, side="right") - 1
+        lo, hi = (int(i.min()), int(i.max())) if i.size else (0, 0)
+        if max(lo, 0) == min(hi, len(self.geoms) - 1):  # all in one geometry: no masks
+            return np.array(self._eval(max(lo, 0), s))
+        i = np.clip(i, 0, len(self.geoms) - 1)
         out = np.empty((4,) + s.shape)
         for gi in np.unique(i):
             m = i == gi
-            g = self.geoms[gi]
-            u, v, dh, k = g.local(np.clip(s[m] - g.s0, 0.0, g.length))
-            ch, sh = np.cos(g.hdg), np.sin(g.hdg)
-            out[:, m] = g.x + u * ch - v * sh, g.y + u * sh + v * ch, g.hdg + dh, k
+            out[:, m] = self._eval(gi, s[m])
         return out
+
+    def _eval(self, gi: int, s: np.ndarray):
+        g, (ch, sh) = self.geoms[gi], self._cos_sin[gi]
+        u, v, dh, k = g.local(np.minimum(np.maximum(s - g.s0, 0.0), g.length))
+        return g.x + u * ch - v * sh, g.y + u * sh + v * ch, g.hdg + dh, k
 
 
 # ---------------------------------------------------------------- lanes, marks, rails
@@ -272,6 +287,15 @@ class _Road:
     def section_index(self, s: np.ndarray) -> np.ndarray:
         s0 = np.array([sec.s0 for sec in self.sections])
         return np.clip(np.searchsorted(s0, s, side="right") - 1, 0, len(s0) - 1)
+
+    def lane_borders(self, sec: _Section, lane_id: int, s: np.ndarray, deriv: bool = False):
+        """(outer, inner) border t of lane ``lane_id`` (or d t / d s): ``borders`` summed only
+        as far as that lane (the same sums)."""
+        sign = 1 if lane_id > 0 else -1
+        inner = t = self.offset(s, deriv)
+        for k in range(1, abs(lane_id) + 1):
+            inner, t = t, t + sign * sec.lanes[sign * k].width(s - sec.s0, deriv)
+        return t, inner
 
     def borders(self, sec: _Section, s: np.ndarray, deriv: bool = False) -> dict[int, np.ndarray]:
         """Lane id -> t of its outer border (0 -> lane offset line), or d t / d s."""
@@ -562,9 +586,9 @@ class RoadNetwork:
 
     def _s(self, road: _Road, s) -> np.ndarray:
         s = np.asarray(s, dtype=np.float64)
-        if np.any((s < -1e-6) | (s > road.length + 1e-6)):
+        if s.size and (s.min() < -1e-6 or s.max() > road.length + 1e-6):
             raise ValueError(f"road '{road.id}': s outside [0, {road.length}] m")
-        return np.clip(s, 0.0, road.length)
+        return np.minimum(np.maximum(s, 0.0), road.length)  # np.clip, without its per-call overhead
 
     def reference_pose(self, road_id: str, s, t=0.0):
         """(x, y, z, heading) at (s, t) (m); heading of the reference line (rad), like ``s``."""
@@ -575,16 +599,21 @@ class RoadNetwork:
         return p[..., 0], p[..., 1], p[..., 2], f[2]
 
     def _lane_t(self, road: _Road, lane_id: int, s: np.ndarray):
+        """Lane centre t, d t / d s and lane width (m) at ``s``."""
+
+        def centre(sec: _Section, s: np.ndarray):
+            if lane_id == 0 or lane_id not in sec.lanes:
+                raise KeyError(f"road '{road.id}': no lane {lane_id} in the lane section at s={sec.s0} m")
+            (b, bi), (db, dbi) = road.lane_borders(sec, lane_id, s), road.lane_borders(sec, lane_id, s, deriv=True)
+            return 0.5 * (b + bi), 0.5 * (db + dbi), np.abs(b - bi)
+
+        if len(road.sections) == 1:
+            return centre(road.sections[0], s)
         t, dt, width = np.empty_like(s), np.empty_like(s), np.empty_like(s)
         isec = road.section_index(s)
         for k in np.unique(isec):
-            sec, m = road.sections[k], isec == k
-            if lane_id == 0 or lane_id not in sec.lanes:
-                raise KeyError(f"road '{road.id}': no lane {lane_id} in the lane section at s={sec.s0} m")
-            inner = lane_id - int(np.sign(lane_id))
-            b, db = road.borders(sec, s[m]), road.borders(sec, s[m], deriv=True)
-            t[m], dt[m] = 0.5 * (b[lane_id] + b[inner]), 0.5 * (db[lane_id] + db[inner])
-            width[m] = np.abs(b[lane_id] - b[inner])
+            m = isec == k
+            t[m], dt[m], width[m] = centre(road.sections[k], s[m])
         return t, dt, width
 
     def lane_pose(self, road_id: str, lane_id: int, s_m, along_reference: bool = False):
