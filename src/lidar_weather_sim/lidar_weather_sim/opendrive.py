@@ -616,21 +616,33 @@ class RoadNetwork:
             t[m], dt[m], width[m] = centre(road.sections[k], s[m])
         return t, dt, width
 
-    def lane_pose(self, road_id: str, lane_id: int, s_m, along_reference: bool = False):
+    def lane_pose(self, road_id: str, lane_id, s_m, along_reference: bool = False):
         """(x, y, z, heading_rad) of the lane centre at ``s_m`` (m along the reference line).
 
-        Vectorised over ``s_m``. The heading is the lane centre's tangent in the lane's
-        driving direction (right lanes along +s, left lanes against it in right-hand
-        traffic, the reverse for ``rule="LHT"``) unless ``along_reference``.
+        Vectorised over ``s_m``; ``lane_id`` is one lane or an int array like ``s_m`` (a lane
+        per s: the values of one call per lane). The heading is the lane centre's tangent in
+        the lane's driving direction (right lanes along +s, left lanes against it in
+        right-hand traffic, the reverse for ``rule="LHT"``) unless ``along_reference``.
         """
         road = self._road(road_id)
         s = self._s(road, s_m)
-        t, dt, _ = self._lane_t(road, int(lane_id), s)
+        lanes = np.asarray(lane_id)
+        against = road.rule.upper() != "LHT"  # lanes with id > 0 drive against +s
+        if lanes.ndim == 0:
+            t, dt, _ = self._lane_t(road, int(lane_id), s)
+            flip = (lane_id > 0) == against
+        else:
+            t, dt, flip = np.empty_like(s), np.empty_like(s), (lanes > 0) == against
+            for lane in np.unique(lanes):
+                m = lanes == lane
+                t[m], dt[m], _ = self._lane_t(road, int(lane), s[m])
         f = road.frame(s)
         p = _Road.point(f, t)
         heading = f[2] + np.arctan2(dt, 1.0 - f[3] * t)
-        if not along_reference and (lane_id > 0) == (road.rule.upper() != "LHT"):
+        if not along_reference and lanes.ndim == 0 and flip:
             heading = heading + np.pi
+        elif not along_reference and lanes.ndim and flip.any():
+            heading[flip] = heading[flip] + np.pi
         return p[..., 0], p[..., 1], p[..., 2], np.angle(np.exp(1j * heading))
 
     def lane_width(self, road_id: str, lane_id: int, s_m) -> np.ndarray:

@@ -83,8 +83,11 @@ class MoverTrack:
 
     def s(self, times: np.ndarray) -> np.ndarray:
         """Position along the road (m) at ``times`` (s); stops at the road's end."""
-        t0, s0, v = self._segment_at(times)
-        return np.clip(s0 + self.direction * v * (times - t0), 0.0, self.length)
+        if len(self._segments) == 1:  # never commanded: the segment's scalars, the same values
+            t0, s0, v = self._segments[0]
+        else:
+            t0, s0, v = self._segment_at(times)
+        return np.minimum(np.maximum(s0 + self.direction * v * (times - t0), 0.0), self.length)
 
     def speeds(self, times: np.ndarray) -> np.ndarray:
         """Speed (m/s) at ``times`` (s)."""
@@ -158,10 +161,10 @@ class ScenarioPlayer:
 
     def actor_poses_at(self, times_s) -> list[dict[int, np.ndarray]]:
         """``actor_poses`` at each of ``times_s``, evaluated together: one lane-pose call per
-        road and lane for the actors that do not change lanes (the same values, elementwise)."""
+        road for the actors that do not change lanes (the same values, elementwise)."""
         times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
         found = []  # (actor id, indices into times, positions (k, 3), headings (k,)), in actor order
-        lanes: dict[tuple[str, int], list[int]] = {}
+        roads: dict[str, list[int]] = {}
         for actor_id, (actor, track) in self.actors.items():
             present = np.flatnonzero(times >= actor.appear_s)
             if not len(present):
@@ -169,11 +172,12 @@ class ScenarioPlayer:
             if actor.lane_changes:
                 found.append([actor_id, present, *track.poses(times[present])])
             else:
-                lanes.setdefault((actor.road, actor.lane), []).append(len(found))
+                roads.setdefault(actor.road, []).append(len(found))
                 found.append([actor_id, present, track.s(times[present]), None])
-        for (road, lane), members in lanes.items():
+        for road, members in roads.items():
             s = np.concatenate([found[m][2] for m in members])
-            x, y, z, heading = self.network.lane_pose(road, lane, s)
+            lanes = np.repeat([self.actors[found[m][0]][0].lane for m in members], [len(found[m][1]) for m in members])
+            x, y, z, heading = self.network.lane_pose(road, lanes, s)
             pos = np.stack([x, y, z], axis=-1)
             k = 0
             for m in members:

@@ -78,6 +78,19 @@ def test_lane_pose_rejects_bad_queries(highway):
         highway.lane_pose("9", -1, 1.0)
 
 
+def test_lane_pose_with_a_lane_per_s_equals_one_call_per_lane(curve, highway):
+    for net, lanes in ((curve, [-1, 1]), (highway, [-1, -2, -3, 1])):
+        rng = np.random.default_rng(0)
+        s = rng.uniform(0.0, net.road_length("1"), 40)
+        lane = rng.choice(lanes, 40)
+        for along in (False, True):
+            together = net.lane_pose("1", lane, s, along_reference=along)
+            for lid in lanes:
+                alone = net.lane_pose("1", lid, s[lane == lid], along_reference=along)
+                for a, b in zip(together, alone):
+                    assert a[lane == lid].tobytes() == b.tobytes()  # the same values to the bit
+
+
 def test_arc_lane_centres_at_radius_with_tangent_heading(curve):
     arc = next(g for g in _geometries(CURVE) if g.find("arc") is not None)
     s0, x0, y0, h0, length = (float(arc.get(k)) for k in ("s", "x", "y", "hdg", "length"))
