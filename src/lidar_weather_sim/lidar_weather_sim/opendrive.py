@@ -83,8 +83,12 @@ class _Cubic:
         self.s0, self.a, self.b, self.c, self.d = rec.T
         # one record (the common case): its coefficients as floats, no per-call lookup
         self.single = tuple(float(v[0]) for v in rec.T) if len(rec) == 1 else None
+        # a constant (a + 0 ds, a not -0): the polynomial is exactly a and its derivative +0 at finite ds
+        self.constant = self.single is not None and not any(self.single[2:]) and not np.signbit(self.single[1])
 
     def __call__(self, s: np.ndarray, deriv: bool = False) -> np.ndarray:
+        if self.constant:
+            return np.full(np.shape(s), 0.0 if deriv else self.single[1])
         if self.single is not None:  # the same expressions with scalar coefficients
             s0, a, b, c, d = self.single
             ds = s - s0

@@ -143,9 +143,19 @@ class ScenarioPlayer:
         pos, heading = self._ego().poses(times_s)
         c, s = np.cos(heading), np.sin(heading)
         mx, my, mz = self.mount[:3, 3]
-        translation = pos + np.stack([c * mx - s * my, s * mx + c * my, np.full_like(c, mz)], axis=-1)
-        yaw_q = yaw_quaternions(heading)
-        return translation, _quaternion_product(yaw_q, self._mount_quaternion[None, :])
+        translation = np.empty_like(pos)
+        translation[:, 0], translation[:, 1], translation[:, 2] = c * mx - s * my, s * mx + c * my, mz
+        translation += pos
+        half = 0.5 * heading  # yaw_quaternions(heading) * mount quaternion: _quaternion_product's terms
+        ax = ay = np.zeros_like(half)
+        az, aw = np.sin(half), np.cos(half)
+        bx, by, bz, bw = self._mount_quaternion
+        q = np.empty((len(half), 4))
+        q[:, 0] = aw * bx + ax * bw + ay * bz - az * by
+        q[:, 1] = aw * by - ax * bz + ay * bw + az * bx
+        q[:, 2] = aw * bz + ax * by - ay * bx + az * bw
+        q[:, 3] = aw * bw - ax * bx - ay * by - az * bz
+        return translation, q
 
     def _ego(self) -> MoverTrack:
         if self.ego is None:
