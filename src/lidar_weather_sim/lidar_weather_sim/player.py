@@ -130,6 +130,11 @@ class ScenarioPlayer:
         self.network = network
         self.ego = None if scenario.ego is None else MoverTrack(scenario.ego, network)
         self.actors = {a.id: (a, MoverTrack(a, network)) for a in scenario.actors}
+        tracks = [t for _, t in self.actors.values()]
+        # per actor (scenario order): appearance time, first speed segment, direction, road length, road, lane
+        self._appear = np.array([a.appear_s for a, _ in self.actors.values()]).reshape(-1, 1)
+        self._first = np.array([(*t._segments[0], t.direction, t.length) for t in tracks]).reshape(-1, 5).T
+        self._road_lane = (np.array([t.mover.road for t in tracks]), np.array([t.mover.lane for t in tracks], int))
         self.mount = mount_matrix(scenario.sensor.mount)
         self._mount_quaternion = matrix_quaternion(self.mount[:3, :3])
 
@@ -170,42 +175,36 @@ class ScenarioPlayer:
         return self.actor_poses_at([time_s])[0]
 
     def actor_poses_at(self, times_s) -> list[dict[int, np.ndarray]]:
-        """``actor_poses`` at each of ``times_s``, evaluated together: one lane-pose call per
-        road for the actors that do not change lanes (the same values, elementwise)."""
+        """``actor_poses`` at each of ``times_s``, evaluated together: the positions along the
+        road of all actors that keep their lane and speed at once, then one lane-pose call per
+        road (the same values, elementwise); actors changing lanes follow their track."""
         times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
-        found = []  # (actor id, indices into times, positions (k, 3), headings (k,)), in actor order
-        roads: dict[str, list[int]] = {}
-        for actor_id, (actor, track) in self.actors.items():
-            present = np.flatnonzero(times >= actor.appear_s)
-            if not len(present):
-                continue
-            if actor.lane_changes:
-                found.append([actor_id, present, *track.poses(times[present])])
-            else:
-                roads.setdefault(actor.road, []).append(len(found))
-                found.append([actor_id, present, track.s(times[present]), None])
-        for road, members in roads.items():
-            s = np.concatenate([found[m][2] for m in members])
-            lanes = np.repeat([self.actors[found[m][0]][0].lane for m in members], [len(found[m][1]) for m in members])
-            x, y, z, heading = self.network.lane_pose(road, lanes, s)
-            pos = np.stack([x, y, z], axis=-1)
-            k = 0
-            for m in members:
-                n = len(found[m][1])
-                found[m][2:] = pos[k : k + n], heading[k : k + n]
-                k += n
-        out: list[dict[int, np.ndarray]] = [{} for _ in times]
-        if not found:
-            return out
-        matrices = np.zeros((sum(len(f[1]) for f in found), 4, 4))
-        matrices[:, :3, :3] = _yaw_matrices(np.concatenate([f[3] for f in found]))
-        matrices[:, :3, 3] = np.concatenate([f[2] for f in found])
+        actors = list(self.actors.values())
+        present = times[None, :] >= self._appear
+        who, when = np.nonzero(present)  # (actor, time) pairs, actor-major like the dicts' order
+        pos, heading = np.empty((len(who), 3)), np.empty(len(who))
+        steady = np.array([not a.lane_changes and len(t._segments) == 1 for a, t in actors], dtype=bool)[who]
+        for i in np.unique(who[~steady]):
+            k = np.flatnonzero(who == i)
+            pos[k], heading[k] = actors[i][1].poses(times[when[k]])
+        k = np.flatnonzero(steady)
+        if len(k):
+            i = who[k]  # MoverTrack.s of each with its segment's scalars, the same expression
+            t0, s0, v, direction, length = self._first[:, i]
+            s = np.minimum(np.maximum(s0 + direction * v * (times[when[k]] - t0), 0.0), length)
+            roads, lanes = self._road_lane[0][i], self._road_lane[1][i]
+            for road in dict.fromkeys(roads.tolist()):
+                m = roads == road
+                x, y, z, heading[k[m]] = self.network.lane_pose(road, lanes[m], s[m])
+                pos[k[m]] = np.stack([x, y, z], axis=-1)
+        matrices = np.zeros((len(who), 4, 4))
+        matrices[:, :3, :3] = _yaw_matrices(heading)
+        matrices[:, :3, 3] = pos
         matrices[:, 3, 3] = 1.0
-        k = 0
-        for actor_id, present, _, _ in found:
-            for t in present:
-                out[t][actor_id] = matrices[k]
-                k += 1
+        out: list[dict[int, np.ndarray]] = [{} for _ in times]
+        ids = list(self.actors)
+        for k, (i, t) in enumerate(zip(who.tolist(), when.tolist())):
+            out[t][ids[i]] = matrices[k]
         return out
 
 

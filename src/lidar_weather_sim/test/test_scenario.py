@@ -99,3 +99,28 @@ def test_bad_scenarios_name_the_key(tmp_path, patch, message):
     with pytest.raises(ConfigError) as err:
         load_yaml(path, Scenario)
     assert message in str(err.value) and str(path) in str(err.value)
+
+
+def test_batched_actor_poses_match_each_track_to_the_bit():
+    """Steady actors (evaluated together), a commanded one and a left-lane one (against s)."""
+    from lidar_weather_sim.player import rpy_matrix
+
+    scenario = load_scenario("highway_clear")
+    extra = [
+        {"id": 130, "lane": -2, "s_m": 80.0, "speed_m_s": 25.0, "appear_s": 0.3},
+        {"id": 131, "lane": 1, "s_m": 400.0, "speed_m_s": 30.0},
+        {"id": 132, "lane": -1, "s_m": 10.0, "speed_m_s": 31.0},
+    ]  # fmt: skip
+    scenario = scenario.model_validate({**scenario.model_dump(), "actors": scenario.model_dump()["actors"] + extra})
+    player = ScenarioPlayer(scenario, RoadNetwork.from_xodr(maps_dir() / scenario.map))
+    player.actors[132][1].command_speed(0.5, 12.0)
+    times = np.linspace(0.0, 1.5, 16)
+    many = player.actor_poses_at(times)
+    for t, poses in zip(times, many):
+        assert list(poses) == [i for i, (a, _) in player.actors.items() if t >= a.appear_s]
+        for actor_id, m in poses.items():
+            pos, heading = player.actors[actor_id][1].poses(np.array([t]))
+            want = np.eye(4)
+            want[:3, :3] = rpy_matrix(0.0, 0.0, float(heading[0]))
+            want[:3, 3] = pos[0]
+            assert m.tobytes() == want.tobytes()
