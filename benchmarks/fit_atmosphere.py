@@ -50,7 +50,9 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "config" / "atmosphere_fit.yaml"
 NEAR = {"rate_per_beam": "log", "cover_share": "logit", "cover_scale_m": "log", "amplitude_median": "log",
         "amplitude_sigma_ln": "log", "cover_amp_scale_m": "log"}
-STREET = {"path_rate_per_beam": "log", "path_amplitude_median": "log", "wetness": "logit", "snow_depth_m": "log",
+#: path/splash drops: a single drop at tens of metres is far below the threshold; what the sensor
+#: sees there are clusters of drops, bounded to at most 20x the dark threshold (median)
+STREET = {"path_rate_per_beam": "log", "path_amplitude_median": "log:0.1:20", "wetness": "logit", "snow_depth_m": "log",
           "splash_rate_per_beam": "log"}
 #: start values of parameters a class has not had yet (0 cannot be encoded)
 START = {"cover_amp_scale_m": 0.3, "street_gain": 3.0, "snow_depth_m": 0.05, "splash_rate_per_beam": 0.3}
@@ -67,11 +69,18 @@ def street_params(weather: str) -> dict:
 
 
 def encode(value: float, kind: str) -> float:
+    if kind.startswith("log:"):  # log-uniform between bounds: "log:lo:hi"
+        lo, hi = (float(v) for v in kind.split(":")[1:])
+        u = (np.log(min(max(value, lo * 1.0001), hi / 1.0001)) - np.log(lo)) / (np.log(hi) - np.log(lo))
+        return float(np.log(u / (1 - u)))
     v = min(max(value, 1e-4), 1 - 1e-4) if kind == "logit" else max(value, 1e-6)
     return np.log(v / (1 - v)) if kind == "logit" else np.log(v)
 
 
 def decode(x: float, kind: str) -> float:
+    if kind.startswith("log:"):
+        lo, hi = (float(v) for v in kind.split(":")[1:])
+        return float(np.exp(np.log(lo) + (np.log(hi) - np.log(lo)) / (1 + np.exp(-x))))
     return float(1 / (1 + np.exp(-x))) if kind == "logit" else float(np.exp(x))
 
 
