@@ -275,6 +275,8 @@ class _Road:
     offset: _Cubic
     sections: list[_Section]
     rails: list[_Rail]
+    # (section index, lane id) -> its centre t, d t / d s, width where those do not depend on s
+    constant_centres: dict = field(default_factory=dict, repr=False)
 
     def frame(self, s: np.ndarray) -> np.ndarray:
         """(6, ...) x, y, heading, curvature, z, superelevation of the reference line."""
@@ -612,6 +614,13 @@ class RoadNetwork:
             return 0.5 * (b + bi), 0.5 * (db + dbi), np.abs(b - bi)
 
         if len(road.sections) == 1:
+            key = (0, lane_id)
+            if key not in road.constant_centres:  # constant offset and widths: the values at any s
+                sec = road.sections[0]
+                fixed = road.offset.constant and all(sec.lanes[k].width.constant for k in sec.lanes if k * lane_id > 0)
+                road.constant_centres[key] = [float(v[0]) for v in centre(sec, np.zeros(1))] if fixed else None
+            if road.constant_centres[key] is not None:
+                return tuple(np.full(s.shape, v) for v in road.constant_centres[key])
             return centre(road.sections[0], s)
         t, dt, width = np.empty_like(s), np.empty_like(s), np.empty_like(s)
         isec = road.section_index(s)
@@ -632,6 +641,8 @@ class RoadNetwork:
         s = self._s(road, s_m)
         lanes = np.asarray(lane_id)
         against = road.rule.upper() != "LHT"  # lanes with id > 0 drive against +s
+        if lanes.ndim and len(lanes) and (lanes == lanes[0]).all():  # one lane
+            lanes = lane_id = lanes[0]
         if lanes.ndim == 0:
             t, dt, _ = self._lane_t(road, int(lane_id), s)
             flip = (lane_id > 0) == against

@@ -184,7 +184,7 @@ class ScenarioPlayer:
         who, when = np.nonzero(present)  # (actor, time) pairs, actor-major like the dicts' order
         pos, heading = np.empty((len(who), 3)), np.empty(len(who))
         steady = np.array([not a.lane_changes and len(t._segments) == 1 for a, t in actors], dtype=bool)[who]
-        for i in np.unique(who[~steady]):
+        for i in [] if steady.all() else np.unique(who[~steady]):
             k = np.flatnonzero(who == i)
             pos[k], heading[k] = actors[i][1].poses(times[when[k]])
         k = np.flatnonzero(steady)
