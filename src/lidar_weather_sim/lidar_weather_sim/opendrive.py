@@ -212,10 +212,12 @@ class _PlanView:
 
     def __call__(self, s: np.ndarray):
         """x, y, heading, curvature of the reference line at ``s`` (arrays like ``s``)."""
+        if len(self.geoms) == 1:
+            return self._eval(0, s)
         i = np.searchsorted(self.s0, s, side="right") - 1
         lo, hi = (int(i.min()), int(i.max())) if i.size else (0, 0)
         if max(lo, 0) == min(hi, len(self.geoms) - 1):  # all in one geometry: no masks
-            return np.array(self._eval(max(lo, 0), s))
+            return self._eval(max(lo, 0), s)
         i = np.clip(i, 0, len(self.geoms) - 1)
         out = np.empty((4,) + s.shape)
         for gi in np.unique(i):

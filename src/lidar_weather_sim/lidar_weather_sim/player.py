@@ -151,7 +151,8 @@ class ScenarioPlayer:
         translation = np.empty_like(pos)
         translation[:, 0], translation[:, 1], translation[:, 2] = c * mx - s * my, s * mx + c * my, mz
         translation += pos
-        half = 0.5 * heading  # yaw_quaternions(heading) * mount quaternion: _quaternion_product's terms
+        # Hamilton product yaw_quaternions(heading) * mount quaternion (x, y, z, w), all its terms
+        half = 0.5 * heading
         ax = ay = np.zeros_like(half)
         az, aw = np.sin(half), np.cos(half)
         bx, by, bz, bw = self._mount_quaternion
@@ -217,18 +218,3 @@ def _yaw_matrices(yaw: np.ndarray) -> np.ndarray:
     m[:, 1, 0], m[:, 1, 1], m[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
     m[:, 2, 0], m[:, 2, 1], m[:, 2, 2] = -sp, cp * sr, cp * cr
     return m
-
-
-def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a * b of (N, 4) x, y, z, w quaternions (broadcasting)."""
-    ax, ay, az, aw = np.moveaxis(a, -1, 0)
-    bx, by, bz, bw = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ],
-        axis=-1,
-    )
