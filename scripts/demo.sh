@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The README demo: the CLI, then a PointCloud2 published by one process and
-# received by another over real DDS.
+# The README demo: an offline run into a bag, then the closed loop over real DDS
+# (adaptive cruise with and without the weather filter, with and without a box).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -18,10 +18,9 @@ echo "== simulate 2 s of the thesis' highway set-up (scala4, 25 Hz) into $out"
 lidar-weather-sim run highway_clear --frames 50 --out "$out" --overwrite
 lidar-weather-sim info "$out" | head -12
 echo
-echo "== process 1: pattern_node publishes a synthetic sweep on /lidar/points at 10 Hz"
-lidar-weather-sim pattern --rate 10 --count 100 &
-publisher=$!
-trap 'kill -INT $publisher 2>/dev/null || true; wait $publisher 2>/dev/null || true' EXIT
-echo "== process 2: lidar-weather-sim listen receives 5 clouds"
-lidar-weather-sim listen --count 5 --timeout 30
-echo "== demo done"
+echo "== closed loop over DDS: lidar_sim_node -> [weather_filter_node] -> ego_controller_node -> /ego/cmd_speed"
+echo "   highway_spray_crosswind: the spray of the car ahead blows across the ego's lane (4 runs, ~1 min)"
+report="$root/log/demo/closed_loop"
+lidar-weather-sim closed-loop --seconds 4 --box-at 1.0 --out "$report"
+cat "$report/report.md"
+echo "== demo done (speed traces: $report/speed.png)"

@@ -93,7 +93,7 @@ def test_ego_controller_node_keeps_commanding_on_good_clouds(processes, ros, tmp
     assert {k % S for k in got} == {0, S // 2} and {k for k in got if k % S == 0} == {(k + 1) * S for k in range(GOOD)}
     for k, cloud in enumerate(clouds):
         expected = obstacle_distance(cloud, cfg)
-        row = got[(k + 1) * S]["distance_m"]
+        row = got[(k + 1) * S]["detected_m"]
         assert (row in ("", "nan") and expected is None) or abs(float(row) - expected) < 6e-4, (k, row, expected)
     assert "Traceback" not in processes.output(proc)
 

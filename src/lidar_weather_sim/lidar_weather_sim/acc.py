@@ -5,7 +5,13 @@ inside the ego's lane corridor (|y| <= ``half_width_m``, between
 ``min_height_m`` and ``max_height_m`` above the road, ``min_range_m`` to
 ``max_range_m`` ahead, sensor frame: x forward, y left, z up, the road
 ``sensor_height_m`` below the sensor), a cluster being the points within
-``cluster_length_m`` in x of the nearest one. The controller treats the
+``cluster_length_m`` in x of the nearest one. As in a radar or LiDAR ACC's
+track management, the controller acts on an obstacle only once it is
+confirmed: seen in ``confirm_frames`` consecutive clouds, its distance
+changing by at most ``track_gate_m`` from one cloud to the next
+(:class:`ObstacleTrack`). Near-field clutter that appears at random ranges
+in single clouds (rain drops 0-5 m in front of the sensor) is not confirmed;
+a spray cloud that follows a vehicle, or a real obstacle, is. The controller treats the
 obstacle as standing still (conservative): the deceleration needed to stop
 ``standstill_m`` before it is a = v^2 / (2 (d - standstill_m)); it brakes with
 that when a >= ``min_brake_m_s2`` (capped at ``max_brake_m_s2``), otherwise
@@ -34,10 +40,12 @@ class AccConfig(ConfigModel):
     sensor_height_m: float = Field(0.5, ge=0, description="Sensor above the road (m)")
     min_height_m: float = Field(0.25, description="Lowest obstacle point above the road (m)")
     max_height_m: float = Field(2.5, description="Highest obstacle point above the road (m)")
-    min_range_m: float = Field(1.0, ge=0, description="Nearest x considered (m)")
+    min_range_m: float = Field(2.0, ge=0, description="Nearest x considered (m)")
     max_range_m: float = Field(100.0, gt=0, description="Farthest x considered (m)")
     min_points: int = Field(5, ge=1, description="Points a cluster needs to count as an obstacle")
     cluster_length_m: float = Field(1.0, gt=0, description="Cluster extent in x from its nearest point (m)")
+    confirm_frames: int = Field(3, ge=1, description="Consecutive clouds an obstacle needs before the controller reacts")
+    track_gate_m: float = Field(1.0, gt=0, description="Largest distance change of one obstacle between clouds (m)")
     standstill_m: float = Field(5.0, ge=0, description="Distance to stop before an obstacle (m)")
     min_brake_m_s2: float = Field(0.5, ge=0, description="Below this needed deceleration: no braking (m/s^2)")
     max_brake_m_s2: float = Field(8.0, gt=0, description="Deceleration limit (m/s^2)")
@@ -61,6 +69,22 @@ def obstacle_distance(points: np.ndarray, cfg: AccConfig) -> float | None:
     """x (m) of the nearest in-lane cluster of >= min_points points, or None."""
     cluster = nearest_cluster(points, cfg)
     return float(points["x"][cluster[0]]) if len(cluster) else None
+
+
+class ObstacleTrack:
+    """Confirms an obstacle seen in ``confirm_frames`` consecutive clouds within ``track_gate_m`` per cloud."""
+
+    def __init__(self, cfg: AccConfig) -> None:
+        self.cfg, self.last_m, self.hits = cfg, None, 0
+
+    def update(self, distance_m: float | None) -> float | None:
+        """The distance (m) once confirmed, else None; call once per cloud with the nearest cluster's distance."""
+        if distance_m is None:
+            self.last_m, self.hits = None, 0
+            return None
+        same = self.last_m is not None and abs(distance_m - self.last_m) <= self.cfg.track_gate_m
+        self.last_m, self.hits = distance_m, self.hits + 1 if same else 1
+        return distance_m if self.hits >= self.cfg.confirm_frames else None
 
 
 @dataclass

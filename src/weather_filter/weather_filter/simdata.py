@@ -115,10 +115,12 @@ def frames_of(bag: str | Path, topic: str = TOPIC_POINTS) -> Iterator[np.ndarray
     return (frame.points for frame in read_clouds(bag, topic))
 
 
-_TRAIN_SCENARIOS = ("wf_train_rain_spray", "wf_train_fog", "wf_train_snow", "wf_train_clear_spray", "wf_train_fog_rain")
+_TRAIN_SCENARIOS = ("wf_train_rain_spray", "wf_train_fog", "wf_train_snow", "wf_train_clear_spray", "wf_train_fog_rain",
+                    "wf_train_crosswind_spray")
 #: Runs the shipped learned filter is trained on (``weather-filter train --sim ...``, see the model's
 #: ``command``): rain + spray + dirt at 100 km/h, fog at 60 km/h, snow at 40 km/h on the curved road, spray in
-#: dry air at 70 km/h, rain in fog at 80 km/h (config/scenarios/wf_train_*.yaml) and the proving ground's spray at 39 and 48 km/h;
+#: dry air at 70 km/h, rain in fog at 80 km/h, spray blown over the ego's lane by a crosswind at 80 km/h
+#: (config/scenarios/wf_train_*.yaml) and the proving ground's spray at 39 and 48 km/h;
 #: scala4 and a 128-channel profile at 1024 and 2048 columns (the histogram counts scale with the scan's
 #: resolution: a model trained without a resolution fails on it).
 TRAIN_SPECS = (

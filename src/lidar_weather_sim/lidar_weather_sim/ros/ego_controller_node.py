@@ -5,9 +5,10 @@ cloud it finds the nearest obstacle in its lane and publishes the commanded
 speed (std_msgs/Float64, m/s) on /ego/cmd_speed, which lidar_sim_node's
 scenario player follows. Logic and parameters: :mod:`lidar_weather_sim.acc`
 (every AccConfig field is a parameter). Time is the cloud's header stamp (sim
-time). ``trace_csv``: if set, one line per cloud (stamp_s, distance_m,
-label: the most common ground-truth label in the obstacle cluster, cmd_speed_m_s, decel_m_s2, points)
-for the closed-loop report.
+time). ``trace_csv``: if set, one line per cloud for the closed-loop report: stamp_s,
+detected_m (nearest in-lane cluster), distance_m (the confirmed obstacle the
+controller acts on), label (the most common ground-truth label in that
+cluster), cmd_speed_m_s, decel_m_s2, points.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ from __future__ import annotations
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
@@ -23,11 +23,12 @@ from std_msgs.msg import Float64
 
 import numpy as np
 
-from lidar_weather_sim.acc import AccConfig, AccState, nearest_cluster, step
+from lidar_weather_sim.acc import AccConfig, AccState, ObstacleTrack, nearest_cluster, step
 from lidar_weather_sim.cloud_codec import CloudFormatError
-from lidar_weather_sim.config import validate
+from lidar_weather_sim.config import ConfigError, validate
 from lidar_weather_sim.names import TOPIC_POINTS_FILTERED
 from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
+from lidar_weather_sim.ros.node_main import run_node
 
 TOPIC_CMD_SPEED = "/ego/cmd_speed"
 
@@ -42,10 +43,10 @@ class EgoControllerNode(Node):
         self.cfg = validate(values, AccConfig, "ego_controller_node parameters")
         topic = self.declare_parameter("cloud_topic", TOPIC_POINTS_FILTERED, ParameterDescriptor(read_only=True)).value
         trace = self.declare_parameter("trace_csv", "", ParameterDescriptor(description="per-cloud trace file")).value
-        self.state = AccState(self.cfg.cruise_speed_m_s)
+        self.state, self.track = AccState(self.cfg.cruise_speed_m_s), ObstacleTrack(self.cfg)
         self._trace = open(trace, "w", buffering=1) if trace else None  # noqa: SIM115 (closed in destroy_node)
         if self._trace:
-            self._trace.write("stamp_s,distance_m,label,cmd_speed_m_s,decel_m_s2,points\n")
+            self._trace.write("stamp_s,detected_m,distance_m,label,cmd_speed_m_s,decel_m_s2,points\n")
         self._pub = self.create_publisher(Float64, TOPIC_CMD_SPEED, 10)
         self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data)
         self.commands = 0
@@ -65,15 +66,16 @@ class EgoControllerNode(Node):
         t = stamp_to_ns(msg.header.stamp) * 1e-9
         if self.state.time_s is not None and t <= self.state.time_s:
             return  # old or repeated cloud
-        distance = float(points["x"][cluster[0]]) if len(cluster) else None
+        detected = float(points["x"][cluster[0]]) if len(cluster) else None
+        distance = self.track.update(detected)
         speed, decel = step(self.state, t, distance, self.cfg)
         self._pub.publish(Float64(data=float(speed)))
         self.commands += 1
         if self._trace:
-            d = "" if distance is None else f"{distance:.3f}"
-            has_label = len(cluster) and "label" in points.dtype.names
+            text = lambda d: "" if d is None else f"{d:.3f}"  # noqa: E731
+            has_label = distance is not None and "label" in points.dtype.names
             label = int(np.bincount(points["label"][cluster]).argmax()) if has_label else ""
-            self._trace.write(f"{t:.6f},{d},{label},{speed:.6f},{decel:.6f},{len(points)}\n")
+            self._trace.write(f"{t:.6f},{text(detected)},{text(distance)},{label},{speed:.6f},{decel:.6f},{len(points)}\n")
 
     def destroy_node(self) -> None:
         if self._trace:
@@ -82,15 +84,7 @@ class EgoControllerNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    try:
-        with rclpy.init(args=args):
-            node = EgoControllerNode()
-            try:
-                rclpy.spin(node)
-            finally:
-                node.destroy_node()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    run_node("ego_controller_node", EgoControllerNode, config_errors=(ConfigError,), finish=EgoControllerNode.destroy_node, args=args)
 
 
 if __name__ == "__main__":

@@ -16,10 +16,8 @@ Parameters: ``method`` (dror|dsor|lior|echo|learned), ``fallback_method``
 from __future__ import annotations
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
@@ -27,6 +25,7 @@ from sensor_msgs.msg import PointCloud2
 from lidar_weather_sim.cloud_codec import CloudFormatError
 from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TOPIC_POINTS_REMOVED
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
+from lidar_weather_sim.ros.node_main import run_node
 
 from weather_filter.filters import GEOMETRY_METHODS, METHODS, fallback_message, make_fallback_filter, make_filter
 
@@ -137,11 +136,7 @@ class WeatherFilterNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    try:
-        with rclpy.init(args=args):
-            rclpy.spin(WeatherFilterNode())
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    run_node("weather_filter_node", WeatherFilterNode, args=args)
 
 
 if __name__ == "__main__":
