@@ -114,7 +114,7 @@ def test_compare_writes_metrics_report_and_plots(highway, tmp_path, cli):
     m = json.loads((tmp_path / "cmp" / "metrics.json").read_text())
     assert m["frames"]["paired_by"] == "time" and m["frames"]["paired"] >= 15
     near = m["zones"]["near"]["detections_per_frame"]
-    assert near["measured"][0] > 20 * max(near["simulated"][0], 1.0)  # rain fills the near field
+    assert near["measured"][0] > 3.0 > 6 * near["simulated"][0]  # rain fills the near field (~5 per frame at 10 mm/h)
     assert m["zones"]["near"]["range_bray_curtis"] > 0.9
     assert m["gap"] > 0.3
     assert 0.0 <= m["bev"]["jaccard_distance"] <= 1.0 and -1.0 <= m["bev"]["pearson"] <= 1.0

@@ -189,7 +189,7 @@ def test_up_runs_the_sim_graph_clouds_at_the_profile_rate_and_a_region_swap_at_t
     rain = [(s, int((p["label"] == 11).sum())) for s, p in decoded]
     assert all(n == 0 for s, n in rain if s < swap_ns), rain  # every frame before the swap: spray only
     after = [n for s, n in rain if s >= swap_ns]
-    assert len(after) >= 8 and all(n > 20 for n in after), rain  # the swap frame on: rain
+    assert len(after) >= 8 and all(n > 0 for n in after) and sum(after) >= 3 * len(after), rain  # the swap frame on: rain
     assert filtered, "weather_filter_node (filter:=true) published nothing"
     up.send_signal(signal.SIGINT)
     assert up.wait(timeout=60) == 0, processes.output(up)

@@ -86,7 +86,7 @@ class TestSimGraph(unittest.TestCase):
         rclpy.spin_until_future_complete(self.node, future, timeout_sec=30)
         self.assertTrue(future.result().results[0].successful)
         clouds = self._collect("/lidar/points", 3)[1:]  # the frame in progress may be the old one
-        self.assertTrue(all((msg_to_cloud(c).points["label"] == 11).sum() > 20 for c in clouds))
+        self.assertTrue(all((msg_to_cloud(c).points["label"] == 11).sum() > 0 for c in clouds))
 
 
 @launch_testing.post_shutdown_test()

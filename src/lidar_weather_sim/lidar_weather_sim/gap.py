@@ -16,7 +16,9 @@
    held-out gap by at least ``min_gain`` (10 %) and by at least ``min_abs_gain`` (0.002:
    below that the change is at the level of what re-drawing the measurement's noise
    moves the gap, e.g. 0.004-0.008 for the nuisance of ``make-measured``); the accepted
-   effects are then refitted together; rounds repeat until no candidate qualifies. The other
+   effects are then refitted together, and the new effect is kept only if the refitted set
+   still meets that rule on the held-out frames (otherwise its gain was fitting noise that
+   the joint fit takes back); rounds repeat until no candidate qualifies. The other
    candidates of the last round are reported as rejected with their held-out gap.
 
 Cost: the budgets do not grow with the recording, so a diagnosis casts about
@@ -200,16 +202,23 @@ class GapSearch:
                 break
             diag.rounds.append(fitted)
             best = min(fitted, key=lambda c: c.heldout_gap)
-            if best.heldout_gap > min(current * (1.0 - self.min_gain), current - self.min_abs_gain):
+            required = min(current * (1.0 - self.min_gain), current - self.min_abs_gain)
+            if best.heldout_gap > required:
                 diag.rejected = fitted
                 break
-            accepted.append(best.effect)
-            if len(accepted) > 1:  # the earlier effects were fitted without this one: refit them with it
-                accepted = self.refit(accepted)
-                best = Candidate(accepted[-1], best.fit_gap, self.gap(accepted, "heldout"), best.evaluations)
+            if accepted:  # the earlier effects were fitted without this one: refit them with it
+                refitted = self.refit(accepted + [best.effect])
+                heldout = self.gap(refitted, "heldout")
+                self.progress(f"refitted: {', '.join(e.label() for e in refitted)}: held-out gap {heldout:.4f}")
+                if heldout > required:  # its gain does not survive the joint fit: it was fitting noise
+                    diag.rejected = fitted
+                    break
+                accepted = refitted
+                best = Candidate(accepted[-1], best.fit_gap, heldout, best.evaluations)
                 diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
                                  for e, (c, g) in zip(accepted, diag.accepted)]  # fmt: skip
-                self.progress(f"refitted: {', '.join(e.label() for e in accepted)}: held-out gap {best.heldout_gap:.4f}")
+            else:
+                accepted = [best.effect]
             diag.accepted.append((best, current))
             current = best.heldout_gap
             diag.rejected = [c for c in fitted if c is not best]
