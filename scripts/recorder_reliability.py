@@ -81,6 +81,7 @@ def run(duration_s: float, scenario: str, out: Path) -> dict:
         "clouds_published": published, "clouds_recorded": counts.get(TOPIC_POINTS, 0),
         "clouds_missing": published - counts.get(TOPIC_POINTS, 0),
         "stamp_gaps": int((gaps != period_ns).sum()), "first_stamp_ns": int(stamps[0]) if len(stamps) else None,
+        "last_stamp_ns": int(stamps[-1]) if len(stamps) else None,
         "tf_recorded": counts.get(TOPIC_TF, 0), "clock_recorded": counts.get(TOPIC_CLOCK, 0),
         "bag_mb": round(sum(f.stat().st_size for f in bag.iterdir()) / 2**20, 1),
     }  # fmt: skip

@@ -14,6 +14,7 @@ def test_recorder_keeps_every_cloud_for_60_s(tmp_path):
                          capture_output=True, text=True, timeout=600)  # fmt: skip
     assert run.returncode in (0, 1), run.stderr
     summary = json.loads(run.stdout)
+    print(summary)  # in the report of a failure, whole
     assert summary["sim_exit"] == 0 and summary["recorder_exit"] == 0, summary
     assert summary["clouds_published"] == 60 * 25 == summary["clouds_recorded"], summary
     assert summary["stamp_gaps"] == 0, summary  # one cloud per 40 ms, none repeated

@@ -23,6 +23,7 @@ start; the log gives the time of the request and the stamp of that frame.
 from __future__ import annotations
 
 import math
+import time
 
 import rclpy
 from builtin_interfaces.msg import Time
@@ -57,6 +58,7 @@ RUNTIME = ("regions", "region_params", "sun_irradiance_w_m2", "seed")
 TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # as tf2_ros
 TF_STATIC_QOS = QoSProfile(depth=100, reliability=TF_QOS.reliability, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)  # matches best-effort and reliable readers
+LINGER_S = 1.0  # after max_frames: the writer stays this long (s) before the process ends
 BACKWARDS_RESTART_S = 1.0  # a stamp this much older than the last one (bag loop, sim reset) restarts the scan
 
 
@@ -337,6 +339,10 @@ def _spin(node: LidarSimNode) -> None:
         ended = node.input_ended  # then all the input sent is queued here
         if not _spin_once(executor, POLL_S) and ended:
             break  # ... and cast
+    if node.finished:  # max_frames: the last clouds are best effort; give them time to reach the readers
+        linger_until = time.monotonic() + LINGER_S
+        while not stop_requested() and time.monotonic() < linger_until:
+            time.sleep(POLL_S)
 
 
 def main(args: list[str] | None = None) -> None:
