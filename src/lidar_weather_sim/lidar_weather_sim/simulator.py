@@ -235,8 +235,10 @@ class LidarSimulator:
         n_cols, n_beams, n_sub = directions.shape[:3]
         n = n_cols * n_beams
         origins32, dirs32, dirs64 = _world_rays(directions, rotation, translation, bool(self.regions), self._scratch)
-        # regions get the hits in the ray batch and may keep them: then the caster's arrays must be new
-        hits = self.caster.cast(origins32, dirs32, actor_poses, profile.range.max_m, reuse=not self.regions)
+        # regions get the hits in the ray batch and may keep them: then the caster's arrays must be new;
+        # without regions the LIDAR-equation kernel gathers the static hits' attributes itself
+        hits = self.caster.cast(origins32, dirs32, actor_poses, profile.range.max_m, reuse=not self.regions,
+                                gather=bool(self.regions))  # fmt: skip
         shape = (n, n_sub)
         ray_batch = effect = None
         if self.regions:
@@ -311,10 +313,10 @@ class LidarSimulator:
         else:
             scale = offset = t2 = np.zeros((1, 1))
         beam, rng_m, amp, label, obj, segments = _surface_returns(
-            hits.distance, hits.normal, hits.material, hits.hit_actor, hits.object_id, directions, rotation,
-            self._reflectivity, self._retro, self._material_label, self._actor_label, self.pattern.subray_weight,
-            float(C), float(optics.overlap_start_m), float(optics.overlap_full_m), effect is not None, scale, offset,
-            t2, sc is None, self._scratch,
+            (hits.distance, hits.triangle, hits.normal, hits.material, hits.hit_actor, hits.object_id),
+            self.caster.static_tables, directions, rotation, self._reflectivity, self._retro, self._material_label,
+            self._actor_label, self.pattern.subray_weight, float(C), float(optics.overlap_start_m),
+            float(optics.overlap_full_m), effect is not None, scale, offset, t2, sc is None, self._scratch,
         )  # fmt: skip
         if sc is None:
             return (beam, rng_m, amp, label, obj), segments
@@ -484,10 +486,15 @@ def _world_rays_run(directions, rotation, translation, c0, c1, want64, o32, d32,
                 k += 1
 
 
-def _surface_returns(distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro,
-                     material_label, actor_label, weights, power, overlap_start, overlap_full, effects, scale,
-                     offset, two_way, compact, scratch=None):  # fmt: skip
+def _surface_returns(hits, static, directions, rotation, reflectivity, retro, material_label, actor_label, weights,
+                     power, overlap_start, overlap_full, effects, scale, offset, two_way, compact,
+                     scratch=None):  # fmt: skip
     """Range and peak amplitude (LIDAR equation) of every sub-ray's scene hit.
+
+    ``hits``: the caster's distance, triangle, normal, material, actor and object id per
+    sub-ray (:class:`~lidar_weather_sim.raycast.scene_caster.Hits`); ``static``: the static
+    mesh's normal, material and object id per triangle, which a static hit's are read from
+    (the per-ray ones only for actor hits).
 
     ``compact``: the candidates with amplitude > 0 as (beam, range, amplitude, label,
     object id), beam-major (in ``scratch`` if given), each chunk's from its first ray's
@@ -505,9 +512,8 @@ def _surface_returns(distance, normal, material, actor, object_id, directions, r
     cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
     counts = workers.run_chunks(
         lambda c: _surface_returns_run(
-            distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro, material_label,
-            actor_label, weights, power, overlap_start, overlap_full, effects, scale, offset, two_way, compact,
-            cuts[c], cuts[c + 1], *out,
+            *hits, *static, directions, rotation, reflectivity, retro, material_label, actor_label, weights, power,
+            overlap_start, overlap_full, effects, scale, offset, two_way, compact, cuts[c], cuts[c + 1], *out,
         ),
         len(cuts) - 1,
     )  # fmt: skip
@@ -537,9 +543,10 @@ def _compact_run(out, starts, counts):
 
 
 @numba.njit(cache=True, nogil=True)
-def _surface_returns_run(distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro,
-                         material_label, actor_label, weights, power, overlap_start, overlap_full, effects, scale,
-                         offset, two_way, compact, c0, c1, out_beam, out_rng, out_amp, out_label, out_obj):  # fmt: skip
+def _surface_returns_run(distance, triangle, normal, material, actor, object_id, static_normal, static_material,
+                         static_object_id, directions, rotation, reflectivity, retro, material_label, actor_label,
+                         weights, power, overlap_start, overlap_full, effects, scale, offset, two_way, compact, c0, c1,
+                         out_beam, out_rng, out_amp, out_label, out_obj):  # fmt: skip
     """Columns c0..c1 of :func:`_surface_returns`; compact candidates are written from the chunk's
     first ray index on. Returns how many."""
     n_beams, n_sub = directions.shape[1:3]
@@ -560,14 +567,20 @@ def _surface_returns_run(distance, normal, material, actor, object_id, direction
                         out_amp[k] = 0.0
                     k += 1
                     continue
+                a = actor[k]
+                if a >= 0:
+                    n0, n1, n2, mat, obj = normal[k, 0], normal[k, 1], normal[k, 2], material[k], object_id[k]
+                else:  # the static triangle's normal, unflipped: |cos| is the same
+                    t = triangle[k]
+                    n0, n1, n2 = static_normal[t, 0], static_normal[t, 1], static_normal[t, 2]
+                    mat, obj = static_material[t], static_object_id[t]
                 x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
                 wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
                 wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
                 wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
-                cos_inc = abs((np.float64(normal[k, 0]) * wx + np.float64(normal[k, 2]) * wz)
-                              + np.float64(normal[k, 1]) * wy)  # fmt: skip
+                cos_inc = abs((np.float64(n0) * wx + np.float64(n2) * wz) + np.float64(n1) * wy)
                 cos_inc = min(max(cos_inc, 0.0), 1.0)
-                mat = material[k] if material[k] >= 0 else no_material
+                mat = mat if mat >= 0 else no_material
                 refl = reflectivity[mat] * ((1.0 - retro[mat]) * cos_inc + retro[mat] * RETRO_GAIN)
                 rng = dist
                 if effects:
@@ -589,9 +602,8 @@ def _surface_returns_run(distance, normal, material, actor, object_id, direction
                     out_beam[count] = beam
                     out_rng[count] = rng
                     out_amp[count] = amp
-                    a = actor[k]
                     out_label[count] = actor_label[a] if a >= 0 else material_label[mat]
-                    out_obj[count] = object_id[k]
+                    out_obj[count] = obj
                     count += 1
                 k += 1
     return count - c0 * n_beams * n_sub

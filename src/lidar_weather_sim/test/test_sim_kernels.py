@@ -175,8 +175,18 @@ def test_surface_returns_match_the_lidar_equation_in_numpy(effects, overlap):
     label = np.where(actor.reshape(shape) >= 0, actor_label[np.maximum(actor.reshape(shape), 0)], material_label[mat])
     keep = amp.ravel() > 0
 
-    args = (distance, normal, material, actor, object_id, directions, rotation, reflectivity, retro, material_label,
-            actor_label, weights, 1.0e5, *map(float, overlap), effects, scale, offset, two_way)  # fmt: skip
+    # the caster's form: static hits' attributes in per-triangle tables (here one triangle per ray, normals
+    # of either sign: the kernel takes |cos|), the per-ray arrays hold the actor hits only
+    static = actor < 0
+    triangle = np.where(static & np.isfinite(distance), np.arange(m), -1)
+    flip = np.where(rng.random((m, 1)) < 0.5, np.float32(-1), np.float32(1))
+    tables = (np.vstack([normal * flip, np.zeros((1, 3), np.float32)]), np.append(material, np.int32(-1)),
+              np.append(object_id, np.uint32(0)))  # fmt: skip
+    per_ray = [np.where(static[:, None], np.float32(np.nan), normal), np.where(static, 0, material).astype(np.int32),
+               np.where(static, 0, object_id).astype(np.uint32)]  # fmt: skip
+    hits = (distance, triangle, per_ray[0], per_ray[1], actor, per_ray[2])
+    args = (hits, tables, directions, rotation, reflectivity, retro, material_label, actor_label, weights, 1.0e5,
+            *map(float, overlap), effects, scale, offset, two_way)  # fmt: skip
     *compact, segments = _surface_returns(*args, True)
     beam, got_rng, got_amp, got_label, got_obj = _compact_candidates(compact, segments)
     assert got_amp.tobytes() == amp.ravel()[keep].tobytes()

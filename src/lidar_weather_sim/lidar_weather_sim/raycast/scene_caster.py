@@ -48,14 +48,20 @@ class Hits:
     """Nearest hit per ray (N rays); frames are the map (world) frame.
 
     distance: (N,) float32 m along the unit ray, ``inf`` for a miss or beyond max range.
+    triangle: (N,) int64 static-mesh triangle hit, -1 for a miss or an actor hit.
     normal: (N, 3) float32 unit face normal of the hit triangle, flipped to face the
         ray (normal . direction <= 0); zeros for a miss.
     material: (N,) int32 material index of the hit triangle, -1 for a miss.
     object_id: (N,) uint32 object id of the hit triangle, 0 for a miss.
     hit_actor: (N,) int32 id of the actor hit, -1 for the static mesh or a miss.
+
+    Cast with ``gather=False``, normal, material and object_id hold the actors' hits only
+    (elsewhere undefined): a static hit's are the rows ``triangle`` of
+    :attr:`SceneCaster.static_tables` (the normal there not flipped).
     """
 
     distance: np.ndarray
+    triangle: np.ndarray
     normal: np.ndarray
     material: np.ndarray
     object_id: np.ndarray
@@ -112,14 +118,20 @@ class SceneCaster:
     def actor_ids(self) -> list[int]:
         return list(self._actors)
 
+    @property
+    def static_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Float32 face normal, material and object id per static triangle, a last row for "no hit"."""
+        return self._static.normals, self._static.material, self._static.object_id
+
     def _cast_part(self, part: _Part, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``part.caster.cast``; for padding backends the batch is padded to a bucketed size."""
+        """``part.caster.cast`` of the rays rounded to float32; for padding backends the batch is
+        padded to a bucketed size (in buffers reused from cast to cast)."""
         n = len(o)
         size = _padded_size(n) if self._pad else n
         if size == n:
             return part.caster.cast(o, d)
-        o_pad = np.empty((size, 3), np.float32)
-        d_pad = np.empty((size, 3), np.float32)
+        o_pad = self._scratch.get("pad_origins", (size, 3), np.float32)
+        d_pad = self._scratch.get("pad_directions", (size, 3), np.float32)
         o_pad[:n], d_pad[:n] = o, d
         # far above the part's bounding sphere, pointing away: misses at the root of the BVH
         o_pad[n:] = (part.centre + np.array([0.0, 0.0, 2.0 * part.radius + 10.0])).astype(np.float32)
@@ -135,6 +147,7 @@ class SceneCaster:
         max_range_m: float,
         *,
         reuse: bool = False,
+        gather: bool = True,
     ) -> Hits:
         """Cast rays (N, 3) origins (m) and unit directions, map frame.
 
@@ -142,6 +155,7 @@ class SceneCaster:
         listed are absent from this cast. Hits farther than ``max_range_m`` are misses.
         ``reuse``: the normals, materials, object ids and actor ids are views of arrays
         this caster overwrites on its next ``reuse`` cast (saves fresh memory per cast).
+        ``gather``: False leaves the static hits' attributes to ``triangle`` (see :class:`Hits`).
         """
         o = np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3)
         d = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
@@ -152,11 +166,11 @@ class SceneCaster:
             raise KeyError(f"poses for actors without a mesh: {sorted(unknown)}; known actors: {self.actor_ids}")
         best, tri = self._cast_part(self._static, o, d)
         best = np.ascontiguousarray(best, dtype=np.float32)
+        tri = np.ascontiguousarray(tri, dtype=np.int64)
         new = workers.allocator(self._scratch if reuse else None)
         normal, material, object_id, hit_actor, origin_box, axis, half_angle = _static_pass(
-            best, np.ascontiguousarray(tri, dtype=np.int64), np.float32(max_range_m), o, d, self._static,
-            bool(actor_poses) and len(o) > 0, new,
-        )  # fmt: skip
+            best, tri, np.float32(max_range_m), o, d, self._static, bool(actor_poses) and len(o) > 0, gather, new
+        )
         if actor_poses and len(o):
             n = len(o)
             widest = float(half_angle.max()) if len(half_angle) else 0.0  # the widest block cone (rad)
@@ -184,14 +198,12 @@ class SceneCaster:
             if not len(idx):
                 continue
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
-            dist_b, tri_b = self._cast_part(
-                part, ((start - trans) @ rot).astype(np.float32), (d64 @ rot).astype(np.float32)
-            )
+            dist_b, tri_b = self._cast_part(part, (start - trans) @ rot, d64 @ rot)
             closer = _closer(idx, shift, dist_b, best, float(max_range_m))
             tri_b = tri_b[closer]
             _set_hits(idx[closer], tri_b, part.normals[tri_b] @ rot.T.astype(np.float32), d, part.material,
-                      part.object_id, actor_id, normal, material, object_id, hit_actor)  # fmt: skip
-        return Hits(best, normal, material, object_id, hit_actor)
+                      part.object_id, actor_id, tri, normal, material, object_id, hit_actor)  # fmt: skip
+        return Hits(best, tri, normal, material, object_id, hit_actor)
 
 
 def _padded_size(n: int) -> int:
@@ -265,9 +277,10 @@ def _closer(idx, shift, dist_b, best, max_range):
 
 
 @numba.njit(cache=True)
-def _set_hits(sel, tri, normals, d, materials, object_ids, actor_id, normal, material, object_id, hit_actor):
+def _set_hits(sel, tri, normals, d, materials, object_ids, actor_id, triangle, normal, material, object_id,
+              hit_actor):  # fmt: skip
     """Rays ``sel`` hit the actor's triangles ``tri``: its map-frame float32 normals (flipped to
-    face the ray, float32 dot product as numpy), material, object id and actor id."""
+    face the ray, float32 dot product as numpy), material, object id and actor id (no static triangle)."""
     for j in range(len(sel)):
         i = sel[j]
         n0, n1, n2 = normals[j, 0], normals[j, 1], normals[j, 2]
@@ -280,16 +293,17 @@ def _set_hits(sel, tri, normals, d, materials, object_ids, actor_id, normal, mat
         material[i] = materials[tri[j]]
         object_id[i] = object_ids[tri[j]]
         hit_actor[i] = actor_id
+        triangle[i] = -1
 
 
 #: Rays per chunk when a cast's per-ray passes are shared between threads (:mod:`lidar_weather_sim.workers`).
 CHUNK_RAYS = 32768
 
 
-def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, new):
+def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, gather: bool, new):
     """Static-mesh hits to per-ray attributes (see :func:`_static_run`; ``new(name, shape, dtype)``
-    allocates them; the actor ids are -1), and with ``blocks`` the origins' bounding box (centre,
-    radius) and the cones of the blocks of rays (else None)."""
+    allocates them; the actor ids are -1; without ``gather`` only allocated), and with ``blocks``
+    the origins' bounding box (centre, radius) and the cones of the blocks of rays (else None)."""
     n = len(best)
     normal = new("normal", (n, 3), np.float32)
     material = new("material", n, np.int32)
@@ -301,8 +315,8 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, new):
     boxes = np.zeros((len(cuts) - 1, 6))
     workers.run_chunks(
         lambda c: _static_run(best, tri, max_range, o, d, part.normals, part.material, part.object_id, cuts[c],
-                              cuts[c + 1], blocks, _BLOCK, _COS_MARGIN, normal, material, object_id, hit_actor, axis,
-                              half, boxes[c]),  # fmt: skip
+                              cuts[c + 1], blocks, _BLOCK, _COS_MARGIN, gather, normal, material, object_id, hit_actor,
+                              axis, half, boxes[c]),  # fmt: skip
         len(cuts) - 1,
     )
     box = None
@@ -315,20 +329,21 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, new):
 
 @numba.njit(cache=True, nogil=True)
 def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, hi, blocks, block, cos_margin,
-                normal, material, object_id, hit_actor, axis, half, box):  # fmt: skip
+                gather, normal, material, object_id, hit_actor, axis, half, box):  # fmt: skip
     """Rays lo..hi (lo a multiple of ``block``). In place: hits beyond ``max_range`` (float32)
-    become misses. Writes the gathered normal (facing the ray), material and object id per ray
-    (a miss gathers the tables' last row) and actor id -1; with ``blocks`` also the bounding
-    cone (unit axis, half-angle widened by ``cos_margin``) of each full block of ``block``
-    consecutive rays and the origins' min (box[:3]) and max (box[3:])."""
+    become misses (triangle -1). Writes actor id -1 per ray and with ``gather`` the gathered
+    normal (facing the ray), material and object id (a miss gathers the tables' last row);
+    with ``blocks`` also the bounding cone (unit axis, half-angle widened by ``cos_margin``) of
+    each full block of ``block`` consecutive rays and the origins' min (box[:3]) and max (box[3:])."""
     miss = len(materials) - 1
     for i in range(lo, hi):
-        t = tri[i]
+        hit_actor[i] = -1
         if best[i] > max_range:
             best[i] = np.inf
-            t = -1
-        if t < 0:
-            t = miss
+            tri[i] = -1
+        if not gather:
+            continue
+        t = tri[i] if tri[i] >= 0 else miss
         n0, n1, n2 = normals[t, 0], normals[t, 1], normals[t, 2]
         dot = n0 * d[i, 0] + n1 * d[i, 1] + n2 * d[i, 2]  # float32, as numpy
         if dot > 0:
@@ -336,7 +351,6 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
         material[i] = materials[t]
         object_id[i] = object_ids[t]
-        hit_actor[i] = -1
     if not blocks or hi <= lo:
         return
     _origin_box(o, lo, hi, box)
@@ -373,8 +387,8 @@ def _cull(o, d, axis, half_angle, widest, u, angle, centre, radius, best, max_ra
     full block; each gets the exact float64 test (numpy's operation order). Returns
     the rays' indices (ascending), the float64 distance (m, >= 0) at which each may
     start without skipping the sphere, the float64 start points (origin + shift x
-    direction) and unit directions, as views of ``out`` (buffers for all rays) or new
-    arrays. Chunks of blocks are shared between threads.
+    direction) and unit directions, as views of ``out`` (buffers for all rays). Chunks of
+    blocks are shared between threads.
     """
     nb = len(axis)
     # Block pre-filter: a block is tested (arccos) only if its axis is within the widest
@@ -387,9 +401,23 @@ def _cull(o, d, axis, half_angle, widest, u, angle, centre, radius, best, max_ra
                             cuts[c], cuts[c + 1], *out),  # fmt: skip
         len(cuts) - 1,
     )
-    if len(counts) == 1:
-        return tuple(x[: counts[0]] for x in out)
-    return tuple(np.concatenate([x[k * _BLOCK : k * _BLOCK + m] for k, m in zip(cuts, counts)]) for x in out)
+    count = counts[0] if len(counts) == 1 else _compact_cull(*out, cuts[:-1] * _BLOCK, np.array(counts, np.int64))
+    return tuple(x[:count] for x in out)
+
+
+@numba.njit(cache=True)
+def _compact_cull(idx, shift, start, d64, starts, counts):
+    """Move each chunk's rays of :func:`_cull` (written from ``starts``) together, in place; returns how many."""
+    count = 0
+    for c in range(len(counts)):
+        src = starts[c]
+        if src != count:
+            for k in range(counts[c]):
+                idx[count + k], shift[count + k] = idx[src + k], shift[src + k]
+                for j in range(3):
+                    start[count + k, j], d64[count + k, j] = start[src + k, j], d64[src + k, j]
+        count += counts[c]
+    return count
 
 
 @numba.njit(cache=True, nogil=True)
