@@ -451,13 +451,14 @@ CHUNK_RAYS = 32768
 
 def _world_rays(directions, rotation, translation, want64, scratch=None):
     """Sensor-frame sub-ray directions (C, B, S, 3) rotated by each column's rotation (C, 3, 3):
-    float32 origins and directions (C*B*S, 3) for the caster (in ``scratch`` if given), and the
+    float32 origins and directions (C*B*S, 3) for the caster, column-major (transposes of
+    (3, C*B*S) arrays, which Mitsuba takes without a copy; in ``scratch`` if given), and the
     float64 directions (C*B*S, 3) if ``want64`` (else an empty array)."""
     n_cols, n_beams, n_sub = directions.shape[:3]
     m = n_cols * n_beams * n_sub
     new = workers.allocator(scratch)
-    o32 = new("origins32", (m, 3), np.float32)
-    d32 = new("directions32", (m, 3), np.float32)
+    o32 = new("origins32", (3, m), np.float32).T
+    d32 = new("directions32", (3, m), np.float32).T
     d64 = np.empty((m if want64 else 0, 3))
     cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
     workers.run_chunks(lambda c: _world_rays_run(directions, rotation, translation, cuts[c], cuts[c + 1], want64,

@@ -47,11 +47,12 @@ class BackendUnavailableError(ValueError):
 
 
 class CasterBase(ABC):
-    """Shared input handling: subclasses implement ``_cast`` on float32 (N, 3) C arrays, N > 0."""
+    """Shared input handling: subclasses implement ``_cast`` on float32 (N, 3) arrays, N > 0, in
+    C or column-major order (the transpose of a C (3, N) array, as the simulator's rays)."""
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        o = np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3)
-        d = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
+        o = np.asarray(origins, dtype=np.float32).reshape(-1, 3)
+        d = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
         if len(o) != len(d):
             raise ValueError(f"{len(o)} origins but {len(d)} directions")
         if not len(o):

@@ -21,7 +21,7 @@ class Caster(CasterBase):
         mesh_construction.TriangleMesh(self._scene, vertices, triangles.astype(np.int32))
 
     def _cast(self, o, d):
-        out = self._scene.run(o, d, output=1)
+        out = self._scene.run(np.ascontiguousarray(o), np.ascontiguousarray(d), output=1)
         hit = out["geomID"] >= 0
         dist = np.where(hit, out["tfar"], np.float32(np.inf)).astype(np.float32, copy=False)
         tri = np.where(hit, out["primID"], -1).astype(np.int64)

@@ -122,6 +122,7 @@ class Caster(CasterBase):
 
         with _variant() as mi:
             # one contiguous array per coordinate: Dr.Jit converts a strided (o.T) view element by element
+            # (no copy for column-major rays)
             o_t, d_t = np.ascontiguousarray(o.T), np.ascontiguousarray(d.T)
             ray = mi.Ray3f(mi.Point3f(*map(mi.Float, o_t)), mi.Vector3f(*map(mi.Float, d_t)))
             pi = self._scene.ray_intersect_preliminary(ray, coherent=True)

@@ -157,8 +157,8 @@ class SceneCaster:
         this caster overwrites on its next ``reuse`` cast (saves fresh memory per cast).
         ``gather``: False leaves the static hits' attributes to ``triangle`` (see :class:`Hits`).
         """
-        o = np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3)
-        d = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
+        o = np.asarray(origins, dtype=np.float32).reshape(-1, 3)  # C or column-major (see CasterBase)
+        d = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
         if len(o) != len(d):
             raise ValueError(f"{len(o)} origins but {len(d)} directions")
         unknown = set(actor_poses) - set(self._actors)
