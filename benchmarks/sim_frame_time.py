@@ -3,10 +3,12 @@
 Scenario ``highway_clear`` (ego at 89 km/h, 2 actors) and a variant with 10
 moving vehicles (8 more in the three lanes, ahead and behind, 18-34 m/s). The
 ego's player is the pose source, so pose evaluation is part of the frame time.
-``advance`` is called ``--steps`` times per frame period (default 1: one call
-casts a whole frame). Per row: median ms per frame over ``--frames`` frames
-after ``--warmup`` frames (numba compilation, Mitsuba JIT) and the fastest ("min
-ms": on a shared machine the least disturbed); Mrays/s of the whole pipeline;
+``advance`` is called ``--steps`` times per frame period, the last time at the
+frame's last column (default 1: one call casts a whole frame, in one batch; calls
+at multiples of the period would cast all but the first column of a frame and the
+first column of the next, two batches). Per row: median ms per frame over
+``--frames`` frames after ``--warmup`` frames (numba compilation, Mitsuba JIT) and
+the fastest ("min ms": on a shared machine the least disturbed); Mrays/s of the whole pipeline;
 "cast ms": time spent inside the backend's mesh casts (static mesh and actors,
 the same rays the simulator casts, timed around each backend call); "other ms" =
 frame - cast (poses, rotation, culling, echoes, points); overhead = frame / cast;
@@ -75,13 +77,14 @@ def run(world: World, backend: str, frames: int, warmup: int, steps: int) -> dic
     sim = LidarSimulator(world.profile, world.scene, backend=backend, seed=world.scenario.seed)
     clock = instrument(sim)
     period = world.profile.period_s
+    last_column_s = float(sim.pattern.column_time_s[-1]) + 1e-7  # as LidarSimulator.cast_frame
     rows, t, k = [], 0.0, 0
     sim.advance(0.0, world.player)
     while len(rows) < warmup + frames:
         clock[0], spent, done = 0.0, 0.0, []
         for _ in range(steps):
             k += 1
-            t = k * period / steps
+            t = k * period / steps + last_column_s
             t0 = time.perf_counter()
             done += sim.advance(t, world.player)
             spent += time.perf_counter() - t0
