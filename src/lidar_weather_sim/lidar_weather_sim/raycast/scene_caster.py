@@ -171,30 +171,31 @@ class SceneCaster:
         normal, material, object_id, hit_actor, origin_box, axis, half_angle = _static_pass(
             best, tri, np.float32(max_range_m), o, d, self._static, bool(actor_poses) and len(o) > 0, gather, new
         )
-        if actor_poses and len(o):
-            n = len(o)
-            widest = float(half_angle.max()) if len(half_angle) else 0.0  # the widest block cone (rad)
-            cull_out = (self._scratch.get("cull_idx", n, np.int64), self._scratch.get("cull_shift", n, np.float64),
-                        self._scratch.get("cull_start", (n, 3), np.float64),
-                        self._scratch.get("cull_d64", (n, 3), np.float64))  # fmt: skip
-        for actor_id, pose in actor_poses.items():
-            if not len(o):
-                break
-            part = self._actors[int(actor_id)]
-            rot, trans = _rigid(pose, actor_id)
-            centre = rot @ part.centre + trans
+        posed = [(int(a), self._actors[int(a)], *_rigid(pose, a)) for a, pose in actor_poses.items()] if len(o) else []
+        if posed:
+            # every actor's rays are culled against the static hits at once: rays an actor nearer
+            # in the list hides are cast too, and _closer keeps the nearest hit all the same
+            spheres, cones = np.empty((len(posed), 4)), np.empty((len(posed), 5))
             box_centre, box_radius = origin_box
-            # u and angle only pre-select blocks (with margins): Python floats are enough
-            ux, uy, uz = (float(v) for v in centre - box_centre)
-            reach = math.sqrt(ux * ux + uy * uy + uz * uz)
-            if reach > part.radius + box_radius:
-                # a ray from o hitting the sphere means the same direction from the box centre
-                # hits the sphere grown by box_radius, seen within this half-angle
-                u, angle = np.array([ux / reach, uy / reach, uz / reach]), math.asin((part.radius + box_radius) / reach)
-            else:
-                u, angle = np.array([1.0, 0.0, 0.0]), -1.0  # every block is a candidate
-            idx, shift, start, d64 = _cull(o, d, axis, half_angle, widest, u, angle, centre, float(part.radius), best,
-                                           float(max_range_m), cull_out)  # fmt: skip
+            widest = float(half_angle.max()) if len(half_angle) else 0.0  # the widest block cone (rad)
+            for k, (_, part, rot, trans) in enumerate(posed):
+                centre = rot @ part.centre + trans
+                spheres[k, :3], spheres[k, 3] = centre, part.radius
+                # u and angle only pre-select blocks (with margins): Python floats are enough
+                ux, uy, uz = (float(v) for v in centre - box_centre)
+                reach = math.sqrt(ux * ux + uy * uy + uz * uz)
+                if reach > part.radius + box_radius:
+                    # a ray from o hitting the sphere means the same direction from the box centre
+                    # hits the sphere grown by box_radius, seen within this half-angle
+                    u, angle = (ux / reach, uy / reach, uz / reach), math.asin((part.radius + box_radius) / reach)
+                else:
+                    u, angle = (1.0, 0.0, 0.0), -1.0  # every block is a candidate
+                # a block is tested (arccos) only if its axis is within the widest block's cone of u, with
+                # a margin: this cheap test never rejects a block the exact one keeps
+                limit = widest + angle + 1e-6 + 1e-7
+                cones[k] = (*u, angle, math.cos(limit) - 1e-9 if limit < math.pi else -2.0)
+            culled = _cull(o, d, axis, half_angle, spheres, cones, best, float(max_range_m), self._scratch)
+        for (actor_id, part, rot, trans), (idx, shift, start, d64) in zip(posed, culled if posed else ()):
             if not len(idx):
                 continue
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
@@ -379,71 +380,87 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         half[b] = np.arccos(half[b])
 
 
-def _cull(o, d, axis, half_angle, widest, u, angle, centre, radius, best, max_range, out):
-    """Rays that may hit the sphere (centre, radius) before ``best`` and ``max_range`` (m).
+def _cull(o, d, axis, half_angle, spheres, cones, best, max_range, scratch):
+    """Per sphere (centre, radius: (S, 4)), the rays that may hit it before ``best`` and ``max_range`` (m).
 
-    Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of
-    the unit vector ``u`` (all blocks if ``angle`` < 0) plus the rays after the last
-    full block; each gets the exact float64 test (numpy's operation order). Returns
-    the rays' indices (ascending), the float64 distance (m, >= 0) at which each may
-    start without skipping the sphere, the float64 start points (origin + shift x
-    direction) and unit directions, as views of ``out`` (buffers for all rays). Chunks of
-    blocks are shared between threads.
+    Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of the
+    unit vector ``u`` (cones: (S, 5) u, angle and the pre-filter's min cos; all blocks if
+    ``angle`` < 0) plus the rays after the last full block; each gets the exact float64
+    test (numpy's operation order). Returns per sphere the rays' indices (ascending), the
+    float64 distance (m, >= 0) at which each may start without skipping the sphere, the
+    float64 start points (origin + shift x direction) and unit directions, as views of
+    ``scratch`` buffers. The (sphere, block) pairs are shared between threads.
     """
     nb = len(axis)
-    # Block pre-filter: a block is tested (arccos) only if its axis is within the widest
-    # block's cone of u, with a margin: the cheap test never rejects a block the exact one keeps.
-    limit = widest + angle + 1e-6 + 1e-7
-    min_cos = math.cos(limit) - 1e-9 if limit < math.pi else -2.0
-    cuts = workers.bounds(nb + 1, CHUNK_RAYS // _BLOCK)  # block nb: the rays after the last full block
-    counts = workers.run_chunks(
-        lambda c: _cull_run(o, d, axis, half_angle, u, angle, min_cos, _BLOCK, centre, radius, best, max_range,
-                            cuts[c], cuts[c + 1], *out),  # fmt: skip
-        len(cuts) - 1,
-    )
-    count = counts[0] if len(counts) == 1 else _compact_cull(*out, cuts[:-1] * _BLOCK, np.array(counts, np.int64))
-    return tuple(x[:count] for x in out)
+    pairs = scratch.get("cull_pairs", (len(spheres) * (nb + 1), 2), np.int64)
+    pairs = pairs[: _cull_blocks(axis, half_angle, cones, len(o) > nb * _BLOCK, pairs)]
+    size = len(pairs) * _BLOCK  # each pair's rays are written from pair index x _BLOCK on
+    out = (scratch.get("cull_idx", size, np.int64), scratch.get("cull_shift", size, np.float64),
+           scratch.get("cull_start", (size, 3), np.float64), scratch.get("cull_d64", (size, 3), np.float64))  # fmt: skip
+    counts = np.empty(len(pairs), np.int64)
+    cuts = workers.bounds(len(pairs), CHUNK_RAYS // _BLOCK)
+    workers.run_chunks(lambda c: _cull_run(o, d, pairs, spheres, _BLOCK, best, max_range, cuts[c], cuts[c + 1],
+                                           *out, counts), len(cuts) - 1)  # fmt: skip
+    ends = np.cumsum(_compact_cull(*out, counts, pairs[:, 0], _BLOCK, len(spheres)))
+    return [tuple(x[e - k : e] for x in out) for e, k in zip(ends, np.diff(ends, prepend=0))]
 
 
 @numba.njit(cache=True)
-def _compact_cull(idx, shift, start, d64, starts, counts):
-    """Move each chunk's rays of :func:`_cull` (written from ``starts``) together, in place; returns how many."""
-    count = 0
-    for c in range(len(counts)):
-        src = starts[c]
-        if src != count:
-            for k in range(counts[c]):
-                idx[count + k], shift[count + k] = idx[src + k], shift[src + k]
-                for j in range(3):
-                    start[count + k, j], d64[count + k, j] = start[src + k, j], d64[src + k, j]
-        count += counts[c]
-    return count
-
-
-@numba.njit(cache=True, nogil=True)
-def _cull_run(o, d, axis, half_angle, u, angle, min_cos, block, centre, radius, best, max_range, b0, b1, idx, shift,
-              start, d64):  # fmt: skip
-    """Blocks b0..b1 of :func:`_cull` (block ``len(axis)``: the rays after the last full one),
-    written from ray index b0 * block on; returns how many."""
-    n = len(o)
+def _cull_blocks(axis, half_angle, cones, tail, pairs):
+    """The (sphere, block) pairs of :func:`_cull`, sphere-major, into ``pairs``; block
+    ``len(axis)`` (with ``tail``): the rays after the last full block. Returns how many."""
     nb = len(axis)
-    far = np.float32(max_range)
-    r2 = radius * radius
-    first = count = b0 * block
-    o0 = o1 = o2 = np.float32(np.nan)  # the origin of the previous ray: rays share origins (a column's)
-    v0 = v1 = v2 = vv = limit = 0.0
-    for b in range(b0, b1):
-        if b < nb:
+    count = 0
+    for k in range(len(cones)):
+        u0, u1, u2, angle, min_cos = cones[k, 0], cones[k, 1], cones[k, 2], cones[k, 3], cones[k, 4]
+        for b in range(nb):
             if angle >= 0:
-                cos_gap = axis[b, 0] * u[0] + axis[b, 1] * u[1] + axis[b, 2] * u[2]
+                cos_gap = axis[b, 0] * u0 + axis[b, 1] * u1 + axis[b, 2] * u2
                 if cos_gap < min_cos:
                     continue
                 gap = np.arccos(min(max(cos_gap, -1.0), 1.0))
                 if not gap <= half_angle[b] + angle + 1e-6:
                     continue
-            i0, i1 = b * block, (b + 1) * block
-        else:
-            i0, i1 = nb * block, n
+            pairs[count, 0], pairs[count, 1] = k, b
+            count += 1
+        if tail:
+            pairs[count, 0], pairs[count, 1] = k, nb
+            count += 1
+    return count
+
+
+@numba.njit(cache=True)
+def _compact_cull(idx, shift, start, d64, counts, sphere, block, n_spheres):
+    """Move the rays of :func:`_cull`'s pairs (each written from its index x ``block`` on)
+    together, in place; returns how many each sphere got."""
+    per_sphere = np.zeros(n_spheres, np.int64)
+    count = 0
+    for p in range(len(counts)):
+        src = p * block
+        if src != count:
+            for k in range(counts[p]):
+                idx[count + k], shift[count + k] = idx[src + k], shift[src + k]
+                for j in range(3):
+                    start[count + k, j], d64[count + k, j] = start[src + k, j], d64[src + k, j]
+        count += counts[p]
+        per_sphere[sphere[p]] += counts[p]
+    return per_sphere
+
+
+@numba.njit(cache=True, nogil=True)
+def _cull_run(o, d, pairs, spheres, block, best, max_range, q0, q1, idx, shift, start, d64, counts):
+    """Pairs q0..q1 of :func:`_cull`: each pair's rays written from its index x ``block`` on,
+    how many in ``counts``."""
+    n = len(o)
+    far = np.float32(max_range)
+    for q in range(q0, q1):
+        k, b = pairs[q, 0], pairs[q, 1]
+        centre, radius = spheres[k, :3], spheres[k, 3]
+        r2 = radius * radius
+        count = q * block
+        o0 = o1 = o2 = np.float32(np.nan)  # the origin of the previous ray: rays share origins (a column's)
+        v0 = v1 = v2 = vv = limit = 0.0
+        i0, i1 = b * block, min((b + 1) * block, n)
         for i in range(i0, i1):
             if not (o[i, 0] == o0 and o[i, 1] == o1 and o[i, 2] == o2):
                 o0, o1, o2 = o[i, 0], o[i, 1], o[i, 2]
@@ -477,4 +494,4 @@ def _cull_run(o, d, axis, half_angle, u, angle, min_cos, block, centre, radius, 
             start[count, 2] = np.float64(o[i, 2]) + s * z
             d64[count, 0], d64[count, 1], d64[count, 2] = x, y, z
             count += 1
-    return count - first
+        counts[q] = count - q * block
