@@ -41,6 +41,7 @@ from .backend import MeshCaster, default_backend, make_caster
 _BLOCK = 128  # rays per culling block
 _COS_MARGIN = 1e-5  # slack on a block's float32 min cos(angle to its axis); the float64 test decides
 _PAD_BACKENDS = frozenset({"mitsuba"})  # backends that compile a kernel per distinct ray count
+_PAD_DIRECTION = np.float32([0.0, 0.0, 1.0])  # of the padding rays: up, away from the part
 
 
 @dataclass
@@ -87,17 +88,20 @@ class _Part:
     object_id: np.ndarray  # (T + 1,) uint32
     centre: np.ndarray  # (3,) float64 m, bounding sphere
     radius: float  # m
+    pad_origin: np.ndarray  # (3,) float32: padding rays start far above the sphere, pointing away
 
     @classmethod
     def build(cls, mesh: TriangleMesh, backend: str) -> "_Part":
         centre, radius = mesh.bounding_sphere()
+        radius = radius * (1 + 1e-6) + 1e-5  # covers float32 rounding of vertices and rays
         return cls(
             make_caster(backend, mesh.vertices, mesh.triangles),
             np.vstack([mesh.face_normals, np.zeros((1, 3))]).astype(np.float32),
             np.append(mesh.material.astype(np.int32), np.int32(-1)),
             np.append(mesh.object_id, np.uint32(0)),
             centre,
-            radius * (1 + 1e-6) + 1e-5,  # covers float32 rounding of vertices and rays
+            radius,
+            (centre + np.array([0.0, 0.0, 2.0 * radius + 10.0])).astype(np.float32),
         )
 
 
@@ -133,9 +137,7 @@ class SceneCaster:
         o_pad = self._scratch.get("pad_origins", (size, 3), np.float32)
         d_pad = self._scratch.get("pad_directions", (size, 3), np.float32)
         o_pad[:n], d_pad[:n] = o, d
-        # far above the part's bounding sphere, pointing away: misses at the root of the BVH
-        o_pad[n:] = (part.centre + np.array([0.0, 0.0, 2.0 * part.radius + 10.0])).astype(np.float32)
-        d_pad[n:] = np.float32([0.0, 0.0, 1.0])
+        o_pad[n:], d_pad[n:] = part.pad_origin, _PAD_DIRECTION  # misses at the root of the BVH
         dist, tri = part.caster.cast(o_pad, d_pad)
         return dist[:n], tri[:n]
 
@@ -194,10 +196,13 @@ class SceneCaster:
                 # a margin: this cheap test never rejects a block the exact one keeps
                 limit = widest + angle + 1e-6 + 1e-7
                 cones[k] = (*u, angle, math.cos(limit) - 1e-9 if limit < math.pi else -2.0)
-            culled = _cull(o, d, axis, half_angle, spheres, cones, best, float(max_range_m), self._scratch)
-        for (actor_id, part, rot, trans), (idx, shift, start, d64) in zip(posed, culled if posed else ()):
-            if not len(idx):
+            culled, counts = _cull(o, d, axis, half_angle, spheres, cones, best, float(max_range_m), self._scratch)
+        end = 0
+        for (actor_id, part, rot, trans), count in zip(posed, counts if posed else ()):
+            end += count
+            if not count:
                 continue
+            idx, shift, start, d64 = (x[end - count : end] for x in culled)
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
             dist_b, tri_b = self._cast_part(part, (start - trans) @ rot, d64 @ rot)
             closer = _closer(idx, shift, dist_b, best, float(max_range_m))
@@ -222,7 +227,7 @@ def _rigid(pose: np.ndarray, actor_id: int) -> tuple[np.ndarray, np.ndarray]:
     if pose.shape != (4, 4):
         raise ValueError(f"actor {actor_id}: pose must be 4x4, got {pose.shape}")
     rot = pose[:3, :3]
-    if not _is_rotation(np.ascontiguousarray(rot)):
+    if not _is_rotation(rot):
         raise ValueError(f"actor {actor_id}: pose rotation is not a proper rotation")
     return rot, pose[:3, 3]
 
@@ -386,10 +391,11 @@ def _cull(o, d, axis, half_angle, spheres, cones, best, max_range, scratch):
     Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of the
     unit vector ``u`` (cones: (S, 5) u, angle and the pre-filter's min cos; all blocks if
     ``angle`` < 0) plus the rays after the last full block; each gets the exact float64
-    test (numpy's operation order). Returns per sphere the rays' indices (ascending), the
+    test (numpy's operation order). Returns the rays' indices (ascending per sphere), the
     float64 distance (m, >= 0) at which each may start without skipping the sphere, the
-    float64 start points (origin + shift x direction) and unit directions, as views of
-    ``scratch`` buffers. The (sphere, block) pairs are shared between threads.
+    float64 start points (origin + shift x direction) and unit directions, sphere after
+    sphere, as views of ``scratch`` buffers, and how many rays each sphere got (list). The
+    (sphere, block) pairs are shared between threads.
     """
     nb = len(axis)
     pairs = scratch.get("cull_pairs", (len(spheres) * (nb + 1), 2), np.int64)
@@ -401,8 +407,8 @@ def _cull(o, d, axis, half_angle, spheres, cones, best, max_range, scratch):
     cuts = workers.bounds(len(pairs), CHUNK_RAYS // _BLOCK)
     workers.run_chunks(lambda c: _cull_run(o, d, pairs, spheres, _BLOCK, best, max_range, cuts[c], cuts[c + 1],
                                            *out, counts), len(cuts) - 1)  # fmt: skip
-    ends = np.cumsum(_compact_cull(*out, counts, pairs[:, 0], _BLOCK, len(spheres)))
-    return [tuple(x[e - k : e] for x in out) for e, k in zip(ends, np.diff(ends, prepend=0))]
+    per_sphere = _compact_cull(*out, counts, pairs[:, 0], _BLOCK, len(spheres))
+    return out, per_sphere.tolist()
 
 
 @numba.njit(cache=True)
