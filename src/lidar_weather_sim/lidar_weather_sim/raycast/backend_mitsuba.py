@@ -131,4 +131,5 @@ class Caster(CasterBase):
             prim = dr.select(valid, mi.Int32(pi.prim_index), -1)
             with _workers(len(o) >= PARALLEL_RAYS):
                 dr.eval(t, prim)
+                dr.sync_thread()  # the kernel runs asynchronously: done here, while the workers are on
             return t.numpy().astype(np.float32, copy=False), prim.numpy().astype(np.int64)
