@@ -55,7 +55,8 @@ class Threshold:
 
 @dataclass(frozen=True)
 class Echoes:
-    """Detected echoes, flattened; ``beam`` indexes the beams of the batch."""
+    """Detected echoes: the runs (starts, counts) of the arrays (one per candidate), in order,
+    each chunk's echoes where the kernel wrote them; ``beam`` indexes the beams of the batch."""
 
     beam: np.ndarray  # (E,) int64
     echo: np.ndarray  # (E,) uint8, 1-based, in range order within the beam
@@ -64,6 +65,7 @@ class Echoes:
     epw_m: np.ndarray  # (E,) float64
     label: np.ndarray  # (E,) uint8
     object_id: np.ndarray  # (E,) uint32
+    runs: tuple[np.ndarray, np.ndarray]  # (starts, counts) int64
 
 
 def surface_reflectance(reflectivity, retro_share, cos_incidence):
@@ -298,8 +300,7 @@ def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None, 
         lambda c: _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, starts[c], ends[c], *out),
         len(starts),
     ), np.int64)  # fmt: skip
-    count = _compact(out, starts, counts)
-    return tuple(x[:count] for x in out)
+    return (*out, (starts, counts))
 
 
 @numba.njit(cache=True)
@@ -318,23 +319,6 @@ def _beam_starts(beam, cuts):
             k += 1
     out[k] = n
     return out[: k + 1]
-
-
-@numba.njit(cache=True)
-def _compact(out, starts, counts):
-    """Move each chunk's echoes (written from its first candidate's index ``starts`` on) together;
-    returns the count."""
-    eb, ee, er, ea, ew, el, eo = out
-    count = 0
-    for c in range(len(counts)):
-        src = starts[c]
-        if src != count:
-            for k in range(counts[c]):
-                eb[count + k], ee[count + k], er[count + k] = eb[src + k], ee[src + k], er[src + k]
-                ea[count + k], ew[count + k] = ea[src + k], ew[src + k]
-                el[count + k], eo[count + k] = el[src + k], eo[src + k]
-        count += counts[c]
-    return count
 
 
 @numba.njit(cache=True, nogil=True)

@@ -358,10 +358,15 @@ class LidarSimulator:
         noise. Intensity is 0-255, logarithmic in the peak amplitude above the dark threshold
         (0 = at threshold, 255 = ``intensity_dynamic_range`` times above it)."""
         profile = self.profile
+        starts, counts = echoes.runs
         rng = region_rng(self.seed, acc.index, "range_noise", first_column)
-        ranges = rng.normal(0.0, profile.range.noise_sigma_m, len(echoes.range_m))
-        ranges += echoes.range_m  # in place: no temporary per batch
-        kept = np.flatnonzero(ranges >= max(profile.range.min_m, 0.0))
+        noise = rng.normal(0.0, profile.range.noise_sigma_m, int(counts.sum()))
+        # where the echoes are: their ranges with noise; of those kept, the indices and amplitude ratios
+        ranges, kept, log_ratio = (self._scratch.get(name, len(echoes.range_m), dtype) for name, dtype in
+                                   (("noisy_range", np.float64), ("kept", np.int64), ("log_ratio", np.float64)))  # fmt: skip
+        count = _kept_echoes(noise, echoes.range_m, echoes.amplitude, starts, counts, max(profile.range.min_m, 0.0),
+                             self.dark_threshold(), ranges, kept, log_ratio)  # fmt: skip
+        kept, log_ratio = kept[:count], log_ratio[:count]
         if acc.points is None:
             # at most max_echoes per beam: one allocation per frame, no copies (pages never written cost nothing)
             size = self.pattern.n_columns * len(self.pattern.active_channels(acc.index)) * profile.detection.max_echoes
@@ -371,8 +376,6 @@ class LidarSimulator:
         if not len(kept):
             return
         span = np.log(profile.detection.intensity_dynamic_range)
-        log_ratio = np.maximum(echoes.amplitude if len(kept) == len(ranges) else echoes.amplitude[kept], 1e-12)
-        log_ratio /= self.dark_threshold()
         np.log(log_ratio, out=log_ratio)
         geo = self._point_tables()
         _fill_points(
@@ -608,6 +611,25 @@ def _surface_returns_run(distance, triangle, normal, material, actor, object_id,
                     count += 1
                 k += 1
     return count - c0 * n_beams * n_sub
+
+
+@numba.njit(cache=True)
+def _kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio):
+    """The echoes in the runs (starts, counts) in order: ``ranges`` (where the echoes are) gets
+    each one's range plus its ``noise``; those at or beyond ``min_range`` get their index
+    into ``kept`` and their peak amplitude (at least 1e-12) over ``dark`` into ``ratio``, as
+    numpy's sum, flatnonzero, maximum and division. Returns how many were kept."""
+    j = count = 0
+    for c in range(len(counts)):
+        for i in range(starts[c], starts[c] + counts[c]):
+            ranges[i] = noise[j] + range_m[i]
+            j += 1
+            if ranges[i] >= min_range:
+                a = amplitude[i]
+                kept[count] = i
+                ratio[count] = (a if not a < 1e-12 else 1e-12) / dark
+                count += 1
+    return count
 
 
 @functools.cache
