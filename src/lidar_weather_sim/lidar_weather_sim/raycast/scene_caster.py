@@ -17,6 +17,8 @@ float32 |v|^2 - (v.d)^2 loses everything below ~2e-4 m^2 at 50 m and misses
 centimetre-sized actors. Surviving rays start at the sphere (origin advanced by
 max(0, v.d - r), exact in float64) before the float32 cast, so small far actors
 keep their precision. Unordered rays make wide cones: still correct, only slower.
+All actors are culled in one pass, against the static mesh's hits: a ray an actor
+hides from another is cast at both, and the nearer hit wins as it would.
 
 The per-ray passes (hit attributes, cones, culling, facing the normals to the
 ray) are numba kernels that reproduce the numpy expressions bit for bit. With
