@@ -55,7 +55,7 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
     system = region.system
     constants = system.constants
     if airborne is not None:
-        constants = constants.model_copy(update={"reference": constants.reference.model_copy(
+        constants = constants.model_copy(update={"drops": constants.drops.model_copy(
             update={"airborne_fraction": airborne})})  # fmt: skip
     reference = DropletReference(system.vehicles, system.poses, dataclasses.replace(system.params), constants)
     pattern, player = sim.pattern, world.player
@@ -113,6 +113,7 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
     }  # fmt: skip
     out["cost_pct"] = 100.0 * out["model_ms"] / out["reference_ms"]
     sxy, rxy = np.concatenate(sim_xy), np.concatenate(ref_xy)
+    out["model_xy"], out["reference_xy"] = sxy, rxy
     out["model_xy_median"] = np.median(sxy, axis=0).round(2).tolist() if len(sxy) else None
     out["reference_xy_median"] = np.median(rxy, axis=0).round(2).tolist() if len(rxy) else None
     if verbose:
@@ -126,6 +127,29 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
     return out
 
 
+def plot(out: dict, directory: str) -> None:
+    """Bird's-eye histograms of the model and the reference side by side (PNG)."""
+    import pathlib
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 6), sharey=True)
+    for ax, key, title in zip(axes, ("model_xy", "reference_xy"), ("particle model", "droplet reference")):
+        h = bev(out[key])
+        ax.imshow(np.log1p(h), origin="lower", extent=(-10, 10, 0, 40), aspect="auto", cmap="magma")
+        ax.set(title=f"{title}: {len(out[key])} detections", xlabel="y (m)")
+        ax.invert_xaxis()  # y left
+    axes[0].set_ylabel("x (m)")
+    fig.suptitle(f"{out['scenario']}: Pearson {out['pearson']:.2f}, log(1 + count) per 0.5 m cell")
+    path = pathlib.Path(directory)
+    path.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path / f"{out['scenario']}.png", dpi=80)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenarios", default="proving_ground_39,proving_ground_55,proving_ground_60,highway_spray")
@@ -133,6 +157,7 @@ def main() -> None:
     ap.add_argument("--warmup", type=float, default=2.0)
     ap.add_argument("--fit", action="store_true", help="fit airborne_fraction on proving_ground_55")
     ap.add_argument("--fit-steps", type=int, default=8)
+    ap.add_argument("--plot", metavar="DIR", help="write bird's-eye histograms of both as DIR/SCENARIO.png")
     args = ap.parse_args()
     if args.fit:
         lo, hi = 1e-4, 0.1  # log-bisection: detections grow steeply once drops cross the threshold
@@ -145,7 +170,9 @@ def main() -> None:
         print(f"airborne_fraction: {np.sqrt(lo * hi):.3g}")
         return
     for name in args.scenarios.split(","):
-        run(name, args.frames, args.warmup)
+        out = run(name, args.frames, args.warmup)
+        if args.plot:
+            plot(out, args.plot)
 
 
 if __name__ == "__main__":

@@ -54,24 +54,34 @@ class Particles(ConfigModel):
     diameter_m: float = Field(gt=0)
     mesh_diameter_m: float = Field(gt=0)
     single_scattering_albedo: float = Field(ge=0, le=1)
+    backscatter_phase: float = Field(gt=0, le=1)
     lateral_field_range_m: tuple[float, float]
 
 
-class Reference(ConfigModel):
+class Drops(ConfigModel):
+    airborne_fraction: float = Field(gt=0, le=1)
     size_sigma_ln: float = Field(gt=0)
     min_diameter_m: float = Field(gt=0)
     max_diameter_m: float = Field(gt=0)
+
+
+class Mist(ConfigModel):
+    initial_radius_m: float = Field(gt=0)
+    mixing_length_m: float = Field(ge=0)
+
+
+class Reference(ConfigModel):
     drops_per_wheel_per_tick: int = Field(ge=1)
     lifetime_s: float = Field(gt=0)
-    backscatter_phase: float = Field(gt=0)
     range_cell_m: float = Field(gt=0)
     kernel_radius_m: float = Field(gt=0)
-    airborne_fraction: float = Field(gt=0, le=1)
 
 
 class SprayConstants(ConfigModel):
     physics: Physics
     particles: Particles
+    drops: Drops
+    mist: Mist
     tyre: Tyre
     water: Water
     emission: Emission

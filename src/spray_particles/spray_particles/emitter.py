@@ -67,9 +67,10 @@ class WheelEmitter:
         counts = np.asarray(counts, dtype=np.int64)
         wheel = np.repeat(np.arange(self.n_wheels), counts)
         n = len(wheel)
-        # one child generator per wheel: the first particles of a wheel are the same whatever its count
-        draws = [g.random((c, 2)) for g, c in zip(rng.spawn(self.n_wheels), counts)]
-        u = np.concatenate(draws) if n else np.zeros((0, 2))
+        # draws laid out particle-major (particle i of wheel w at [i, w]): the first particles of a wheel
+        # are the same whatever the counts
+        draws = rng.random((int(counts.max(initial=0)), self.n_wheels, 2))
+        u = np.concatenate([draws[:c, w] for w, c in enumerate(counts)]) if n else np.zeros((0, 2))
         vertex = np.minimum((u[:, 0] * self.n_vertices).astype(np.int64), self.n_vertices - 1)
         tread = np.minimum((u[:, 1] * self.treads).astype(np.int64), self.treads - 1)
         px, pz, vx, vz = ring_emission(vertex, self.n_vertices, speed_m_s, self.radius_m, dt_s)

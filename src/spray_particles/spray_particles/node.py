@@ -6,7 +6,8 @@ config/scenarios or a path; its ``spray`` region parameters are used). Every
 the node clock's time since start (s, simulated) and publishes, in frame ``map``:
 
 - ``/spray/particles`` sensor_msgs/PointCloud2, fields x, y, z (float32, m), radius
-  (float32, m: the render sphere) and population (uint8: 0 inertial, 1 fine);
+  (float32, m: the render sphere of an inertial particle, the ball of a drop packet) and
+  population (uint8: 0 inertial, 1 drop packet);
 - ``/spray/markers`` visualization_msgs/MarkerArray, one SPHERE_LIST per population.
 
 Parameters: ``scenario`` (string), ``rate_hz`` (double), ``frame_id`` (string),
@@ -23,8 +24,8 @@ TOPIC_PARTICLES = "/spray/particles"
 TOPIC_MARKERS = "/spray/markers"
 
 
-def particle_cloud(positions: np.ndarray, radius_m: float, population: np.ndarray) -> np.ndarray:
-    """Structured array (PARTICLE_DTYPE) of particle centres (n, 3) m, one radius (m), populations (n,)."""
+def particle_cloud(positions: np.ndarray, radius_m: float | np.ndarray, population: np.ndarray) -> np.ndarray:
+    """Structured array (PARTICLE_DTYPE) of particle centres (n, 3) m, radii (m, one or (n,)), populations (n,)."""
     out = np.zeros(len(positions), PARTICLE_DTYPE)
     out["x"], out["y"], out["z"] = positions[:, 0], positions[:, 1], positions[:, 2]
     out["radius"] = radius_m
@@ -33,7 +34,8 @@ def particle_cloud(positions: np.ndarray, radius_m: float, population: np.ndarra
 
 
 def marker_array(cloud: np.ndarray, stamp, frame_id: str):
-    """visualization_msgs/MarkerArray: one SPHERE_LIST marker per population (blue inertial, cyan fine)."""
+    """visualization_msgs/MarkerArray: one SPHERE_LIST marker per population (blue inertial, cyan drop
+    packets), its sphere size the population's median diameter."""
     from geometry_msgs.msg import Point
     from std_msgs.msg import ColorRGBA
     from visualization_msgs.msg import Marker, MarkerArray
@@ -46,7 +48,7 @@ def marker_array(cloud: np.ndarray, stamp, frame_id: str):
         m.ns, m.id, m.type = "spray", pop, Marker.SPHERE_LIST
         m.action = Marker.ADD if len(sel) else Marker.DELETE
         m.pose.orientation.w = 1.0
-        d = float(2.0 * cloud["radius"][0]) if len(cloud) else 0.018
+        d = float(2.0 * np.median(sel["radius"])) if len(sel) else 0.018
         m.scale.x = m.scale.y = m.scale.z = d
         m.color = ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
         m.points = [Point(x=float(p["x"]), y=float(p["y"]), z=float(p["z"])) for p in sel]
@@ -99,7 +101,7 @@ def main(argv=None) -> None:
             t = (now.nanoseconds - self.start_ns) * 1e-9
             self.region.step(t, t)
             system = self.region.system
-            cloud = particle_cloud(system.positions_at(t), self.region.radius_m, system.particles.population)
+            cloud = particle_cloud(system.positions_at(t), self.region.radii(t), system.particles.population)
             msg, _ = build_message(cloud, stamp_ns=now.nanoseconds, frame_id=self.frame_id,
                                    types=rclpy_message_types())  # fmt: skip
             self.cloud_pub.publish(msg)

@@ -12,6 +12,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
+import numba
 import numpy as np
 
 
@@ -29,14 +32,15 @@ def _empty() -> SphereHits:
 
 
 def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarray, centres: np.ndarray,
-                radius: float) -> SphereHits:  # fmt: skip
+                radius: float | np.ndarray) -> SphereHits:  # fmt: skip
     """Every (ray, sphere) pair where ray i (origin (R, 3), unit direction (R, 3)) enters sphere j
-    (centre (P, 3), ``radius`` m) at a range in (0, max_range[i])."""
+    (centre (P, 3), ``radius`` m, one for all or one per sphere (P,)) at a range in (0, max_range[i])."""
     if not len(centres) or not len(directions):
         return _empty()
     origins = np.asarray(origins, dtype=np.float64)
     directions = np.asarray(directions, dtype=np.float64)
     centres = np.asarray(centres, dtype=np.float64)
+    radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(centres),))
     ref = origins.mean(axis=0)
     spread = float(np.sqrt(np.max(np.sum((origins - ref) ** 2, axis=1))))
     q = centres - ref
@@ -46,8 +50,8 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     if not keep.any():
         return _empty()
     idx = np.flatnonzero(keep)
-    q, dist, near = q[keep], dist[keep], near[keep]
-    span = np.where(near > radius + 1e-9, np.arcsin(np.clip((radius + spread) / np.maximum(near, 1e-9), 0, 1)), np.pi)
+    q, dist, near, rad = q[keep], dist[keep], near[keep], radius[keep]
+    span = np.where(near > rad + 1e-9, np.arcsin(np.clip((rad + spread) / np.maximum(near, 1e-9), 0, 1)), np.pi)
     span = span * 1.0001 + 1e-9
     az_p = np.arctan2(q[:, 1], q[:, 0])
     el_p = np.arcsin(np.clip(q[:, 2] / np.maximum(dist, 1e-12), -1, 1))
@@ -75,23 +79,43 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     if np.any(full):  # a full window must not be counted twice by the wrap rows
         dup = full[rp] & (np.arange(len(rp)) >= len(az_p))
         last = np.where(dup, first, last)
-    counts = np.maximum(last - first, 0)
-    total = int(counts.sum())
-    if not total:
+    sphere = idx[rp]
+    args = (first, last, rp, order, el_r, el_p, span, centres[sphere], rad[rp], origins, directions, max_range)
+    n_hits = _narrow_phase(*args, None)
+    if not n_hits:
         return _empty()
-    pair_p = np.repeat(rp, counts)
-    offsets = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-    pair_r = order[np.repeat(first, counts) + offsets]
-    ok = np.abs(el_r[pair_r] - el_p[pair_p]) <= span[pair_p]
-    pair_p, pair_r = pair_p[ok], pair_r[ok]
-    # narrow phase: perpendicular distance, float64
-    v = centres[idx[pair_p]] - origins[pair_r]
-    d = directions[pair_r]
-    t = np.einsum("nk,nk->n", v, d)
-    w = v - t[:, None] * d
-    perp2 = np.einsum("nk,nk->n", w, w)
-    r2 = radius * radius
-    half_chord = np.sqrt(np.maximum(r2 - perp2, 0.0))
-    entry = t - half_chord
-    hit = (perp2 < r2) & (entry > 0.0) & (entry < max_range[pair_r])
-    return SphereHits(pair_r[hit], idx[pair_p[hit]], entry[hit], half_chord[hit] / radius)
+    out = (np.empty(n_hits, np.int64), np.empty(n_hits, np.int64), np.empty(n_hits), np.empty(n_hits))
+    _narrow_phase(*args, out)
+    row, ray, entry, cos_incidence = out
+    return SphereHits(ray, sphere[row], entry, cos_incidence)
+
+
+@numba.njit(cache=True)
+def _narrow_phase(first, last, rp, order, el_r, el_p, span, centre, radius, origins, directions, max_range, out):
+    """For each window row (a sphere's azimuth window over the sorted rays ``order[first:last]``): the
+    rays within its elevation span whose perpendicular distance from the centre is below the radius and
+    whose entry lies in (0, max_range). Counts the hits when ``out`` is None, else fills ``out`` = (row,
+    ray, entry range, cos incidence) and returns the count."""
+    n = 0
+    for j in range(len(first)):
+        p = rp[j]
+        cx, cy, cz, r = centre[j, 0], centre[j, 1], centre[j, 2], radius[j]
+        for k in range(first[j], last[j]):
+            i = order[k]
+            if abs(el_r[i] - el_p[p]) > span[p]:
+                continue
+            vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], cz - origins[i, 2]
+            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+            t = vx * dx + vy * dy + vz * dz
+            wx, wy, wz = vx - t * dx, vy - t * dy, vz - t * dz
+            perp2 = wx * wx + wy * wy + wz * wz
+            if perp2 >= r * r:
+                continue
+            half_chord = math.sqrt(r * r - perp2)
+            entry = t - half_chord
+            if entry <= 0.0 or entry >= max_range[i]:
+                continue
+            if out is not None:
+                out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord / r
+            n += 1
+    return n

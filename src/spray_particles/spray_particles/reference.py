@@ -3,12 +3,11 @@
 Drops
 -----
 The wheels emit drops with the same emitter (eq. 7-10) and forces as the particle
-model, but each computational drop has its own diameter, drawn so that the number
-distribution of real drops is lognormal with the median of eq. 3 (D_mean(v_c)) and
-spread ``size_sigma_ln`` (config/spray.yaml reference), and its own drag rates (eq. 19,
-Stokes term). Each computational drop carries the same volume of water: the share
-``airborne_fraction`` of eq. 2's tread pick-up over the tick, divided by the drops of
-the tick; its ``weight`` is the number of real drops it stands for. Drops die on the
+model, but many more, each with its own diameter (spray_particles.drops: lognormal
+around eq. 3's D_mean(v_c)) and drag rates (eq. 19, Stokes term). Each computational
+drop carries the same volume of water: the airborne share of eq. 2's tread pick-up
+over the tick, divided by the drops of the tick; its ``weight`` is the number of real
+drops it stands for. Drops die on the
 ground, on the body or after ``lifetime_s``. No speed threshold: slow wheels make big
 drops that fall at once (eq. 3).
 
@@ -35,15 +34,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_weather_sim.echo import overlap_factor
+from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
 from spray_particles.forces import drag_rates
 from spray_particles.system import Particles, SpraySystem
-from spray_particles.water import mean_drop_diameter_m, tread_pickup_m3_s
 
 
 class DropletReference(SpraySystem):
     """A :class:`SpraySystem` whose particles are real-size drops (see module docstring)."""
 
-    def _emit(self, rng, present, vel, rot, org) -> None:
+    def _emit(self, rng, tick: int, present, vel, rot, org) -> None:
         prm, c = self.params, self.constants
         ref = c.reference
         parts = [self.particles]
@@ -55,8 +54,7 @@ class DropletReference(SpraySystem):
             if prm.film_cv > 0:
                 shape = 1.0 / prm.film_cv**2
                 film *= rng.gamma(shape, 1.0 / shape)
-            water = ref.airborne_fraction * prm.emission_scale * float(tread_pickup_m3_s(
-                film, speed, c.tyre.grooves, c.tyre.groove_width_m, c.tyre.tread_height_m)) * prm.tick_s  # fmt: skip
+            water = prm.emission_scale * airborne_water_m3(c, film, speed, prm.tick_s)
             if water <= 0:
                 continue
             counts = rng.poisson(ref.drops_per_wheel_per_tick, v.emitter.n_wheels)
@@ -64,19 +62,13 @@ class DropletReference(SpraySystem):
             if not n:
                 continue
             pos_b, vel_b, side, wheel = v.emitter.emit(rng, counts, speed, prm.tick_s)
-            median = float(mean_drop_diameter_m(speed, c.tyre.tread_height_m, c.water.drop_size_k,
-                                                c.physics.water_surface_tension_n_m, c.physics.water_density_kg_m3))
-            s = ref.size_sigma_ln
-            # volume-weighted draw: ln d ~ N(ln median + 3 s^2, s) makes the real-drop numbers lognormal(median, s)
-            d = np.exp(rng.normal(np.log(median) + 3.0 * s * s, s, n))
-            d = np.clip(d, ref.min_diameter_m, ref.max_diameter_m)
-            volume = np.pi / 6.0 * d**3
-            weight = (water * counts.size / n) / volume  # each drop carries the same water volume
+            d = volume_weighted_diameters(c, rng, n, speed)
+            weight = drops_per_volume(d, water * counts.size / n)  # each drop carries the same water volume
             kappa, lam = drag_rates(d, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
                                     c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)  # fmt: skip
             parts.append(Particles(pos_b @ rot[k].T + org[k], vel_b @ rot[k].T + vel[k], np.zeros(n),
                                    np.full(n, ref.lifetime_s), kappa, lam, np.full(n, k, np.int64), side,
-                                   np.full(n, 2, np.uint8), wheel, d, weight))  # fmt: skip
+                                   np.full(n, 2, np.uint8), wheel, d, weight, np.zeros(n), np.ones(n)))  # fmt: skip
             self.emitted += n
         if len(parts) > 1:
             self.particles = Particles.concatenate(parts)
@@ -179,7 +171,7 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     cum = np.cumsum(tau)
     base = np.maximum.accumulate(np.where(first, np.arange(len(uniq)), 0))
     before = cum - tau - (cum[base] - tau[base])
-    reflect = albedo * ref.backscatter_phase * (1.0 - np.exp(-tau))  # saturates at a full footprint
+    reflect = albedo * reference.constants.particles.backscatter_phase * (1.0 - np.exp(-tau))  # saturates at a full footprint
     amp = profile.detection.power_constant * reflect / cell_range**2 * np.exp(-2.0 * before)
     amp *= overlap_factor(cell_range, profile.optics.overlap_start_m, profile.optics.overlap_full_m)
     det = amp > threshold

@@ -1,12 +1,16 @@
 """``spray`` region plugin for lidar_weather_sim: spray particles as scatterers of the multi-echo pipeline.
 
-Particles are spheres of the thesis' mesh diameter (1.8 cm) with water's single
-scattering albedo (0.53, absorption 0.47, Table II): a sub-ray that enters one is
-returned from the sphere's surface like a Lambertian surface hit (reflectance =
-albedo x cos(incidence)) and is fully blocked behind it (occlusion 1), so spray
-creates first echoes in front of the vehicle that throws it and hides what lies
-behind on that sub-ray; the other sub-rays of the beam still reach the vehicle.
-Labels are ``Label.SPRAY`` (14), object ids the emitting vehicle's actor id.
+Inertial particles are spheres of the thesis' mesh diameter (1.8 cm) with water's
+single scattering albedo (0.53, absorption 0.47, Table II): a sub-ray that enters
+one is returned from the sphere's surface like a Lambertian surface hit
+(reflectance = albedo x cos(incidence)) and is fully blocked behind it (occlusion
+1). Drop packets are balls of drops seen by their optical depth (``_returns``):
+dense young packets near the wheels and dilute old ones close to the sensor return
+light, dilute ones far away do not (the 1/R^2 of the echo threshold), and each lets
+exp(-tau) of the light through. So spray creates first echoes in front of the
+vehicle that throws it and hides what lies behind on that sub-ray; the other
+sub-rays of the beam still reach the vehicle. Labels are ``Label.SPRAY`` (14),
+object ids the emitting vehicle's actor id.
 
 The region needs the scenario's actors and their poses: ``RegionContext.actors``
 (emitting vehicles are those with ``emits_spray``, or ``actor_ids``) and
@@ -48,9 +52,9 @@ class SprayRegion:
         lateral_wind_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated lateral wind fields")
         turbulence_intensity: float = Field(0.1, ge=0, description="RMS turbulence speed / car speed")
         turbulence_length_m: float = Field(1.0, gt=0, description="Eddy size of the curl noise (m)")
-        fine_ratio: float = Field(0.5, ge=0, description="Fine (low-Stokes) particles per inertial particle")
+        mist_packets_per_wheel_per_tick: float = Field(16.0, ge=0, description="Drop packets per wheel per tick (mean)")
         lifetime_s: float = Field(2.0, gt=0, description="Lifetime of inertial particles (s)")
-        fine_lifetime_s: float = Field(4.0, gt=0, description="Lifetime of fine particles (s)")
+        mist_lifetime_s: float = Field(4.0, gt=0, description="Lifetime of drop packets (s)")
         tick_s: float = Field(0.01, gt=0, le=0.05, description="Integration step (s)")
         mesh_diameter_m: float | None = Field(None, gt=0, description="Render sphere diameter (m); default config/spray.yaml")
         albedo: float | None = Field(None, ge=0, le=1, description="Single scattering albedo; default config/spray.yaml")
@@ -92,8 +96,9 @@ class SprayRegion:
             water_film_mm=film, emission_scale=params.emission_scale, film_cv=params.film_cv,
             wind_over_speed=params.wind_over_speed, wake_length_m=params.wake_length_m, ambient_wind_m_s=wind,
             lateral_wind_scale=params.lateral_wind_scale, turbulence_intensity=params.turbulence_intensity,
-            turbulence_length_m=params.turbulence_length_m, fine_ratio=params.fine_ratio,
-            lifetime_s=params.lifetime_s, fine_lifetime_s=params.fine_lifetime_s, tick_s=params.tick_s,
+            turbulence_length_m=params.turbulence_length_m,
+            mist_packets_per_wheel_per_tick=params.mist_packets_per_wheel_per_tick, lifetime_s=params.lifetime_s,
+            mist_lifetime_s=params.mist_lifetime_s, tick_s=params.tick_s,
             seed=params.seed,
         )  # fmt: skip
         poses = self.pose_source.actor_poses if self.pose_source is not None else (lambda t: {})
@@ -108,26 +113,34 @@ class SprayRegion:
             self.system.advance_to(t0_s)
         self.system.advance_to(t1_s)
 
+    def radii(self, time_s: float) -> np.ndarray:
+        """Radius (m) of every particle at ``time_s``: the render sphere of an inertial particle, the
+        ball a drop packet has spread to."""
+        return np.where(self.system.particles.population == 1, self.system.mist_radii(time_s), self.radius_m)
+
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, n_sub = batch.shape
         if self.system.time_s is None:
             self.step(float(batch.time_s.min()), float(batch.time_s.max()))
-        centres = self.system.positions_at(float(batch.time_s.mean()))
+        t = float(batch.time_s.mean())
+        centres = self.system.positions_at(t)
         if not len(centres):
             return RegionEffect()
+        p = self.system.particles
+        mist = p.population == 1
+        radii = self.radii(t)
         dirs = batch.directions.reshape(-1, 3)
         # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
         # (one dot product per ray); only the rays inside one of these cones go further
-        vehicle = self.system.particles.vehicle
         ref = batch.origins.mean(axis=0)
         spread = float(np.sqrt(np.max(np.sum((batch.origins - ref) ** 2, axis=1))))
         keep = np.zeros(len(centres), bool)
         ray_mask = np.zeros(len(dirs), bool)
-        for k in np.unique(vehicle):
-            m = vehicle == k
+        for k in np.unique(p.vehicle):
+            m = p.vehicle == k
             lo, hi = centres[m].min(axis=0), centres[m].max(axis=0)
             q = 0.5 * (lo + hi) - ref
-            rad = 0.5 * float(np.linalg.norm(hi - lo)) + self.radius_m + spread
+            rad = 0.5 * float(np.linalg.norm(hi - lo)) + float(radii[m].max()) + spread
             dist = float(np.linalg.norm(q))
             if dist <= rad:
                 keep |= m
@@ -144,14 +157,32 @@ class SprayRegion:
         beam_of_ray = rays // n_sub
         max_range = batch.distance.reshape(-1)[rays]
         max_range = np.where(np.isfinite(max_range), max_range, 1e9)
-        hits = sphere_hits(batch.origins[beam_of_ray], dirs[rays], max_range, centres[idx], self.radius_m)
+        hits = sphere_hits(batch.origins[beam_of_ray], dirs[rays], max_range, centres[idx], radii[idx])
         if not len(hits.ray):
             return RegionEffect()
+        scene_range = max_range[hits.ray]
         hits.ray = rays[hits.ray]
         beam, sub = np.divmod(hits.ray, n_sub)
+        particle = idx[hits.sphere]
+        cross_section = p.weight * (np.pi / 4.0) * p.diameter**2 * p.airborne  # m^2 of drops in each packet
+        reflectance, occlusion, range_m = self._returns(hits, mist[particle], radii[particle], cross_section[particle],
+                                                        scene_range)  # fmt: skip
         sc = Scatterers(
-            beam=beam, subray=sub, range_m=hits.range_m, reflectance=self.albedo * hits.cos_incidence,
-            occlusion=np.ones(len(beam)), label=np.full(len(beam), Label.SPRAY, np.uint8),
-            object_id=self._actor_ids[vehicle[idx[hits.sphere]]],
+            beam=beam, subray=sub, range_m=range_m, reflectance=reflectance, occlusion=occlusion,
+            label=np.full(len(beam), Label.SPRAY, np.uint8), object_id=self._actor_ids[p.vehicle[particle]],
         )  # fmt: skip
         return RegionEffect(scatterers=sc)
+
+    def _returns(self, hits, mist: np.ndarray, radius: np.ndarray, cross_section: np.ndarray,
+                 scene_range: np.ndarray) -> tuple[np.ndarray, ...]:  # fmt: skip
+        """Reflectance, occlusion (0-1) and range (m) of each sphere hit. An inertial particle is a solid
+        sphere: albedo x cos(incidence) at its entry point, blocking the sub-ray. A mist packet is a
+        uniform ball of drops with cross-section ``mist.cross_section_m2`` x ``share`` (the share still
+        airborne): a sub-ray through it sees the
+        optical depth tau of its chord and is returned from the chord's middle with reflectance
+        albedo x phase x (1 - exp(-tau)), passing on exp(-tau) of its light."""
+        half_chord = hits.cos_incidence * radius
+        density = cross_section / (4.0 / 3.0 * np.pi * radius**3)  # m^2 of drops per m^3
+        opacity = np.where(mist, -np.expm1(-density * 2.0 * half_chord), 1.0)
+        phase = np.where(mist, self.constants.particles.backscatter_phase, hits.cos_incidence)
+        return self.albedo * phase * opacity, opacity, hits.range_m + np.where(mist, half_chord, 0.0)

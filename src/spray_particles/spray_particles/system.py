@@ -8,10 +8,14 @@ from the last tick. All randomness comes from one generator per tick seeded
 with (seed, tick index): same seed, same particles.
 
 Two populations (``population``): 0 = inertial particles (4 mm, thesis Table
-II-IV), 1 = fine drops of the eq. 3 mean diameter that follow the air and linger
-(the low-Stokes population the thesis names as missing). Each particle stands
-for a concentration of drops that causes one detection; the render sphere is
-``mesh_diameter_m`` for both.
+II-IV), each standing for a concentration of drops that causes one detection
+(render sphere ``mesh_diameter_m``); 1 = drop packets: each carries an equal share
+of the wheel's airborne water (spray_particles.drops) in ``weight`` drops of one
+size drawn from the drop-size distribution, with that size's drag, so the small
+ones follow the air and linger (the low-Stokes population the thesis names as
+missing); a packet spreads by turbulent mixing (``diffusivity``, config/spray.yaml
+``mist``), loses the drops that reach the ground (``airborne``) and is seen by its
+optical depth (:meth:`SpraySystem.mist_radii`, the ``spray`` region).
 """
 
 from __future__ import annotations
@@ -22,10 +26,13 @@ from typing import Callable
 import numpy as np
 
 from spray_particles.constants import SprayConstants, load_constants
+from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
 from spray_particles.emitter import WheelEmitter
 from spray_particles.forces import CurlNoise, drag_rates, lateral_wind_speed
 from spray_particles.integrator import step as integrate_step
-from spray_particles.water import mean_drop_diameter_m
+
+#: A mist packet with less than this share of its drops still airborne is dropped.
+MIN_MIST_SHARE = 0.01
 
 PoseFunction = Callable[[float], dict]  # time (s) -> {actor id: 4x4 body-to-world}
 
@@ -55,9 +62,9 @@ class SprayParams:
     lateral_wind_scale: float = 1.0
     turbulence_intensity: float = 0.1  # RMS turbulent speed / car speed in the wake
     turbulence_length_m: float = 1.0
-    fine_ratio: float = 0.5  # fine particles emitted per inertial particle
+    mist_packets_per_wheel_per_tick: float = 4.0  # drop packets (population 1), Poisson mean
     lifetime_s: float = 2.0
-    fine_lifetime_s: float = 4.0
+    mist_lifetime_s: float = 4.0
     tick_s: float = 0.01
     seed: int = 0
 
@@ -77,7 +84,9 @@ class Particles:
     population: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
     wheel: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # index into the vehicle's wheels
     diameter: np.ndarray = field(default_factory=lambda: np.zeros(0))  # drag diameter (m)
-    weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # real drops per particle (reference only)
+    weight: np.ndarray = field(default_factory=lambda: np.zeros(0))  # real drops per particle (drops, packets)
+    diffusivity: np.ndarray = field(default_factory=lambda: np.zeros(0))  # packets' turbulent spreading (m^2/s)
+    airborne: np.ndarray = field(default_factory=lambda: np.zeros(0))  # share of a packet's drops not deposited
 
     def __len__(self) -> int:
         return len(self.age)
@@ -234,6 +243,14 @@ class SpraySystem:
         out[:, 2] -= 0.5 * self.constants.physics.gravity_m_s2 * h * h * (h > 0)
         return out
 
+    def mist_radii(self, time_s: float) -> np.ndarray:
+        """Radius (m) at ``time_s`` of every particle seen as a mist packet: sqrt(r0^2 + 2 K age), K its
+        diffusivity (m^2/s; only mist packets, population 1, have one)."""
+        p = self.particles
+        age = p.age + max(0.0, time_s - (self.time_s or 0.0))
+        r0 = self.constants.mist.initial_radius_m
+        return np.sqrt(r0 * r0 + 2.0 * p.diffusivity * age)
+
     def _tick(self, k: int) -> None:
         prm, c = self.params, self.constants
         dt = prm.tick_s
@@ -248,8 +265,21 @@ class SpraySystem:
             air = self.air_velocity(p, t, *s0[:3])
             p.pos, p.vel = integrate_step(p.pos, p.vel, air, p.kappa, p.lam, c.physics.gravity_m_s2, dt)
             p.age = p.age + dt
+            self._deposit_mist(p, s1[0], s1[1])
             self.particles = p.select(self._alive(p, s1[0], s1[1]))
-        self._emit(rng, s1[3], s1[2], s1[0], s1[1])
+        self._emit(rng, k, s1[3], s1[2], s1[0], s1[1])
+
+    def _deposit_mist(self, p: Particles, rot, org) -> None:
+        """Ground deposition of mist packets: the drops of the part of a packet's ball that has reached
+        the ground plane of its vehicle stay there (``airborne`` = share still airborne, never rising)."""
+        mist = np.flatnonzero(p.population == 1)
+        if not len(mist):
+            return
+        k = p.vehicle[mist]
+        height = np.einsum("ni,ni->n", rot[k][:, :, 2], p.pos[mist] - org[k])
+        r0 = self.constants.mist.initial_radius_m
+        radius = np.sqrt(r0 * r0 + 2.0 * p.diffusivity[mist] * p.age[mist])
+        p.airborne[mist] = np.minimum(p.airborne[mist], ball_share_above(height, radius))
 
     def _alive(self, p: Particles, rot, org) -> np.ndarray:
         """Particles still alive: younger than their lifetime, above the ground under their vehicle,
@@ -258,7 +288,8 @@ class SpraySystem:
 
         dead = collisions(p.pos, p.vehicle, rot, org, self._length, self._width, self._height, self._clearance,
                           self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w)  # fmt: skip
-        return (p.age < p.lifetime) & ~dead
+        deposited = (p.population == 1) & (p.airborne <= MIN_MIST_SHARE)
+        return (p.age < p.lifetime) & ~dead & ~deposited
 
     def emission_mean_per_frame(self, speed_m_s: float, film_mm: float) -> float:
         """Mean inertial particles per wheel per sensor frame: eq. 2's linear dependence on film x speed
@@ -266,8 +297,9 @@ class SpraySystem:
         e = self.constants.emission
         return self.params.emission_scale * e.gain_per_mm_m_s * film_mm * max(0.0, speed_m_s - e.threshold_speed_m_s)
 
-    def _emit(self, rng, present, vel, rot, org) -> None:
+    def _emit(self, rng, tick: int, present, vel, rot, org) -> None:
         prm, c = self.params, self.constants
+        dt = prm.tick_s
         parts = [self.particles]
         for k, v in enumerate(self.vehicles):
             if not present[k]:
@@ -282,37 +314,46 @@ class SpraySystem:
             # whatever the film, so more water adds particles to the same ones (common random numbers,
             # which keeps a fit of the water film smooth)
             u = rng.random((2, v.emitter.n_wheels))
-            n_in = _poisson_quantile(u[0], lam)
-            n_fine = _poisson_quantile(u[1], lam * prm.fine_ratio)
-            populations = rng.spawn(2)
-            for pop, counts in ((0, n_in), (1, n_fine)):
+            water = prm.emission_scale * airborne_water_m3(c, film, speed, dt)
+            n_packets = prm.mist_packets_per_wheel_per_tick if water > 0 else 0.0
+            for pop, counts in ((0, _poisson_quantile(u[0], lam)), (1, _poisson_quantile(u[1], n_packets))):
                 n = int(counts.sum())
                 if not n:
                     continue
-                pos_b, vel_b, side, wheel = v.emitter.emit(populations[pop], counts, speed, prm.tick_s)
-                pos = pos_b @ rot[k].T + org[k]
-                velw = vel_b @ rot[k].T + vel[k]
+                draws = np.random.default_rng([prm.seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, k, 1 + pop])
+                pos_b, vel_b, side, wheel = v.emitter.emit(draws, counts, speed, dt)
+                new = Particles(pos_b @ rot[k].T + org[k], vel_b @ rot[k].T + vel[k], np.zeros(n), side=side,
+                                vehicle=np.full(n, k, np.int64), population=np.full(n, pop, np.uint8), wheel=wheel,
+                                airborne=np.ones(n))  # fmt: skip
                 if pop == 0:
-                    kappa, lam_s, life = self._kappa_inertial, self._lam_inertial, prm.lifetime_s
-                else:
-                    d = mean_drop_diameter_m(speed, c.tyre.tread_height_m, c.water.drop_size_k,
-                                             c.physics.water_surface_tension_n_m, c.physics.water_density_kg_m3)
-                    kappa, lam_s = drag_rates(d, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
-                                              c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)
-                    life = prm.fine_lifetime_s
-                diameter = c.particles.diameter_m if pop == 0 else float(d)
-                parts.append(Particles(pos, velw, np.zeros(n), np.full(n, life), np.full(n, float(kappa)),
-                                       np.full(n, float(lam_s)), np.full(n, k, np.int64), side,
-                                       np.full(n, pop, np.uint8), wheel, np.full(n, diameter), np.ones(n)))  # fmt: skip
+                    new.lifetime, new.diameter = np.full(n, prm.lifetime_s), np.full(n, c.particles.diameter_m)
+                    new.kappa, new.lam = np.full(n, self._kappa_inertial), np.full(n, self._lam_inertial)
+                    new.weight, new.diffusivity = np.ones(n), np.zeros(n)
+                else:  # drop packets: an equal share of the wheel's airborne water each, in drops of one size
+                    new.lifetime, new.diameter = np.full(n, prm.mist_lifetime_s), volume_weighted_diameters(c, draws, n, speed)
+                    new.kappa, new.lam = drag_rates(new.diameter, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
+                                                    c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)  # fmt: skip
+                    new.weight = drops_per_volume(new.diameter, water / n_packets)
+                    new.diffusivity = np.full(n, c.mist.mixing_length_m * speed)
+                parts.append(new)
                 self.emitted += n
         if len(parts) > 1:
             self.particles = Particles.concatenate(parts)
 
 
-def _poisson_quantile(u: np.ndarray, lam: float) -> np.ndarray:
-    """Poisson(lam) counts as the quantiles of the uniforms ``u`` (monotone in lam for fixed u)."""
-    from scipy.stats import poisson
+def ball_share_above(height: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Share (0-1) of the volume of balls of ``radius`` (m) centred ``height`` (m) above a plane that lies
+    above it (spherical cap below the plane: V = pi h^2 (3 r - h) / 3, h = r - height)."""
+    h = np.clip(radius - height, 0.0, 2.0 * radius)
+    return 1.0 - h * h * (3.0 * radius - h) / (4.0 * radius**3)
 
+
+def _poisson_quantile(u: np.ndarray, lam: float) -> np.ndarray:
+    """Poisson(lam) counts as the quantiles of the uniforms ``u`` (monotone in lam for fixed u):
+    the smallest k whose CDF reaches u."""
     if lam <= 0:
         return np.zeros(len(u), np.int64)
-    return poisson.ppf(u, lam).astype(np.int64)
+    k = np.arange(int(lam + 12.0 * np.sqrt(lam) + 12.0))
+    log_factorial = np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
+    cdf = np.cumsum(np.exp(k * np.log(lam) - lam - log_factorial))
+    return np.minimum(np.searchsorted(cdf, u, side="left"), len(k) - 1).astype(np.int64)

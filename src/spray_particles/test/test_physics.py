@@ -234,7 +234,7 @@ def test_same_seed_same_particles_and_independent_of_how_time_is_split():
 
 
 def test_spray_lies_behind_the_emitting_wheels_and_low():
-    s = _run(speed=20.0, fine_ratio=0.0, turbulence_intensity=0.0)
+    s = _run(speed=20.0, mist_packets_per_wheel_per_tick=0.0, turbulence_intensity=0.0)
     p = s.particles
     body = p.pos - np.array([20.0 * s.time_s, 0, 0])
     wheel_x = s.vehicles[0].emitter.wheel_xy[p.wheel, 0]
@@ -255,8 +255,8 @@ def test_spray_drifts_with_lateral_wind():
 
 
 def test_lateral_fields_pull_the_wheel_tracks_together():
-    wide = _run(speed=24.7, lateral_wind_scale=0.0, turbulence_intensity=0.0, fine_ratio=0.0)
-    pulled = _run(speed=24.7, lateral_wind_scale=1.0, turbulence_intensity=0.0, fine_ratio=0.0)
+    wide = _run(speed=24.7, lateral_wind_scale=0.0, turbulence_intensity=0.0, mist_packets_per_wheel_per_tick=0.0)
+    pulled = _run(speed=24.7, lateral_wind_scale=1.0, turbulence_intensity=0.0, mist_packets_per_wheel_per_tick=0.0)
 
     def spread(s):
         p = s.particles
@@ -269,11 +269,12 @@ def test_lateral_fields_pull_the_wheel_tracks_together():
 
 def test_more_speed_more_particles_emitted():
     assert _run(speed=10.0).emitted < _run(speed=15.0).emitted < _run(speed=25.0).emitted
-    assert _run(speed=7.0).emitted == 0  # below the fitted threshold speed
+    # no inertial particles below the fitted threshold speed (drop packets carry the water of any speed)
+    assert _run(speed=7.0, mist_packets_per_wheel_per_tick=0.0).emitted == 0
 
 
 def test_particles_die_on_the_ground_the_body_and_at_their_lifetime():
-    s = _run(duration=3.0, lifetime_s=0.3, fine_lifetime_s=0.3)
+    s = _run(duration=3.0, lifetime_s=0.3, mist_lifetime_s=0.3)
     assert np.all(s.particles.age < 0.3 + 1e-9)
     p = s.particles
     body = p.pos - np.array([20.0 * s.time_s, 0, 0])
@@ -282,3 +283,20 @@ def test_particles_die_on_the_ground_the_body_and_at_their_lifetime():
     for wx in (1.41, -1.41):
         arch |= (body[:, 0] - wx) ** 2 + (body[:, 2] - 0.3433) ** 2 < 0.3933**2
     assert not np.any(inside & ~arch)
+
+
+def test_ball_share_above_the_ground_is_the_spherical_cap_volume():
+    from spray_particles.system import ball_share_above
+
+    r = np.array([1.0, 1.0, 1.0, 1.0, 0.5])
+    share = ball_share_above(np.array([2.0, 0.0, -2.0, 0.5, 0.25]), r)
+    # cap h = 0.5 below a unit ball: pi h^2 (3r - h) / 3 = 0.6545 of 4.1888 (the same share at half size)
+    assert share == pytest.approx([1.0, 0.5, 0.0, 1.0 - 0.6545 / 4.1888, 1.0 - 0.6545 / 4.1888], abs=1e-4)
+
+
+def test_drop_packets_deposit_what_reaches_the_ground_and_lose_it_for_good():
+    s = _run(duration=1.5, turbulence_intensity=0.0)
+    p = s.particles
+    packets = p.population == 1
+    assert packets.any() and np.all(p.airborne[packets] <= 1.0) and np.any(p.airborne[packets] < 0.99)
+    assert np.all(p.airborne[~packets] == 1.0)

@@ -40,7 +40,7 @@ def test_drop_sizes_follow_eq3_and_carry_eq2_water():
     d_eq3 = mean_drop_diameter_m(15.0, C.tyre.tread_height_m, C.water.drop_size_k)
     assert median == pytest.approx(d_eq3, rel=0.15)
     water = np.sum(p.weight * np.pi / 6 * p.diameter**3)
-    expected = C.reference.airborne_fraction * 4 * tread_pickup_m3_s(0.5, 15.0, C.tyre.grooves, C.tyre.groove_width_m,
+    expected = C.drops.airborne_fraction * 4 * tread_pickup_m3_s(0.5, 15.0, C.tyre.grooves, C.tyre.groove_width_m,
                                                                      C.tyre.tread_height_m) * 0.01  # fmt: skip
     assert water == pytest.approx(expected, rel=1e-6)
     # each drop has the drag of its own size: small drops have larger drag rates
@@ -57,7 +57,7 @@ def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0):
     n = n_drops
     ref.particles = Particles(pos, np.zeros((n, 3)), np.zeros(n), np.full(n, 9.0), np.zeros(n), np.zeros(n),
                               np.zeros(n, np.int64), np.ones(n), np.full(n, 2, np.uint8), np.zeros(n, np.int64),
-                              np.full(n, 2e-4), np.full(n, weight))  # fmt: skip
+                              np.full(n, 2e-4), np.full(n, weight), np.zeros(n), np.ones(n))  # fmt: skip
     ref.tick_index = 0
 
     def poses(times):
