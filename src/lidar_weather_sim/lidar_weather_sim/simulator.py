@@ -571,13 +571,14 @@ def _surface_returns_run(distance, triangle, normal, material, actor, object_id,
                         out_amp[k] = 0.0
                     k += 1
                     continue
-                a = actor[k]
-                if a >= 0:
-                    n0, n1, n2, mat, obj = normal[k, 0], normal[k, 1], normal[k, 2], material[k], object_id[k]
-                else:  # the static triangle's normal, unflipped: |cos| is the same
-                    t = triangle[k]
+                t = triangle[k]
+                if t >= 0:  # the static triangle's normal, unflipped: |cos| is the same
+                    a = -1
                     n0, n1, n2 = static_normal[t, 0], static_normal[t, 1], static_normal[t, 2]
                     mat, obj = static_material[t], static_object_id[t]
+                else:  # an actor's hit
+                    a = actor[k]
+                    n0, n1, n2, mat, obj = normal[k, 0], normal[k, 1], normal[k, 2], material[k], object_id[k]
                 x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
                 wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
                 wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y

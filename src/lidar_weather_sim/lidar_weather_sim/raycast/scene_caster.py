@@ -58,9 +58,9 @@ class Hits:
     object_id: (N,) uint32 object id of the hit triangle, 0 for a miss.
     hit_actor: (N,) int32 id of the actor hit, -1 for the static mesh or a miss.
 
-    Cast with ``gather=False``, normal, material and object_id hold the actors' hits only
-    (elsewhere undefined): a static hit's are the rows ``triangle`` of
-    :attr:`SceneCaster.static_tables` (the normal there not flipped).
+    Cast with ``gather=False``, normal, material, object_id and hit_actor hold the actors'
+    hits only (elsewhere undefined; a hit with triangle -1 is an actor's): a static hit's
+    are the rows ``triangle`` of :attr:`SceneCaster.static_tables` (the normal there not flipped).
     """
 
     distance: np.ndarray
@@ -339,18 +339,18 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, gather: 
 def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, hi, blocks, block, cos_margin,
                 gather, normal, material, object_id, hit_actor, axis, half, box):  # fmt: skip
     """Rays lo..hi (lo a multiple of ``block``). In place: hits beyond ``max_range`` (float32)
-    become misses (triangle -1). Writes actor id -1 per ray and with ``gather`` the gathered
-    normal (facing the ray), material and object id (a miss gathers the tables' last row);
+    become misses (triangle -1). With ``gather``, writes per ray the gathered normal (facing
+    the ray), material and object id (a miss gathers the tables' last row) and actor id -1;
     with ``blocks`` also the bounding cone (unit axis, half-angle widened by ``cos_margin``) of
     each full block of ``block`` consecutive rays and the origins' min (box[:3]) and max (box[3:])."""
     miss = len(materials) - 1
     for i in range(lo, hi):
-        hit_actor[i] = -1
         if best[i] > max_range:
             best[i] = np.inf
             tri[i] = -1
         if not gather:
             continue
+        hit_actor[i] = -1
         t = tri[i] if tri[i] >= 0 else miss
         n0, n1, n2 = normals[t, 0], normals[t, 1], normals[t, 2]
         dot = n0 * d[i, 0] + n1 * d[i, 1] + n2 * d[i, 2]  # float32, as numpy
