@@ -363,14 +363,10 @@ def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, 
         return
     _origin_box(o, lo, hi, box)
     for b in range(lo // block, min(hi // block, len(axis))):
-        # a cone only has to hold its rays (the exact test decides): sums and minima in two
-        # independent lanes (block is even), which the CPU runs side by side
-        i0 = b * block
-        x0 = y0 = z0 = x1 = y1 = z1 = 0.0
-        for i in range(i0, i0 + block, 2):
-            x0, y0, z0 = x0 + d[i, 0], y0 + d[i, 1], z0 + d[i, 2]
-            x1, y1, z1 = x1 + d[i + 1, 0], y1 + d[i + 1, 1], z1 + d[i + 1, 2]
-        x, y, z = x0 + x1, y0 + y1, z0 + z1
+        # a cone only has to hold its rays (the exact test decides): its axis is the block's middle
+        # ray; minima in two independent lanes (block is even), which the CPU runs side by side
+        i0, mid = b * block, b * block + block // 2
+        x, y, z = np.float64(d[mid, 0]), np.float64(d[mid, 1]), np.float64(d[mid, 2])
         norm = np.sqrt(x * x + y * y + z * z)
         if norm > 0:
             ax, ay, az = x / norm, y / norm, z / norm
