@@ -27,7 +27,7 @@ def test_features_shape_and_counts():
 
 
 def test_packaged_model_is_versioned_and_loads():
-    assert DEFAULT_MODEL.name == "weather_point_mlp_v3.joblib" and DEFAULT_MODEL.exists()
+    assert DEFAULT_MODEL.name == "weather_point_mlp_v4.joblib" and DEFAULT_MODEL.exists()
     filt = make_filter("learned")
     assert isinstance(filt, LearnedFilter)
     assert filt.bundle["command"].startswith("weather-filter train --sim ")

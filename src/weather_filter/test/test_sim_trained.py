@@ -19,10 +19,11 @@ from weather_filter.filters import make_filter
 from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, frames_of, simulate
 
 # Floors a little below the figures measured on these runs with the shipped model (src/weather_filter/README.md):
-# spec -> (weather_f1, object_recall, object_recall_roi); measured wf_heldout_mixed:202:12 0.932 / 0.954 / 1.0,
-# highway_spray:202:12 0.999 / 1.0 / 1.0. Snow in fog on the curved road (never trained on) is the weak case:
-# the road ~10 m ahead, dimmed by the fog, is partly removed.
-HELDOUT_FLOORS = {"wf_heldout_mixed:202:12": (0.90, 0.93, 0.995), "highway_spray:202:12": (0.97, 0.998, 0.998)}
+# spec -> (weather_f1, object_recall, object_recall_roi); measured with v4 wf_heldout_mixed:202:12 0.981 / 0.983 /
+# 0.989 (v3: 0.932 / 0.954 / 1.0), highway_spray:202:12 0.998 / 1.0 / 1.0. Snow in fog on the curved road (never
+# trained on) is the weak case: the road ~10 m ahead, dimmed by the fog, is partly removed, and a few points of the
+# vehicle ahead seen through its spray.
+HELDOUT_FLOORS = {"wf_heldout_mixed:202:12": (0.95, 0.97, 0.97), "highway_spray:202:12": (0.97, 0.998, 0.998)}
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +65,69 @@ def test_features_equal_a_direct_computation():
                 assert np.allclose(out[:, 14 + k], np.where(inside, response[flat], 0)), k
 
 
+def _range_image_reference(points, step, columns=2, channels=2, n_echoes=4, close=0.03):
+    """The ``ri_*`` and ``dz_*`` columns computed directly (dense arrays, numpy), for the numba pass."""
+    x, y, z = (points[n].astype(np.float64) for n in ("x", "y", "z"))
+    r = np.sqrt(x * x + y * y + z * z).astype(np.float32)
+    ch = points["channel"].astype(np.int64)
+    n_ch, n_cols = int(ch.max()) + 1, int(2 * np.pi / step + 0.5)
+    b = ((np.arctan2(y, x) + np.pi) / step).astype(np.int64)
+    b = np.clip(np.where(b >= n_cols, b - n_cols, b), 0, n_cols - 1)
+    grid = np.full((n_ch, n_cols, n_echoes), np.nan, np.float32)
+    slot = np.zeros((n_ch, n_cols), np.int64)
+    for i in range(len(points)):  # the first n_echoes points of a cell, in point order
+        if slot[ch[i], b[i]] < n_echoes:
+            grid[ch[i], b[i], slot[ch[i], b[i]]] = r[i]
+            slot[ch[i], b[i]] += 1
+    inv = np.float32(1) / np.maximum(r, np.float32(0.05))
+    own = (grid[ch, b] - r[:, None]) * inv[:, None]
+    behind, front = (own > 1e-3).sum(1), (own < -1e-3).sum(1)
+    gap = np.minimum(np.nanmin(np.where(own > 1e-3, own, np.nan), 1, initial=1.0), 1.0)
+    ring = np.ones(len(r), np.float32)
+    cross, n_close, occupied = ring.copy(), np.zeros(len(r)), np.zeros(len(r))
+    for dc in range(-channels, channels + 1):
+        cc = ch + dc
+        inside = (cc >= 0) & (cc < n_ch)
+        for db in range(-columns, columns + 1):
+            if dc == db == 0:
+                continue
+            cell = np.where(inside[:, None], grid[np.clip(cc, 0, n_ch - 1), (b + db) % n_cols], np.nan)
+            d = np.abs(cell - r[:, None]) * inv[:, None]
+            occupied += np.isfinite(cell[:, 0])
+            n_close += (d < close).sum(1)
+            best = np.fmin(np.nanmin(np.where(np.isfinite(d), d, np.inf), 1), 1.0)
+            if dc == 0:
+                ring = np.minimum(ring, best)
+            elif abs(dc) == 1:
+                cross = np.minimum(cross, best)
+    cols = {"ri_ring": np.log10(np.maximum(ring, 1e-3)), "ri_cross": np.log10(np.maximum(cross, 1e-3)),
+            "ri_close": n_close, "ri_occ": occupied, "ri_behind": behind, "ri_gap_behind": np.log10(np.maximum(gap, 1e-3)),
+            "ri_front": front}  # fmt: skip
+    e = 30.0
+    cell = np.clip(((x + e) / 0.5).astype(int), 0, 119) * 120 + np.clip(((y + e) / 0.5).astype(int), 0, 119)
+    lo, hi = np.full(120 * 120, np.inf, np.float32), np.full(120 * 120, -np.inf, np.float32)
+    np.minimum.at(lo, cell, points["z"])
+    np.maximum.at(hi, cell, points["z"])
+    cols["dz_min"], cols["dz_max"] = points["z"] - lo[cell], hi[cell] - points["z"]
+    return cols
+
+
+@pytest.mark.parametrize("spec", ["wf_heldout_mixed:5:2", "wf_heldout_mixed:5:2:os1_128_1024"])
+def test_range_image_features_equal_a_direct_computation(spec):
+    import tempfile
+
+    from weather_filter.scan_geometry import estimate_angular_steps
+
+    with tempfile.TemporaryDirectory() as tmp:
+        points = _frames(spec, tmp)[1]
+    extractor = PointFeatures()
+    out = extractor(points)
+    steps = estimate_angular_steps(points)
+    assert extractor.last_step_rad == pytest.approx(steps.azimuth_rad, rel=1e-3)  # the scan's column step
+    for name, expected in _range_image_reference(points, extractor.last_step_rad).items():
+        assert np.allclose(out[:, FEATURE_NAMES.index(name)], expected, atol=1e-5), name
+
+
 def test_sim_specs_parse_and_name_their_bags():
     spec = SimSpec.parse("wf_knn_highway:3:5::rain2+fog300")
     assert (spec.scenario, spec.seed, spec.frames, spec.profile, spec.weather) == ("wf_knn_highway", 3, 5, None, "rain2+fog300")
@@ -86,9 +150,9 @@ def test_learned_filter_keeps_a_box_standing_inside_a_spray_cloud(cache):
     box = np.concatenate([r[p["label"] == Label.OBSTACLE] for p, r in removed])
     spray = np.concatenate([r[p["label"] == Label.SPRAY] for p, r in removed])
     assert len(box) >= 100 and len(spray) >= 100, (len(box), len(spray))
-    # measured: 3 of 480 box points removed (0.6 %), 9.5 % of the spray: spray in dry air is the weak case
+    # measured with v4: 0 of 480 box points removed, 73 % of the spray (v3: 3 box points, 9.5 % of the spray)
     assert box.mean() <= 0.01, f"box points removed: {box.sum()} of {len(box)}"
-    assert spray.mean() >= 0.05, f"spray removed: {spray.mean():.3f}"
+    assert spray.mean() >= 0.5, f"spray removed: {spray.mean():.3f}"
 
 
 @pytest.mark.parametrize("spec", sorted(HELDOUT_FLOORS))
@@ -126,5 +190,5 @@ def test_train_from_simulation_is_reproducible(tmp_path, cache):
     import joblib
 
     bundle = joblib.load(tmp_path / "a.joblib")
-    assert bundle["command"] == "weather-filter " + " ".join(args[:-4]) + " --hidden 16 --spray-weight 20.0 --solid-weight 3.0 --seed 4"
+    assert bundle["command"] == "weather-filter " + " ".join(args[:-4]) + " --hidden 16 --spray-weight 20.0 --solid-weight 3.0 --object-recall 0.9997 --seed 4"
     assert bundle["trained_on"] == "sim:wf_train_snow:9:3, sim:wf_train_clear_spray:9:3"

@@ -109,6 +109,8 @@ def _stored_command(args: argparse.Namespace) -> str:
         argv += ["--hidden", args.hidden, "--spray-weight", repr(args.spray_weight), "--solid-weight", repr(args.solid_weight)]
         if args.threshold is not None:
             argv += ["--threshold", repr(args.threshold)]
+        else:
+            argv += ["--object-recall", repr(args.object_recall)]
         argv += ["--seed", str(args.seed)]
     else:
         argv += ["--k", str(args.k)]
@@ -130,7 +132,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     hidden = tuple(int(h) for h in args.hidden.split(",") if h)
     report = train(sources, args.out or DEFAULT_MODEL, trained_on=", ".join(described), command=_stored_command(args),
                    seed=args.seed, hidden=hidden, threshold=args.threshold, spray_weight=args.spray_weight,
-                   solid_weight=args.solid_weight)  # fmt: skip
+                   solid_weight=args.solid_weight, object_recall=args.object_recall)  # fmt: skip
     print(
         f"trained on {report.frames} frames ({report.points} points, {report.weather_points} weather): threshold "
         f"{report.threshold:.2f}, train precision {report.train_precision:.4f}, recall {report.train_recall:.4f}, "
@@ -150,6 +152,8 @@ def _cmd_train_weather(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from weather_filter.learned import TRAIN_OBJECT_RECALL
+
     parser = argparse.ArgumentParser(prog="weather-filter", description="LiDAR weather filters: evaluation and training.")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -175,7 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--spray-weight", type=float, default=20.0, help="weight of spray points in the fit (default 20)")
     tr.add_argument("--solid-weight", type=float, default=3.0, help="weight of solid points in the fit (default 3)")
     tr.add_argument("--threshold", type=float, help="weather probability threshold (default: chosen on the training "
-                    "points for the best F1 at >= 99.9 %% object recall)")  # fmt: skip
+                    "points for the best F1 at >= --object-recall)")
+    tr.add_argument("--object-recall", type=float, default=TRAIN_OBJECT_RECALL,
+                    help=f"least share of the training solid points the chosen threshold keeps (default {TRAIN_OBJECT_RECALL})")  # fmt: skip
     tr.add_argument("--seed", type=int, default=0, help="random seed of sampling, synthetic frames and the MLP")
     tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib)")
     tr.set_defaults(func=_cmd_train)

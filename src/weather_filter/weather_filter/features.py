@@ -8,6 +8,25 @@ paper's horizontal (A2), corner (A3), corner rotated 90 deg and impulse (A1)
 matrices (Appendix B), read at the detection's cell. We add z, intensity and
 range (the paper's sensor had no usable intensity in its feature list; ours does).
 
+Beyond the paper (model v4): features of the scan's range image and of the height in the 50 cm cell, which
+do not depend on the scan's resolution the way the histogram counts do. The range image has a row per
+channel and a column per azimuth step (the step is read off the frame: the median azimuth difference
+between consecutive first echoes of the fullest channel), each cell holding up to 4 echoes. Per point,
+with r its 3-D range and relative differences |r' - r| / r:
+
+* ``ri_ring``: log10 of the smallest relative difference to a return of the same channel within
+  ``RI_COLUMNS`` columns (1e-3 .. 1: log10 in [-3, 0]; 0 without such a return);
+* ``ri_cross``: the same for the neighbouring channels (+-1) within ``RI_COLUMNS`` columns;
+* ``ri_close``: returns in that window (channels +-``RI_CHANNELS``, columns +-``RI_COLUMNS``, own cell
+  excluded) within 3 % of r; ``ri_occ``: occupied cells of the window;
+* ``ri_behind`` / ``ri_front``: returns of the point's own cell farther / nearer than it, and
+  ``ri_gap_behind``: log10 of the relative gap to the nearest one behind (0 without);
+* ``dz_min`` / ``dz_max``: height above the lowest and below the highest point of its 50x50 cm cell.
+
+A snowflake or spray droplet has no neighbour at its range along or across the scan lines, a surface has;
+the counts-per-cell features alone told a fog-dimmed road with missing returns from snow at the same
+range poorly on the 128-channel scans.
+
 Histograms cover |x|, |y| <= ``extent_m`` (sensor frame); points outside get
 the counts of the border cell clipped to, and zero convolution responses.
 The histograms and convolutions are one numba-compiled pass over the points (convolutions once per
@@ -32,7 +51,18 @@ FEATURE_NAMES = (
     "x", "y", "z", "echo", "channel", "epw", "intensity", "range",
     "n_radial", "n_small", "n_rear", "n_side", "n_middle", "d_radial",
     "conv_horizontal", "conv_corner", "conv_corner_rot90", "conv_impulse",
+    "ri_ring", "ri_cross", "ri_close", "ri_occ", "ri_behind", "ri_gap_behind", "ri_front", "dz_min", "dz_max",
 )  # fmt: skip
+#: Columns (+-) and channels (+-) of the range-image window around a point.
+RI_COLUMNS = 2
+RI_CHANNELS = 2
+#: Echoes kept per range-image cell; relative range difference counted as "close" in ``ri_close``.
+RI_ECHOES = 4
+RI_CLOSE = 0.03
+#: Azimuth step used when a frame gives none (fewer than 10 first echoes in its fullest channel).
+DEFAULT_STEP_DEG = 0.2
+#: Largest range image (cells): a coarser step is used beyond it (a corrupt channel or azimuth field).
+MAX_RI_CELLS = 1 << 22
 REQUIRED_FIELDS = frozenset({"x", "y", "z", "echo", "channel", "epw", "intensity"})
 
 
@@ -62,10 +92,11 @@ def _kernel_taps() -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True, nogil=True, fastmath=True)
 def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv_cys, nxs, nys, n_radial,
-                    inv_bin_deg, previous, has_previous, taps, start, out):  # fmt: skip
+                    inv_bin_deg, previous, has_previous, taps, start, out, azimuth):  # fmt: skip
     """All feature columns (see :class:`PointFeatures`) in one compiled pass; returns the radial histogram.
     Convolutions follow ``ndimage.correlate`` (zero outside the grid, kernel centre at (rows//2, cols//2)),
-    from the taps of :func:`_kernel_taps`, computed once per occupied cell."""
+    from the taps of :func:`_kernel_taps`, computed once per occupied cell. Writes each point's azimuth
+    (rad) to ``azimuth``, and ``dz_min`` / ``dz_max`` in the 4th (50 cm) grid."""
     n = len(x)
     n_shapes = len(inv_cxs)
     radial = np.zeros(n_radial, np.int64)
@@ -81,7 +112,9 @@ def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv
         out[i, 0] = xi
         out[i, 1] = yi
         out[i, 7] = np.sqrt(xi * xi + yi * yi)
-        b = int((np.arctan2(yi, xi) * rad2deg + 180.0) * inv_bin_deg)
+        a = np.arctan2(yi, xi)
+        azimuth[i] = a
+        b = int((a * rad2deg + 180.0) * inv_bin_deg)
         b = min(max(b, 0), n_radial - 1)
         ridx[i] = b
         radial[b] += 1
@@ -109,6 +142,18 @@ def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv
     for s in range(n_shapes):
         for i in range(n):
             out[i, 9 + s] = grids[offsets[s] + cells[s, i]]
+    # height above the lowest / below the highest point of the 50 cm (4th) cell
+    n_mid = nxs[3] * nys[3]
+    zlo = np.full(n_mid, np.float32(np.inf))
+    zhi = np.full(n_mid, np.float32(-np.inf))
+    for i in range(n):
+        c = cells[3, i]
+        zlo[c] = min(zlo[c], z[i])
+        zhi[c] = max(zhi[c], z[i])
+    for i in range(n):
+        c = cells[3, i]
+        out[i, 25] = z[i] - zlo[c]
+        out[i, 26] = zhi[c] - z[i]
     # convolutions on the small (first) grid, once per occupied cell (far fewer cells than points)
     nx0, ny0 = nxs[0], nys[0]
     n_kernels = len(start) - 1
@@ -144,13 +189,119 @@ def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv
     return radial
 
 
+@njit(cache=True, nogil=True)
+def azimuth_step(azimuth, channel, echo, n_channels):
+    """Median azimuth difference (rad) between consecutive first echoes of the channel with the most
+    first echoes (differences below 1e-4 rad ignored); 0 if fewer than 10."""
+    counts = np.zeros(n_channels, np.int64)
+    for i in range(len(azimuth)):
+        if echo[i] <= 1:
+            counts[channel[i]] += 1
+    best = np.argmax(counts)
+    if counts[best] < 10:
+        return 0.0
+    sel = np.empty(counts[best], np.float64)
+    j = 0
+    for i in range(len(azimuth)):
+        if echo[i] <= 1 and channel[i] == best:
+            sel[j] = azimuth[i]
+            j += 1
+    sel.sort()
+    diffs = np.diff(sel)
+    diffs = diffs[diffs > 1e-4]
+    if len(diffs) < 5:
+        return 0.0
+    return np.median(diffs)
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def _range_image_features(x, y, z, channel, azimuth, step, n_channels, n_echoes, columns, channels, close, out):
+    """``ri_*`` columns (18-24) of ``out`` from a range image of ``n_channels`` rows and 2 pi / ``step``
+    columns (wrapping round), ``n_echoes`` ranges per cell (further ones of a crowded cell are dropped).
+    Stored column-major (a column's channels adjacent: the order points arrive in) with ``channels`` empty
+    rows and ``columns`` wrapped columns of padding on each side, so the window needs no bounds checks."""
+    n = len(x)
+    n_cols = max(int(2.0 * np.pi / step + 0.5), 1)
+    stride = n_channels + 2 * channels
+    n_cells = (n_cols + 2 * columns) * stride
+    counts = np.zeros(n_cells, np.int8)
+    ranges = np.empty(n_cells * n_echoes, np.float32)
+    cell = np.empty(n, np.int64)
+    r = np.empty(n, np.float32)
+    inv_step = 1.0 / step
+    for i in range(n):
+        xi, yi, zi = np.float64(x[i]), np.float64(y[i]), np.float64(z[i])
+        r[i] = np.sqrt(xi * xi + yi * yi + zi * zi)
+        b = int((azimuth[i] + np.pi) * inv_step)
+        if b >= n_cols:
+            b -= n_cols
+        b = min(max(b, 0), n_cols - 1)
+        c = (b + columns) * stride + channels + np.int64(channel[i])
+        cell[i] = c
+        k = counts[c]
+        if k < n_echoes:
+            ranges[c * n_echoes + k] = r[i]
+            counts[c] = k + 1
+    for j in range(columns):  # wrap: the last columns before the first, the first after the last
+        for src, dst in ((n_cols + j, j), (columns + j, n_cols + columns + j)):
+            for t in range(stride):
+                counts[dst * stride + t] = counts[src * stride + t]
+                for k in range(n_echoes):
+                    ranges[(dst * stride + t) * n_echoes + k] = ranges[(src * stride + t) * n_echoes + k]
+    for i in range(n):
+        ri = r[i]
+        inv = np.float32(1.0) / max(ri, np.float32(0.05))
+        c = cell[i]
+        behind = 0
+        front = 0
+        gap = np.float32(1.0)
+        for k in range(counts[c]):
+            d = (ranges[c * n_echoes + k] - ri) * inv
+            if d > 1e-3:
+                behind += 1
+                gap = min(gap, d)
+            elif d < -1e-3:
+                front += 1
+        ring = np.float32(1.0)
+        cross = np.float32(1.0)
+        n_close = 0
+        occupied = 0
+        for db in range(-columns, columns + 1):
+            base = c + db * stride
+            for dc in range(-channels, channels + 1):
+                q = base + dc
+                m = counts[q]
+                if m == 0 or q == c:
+                    continue
+                occupied += 1
+                best = np.float32(1.0)
+                for k in range(m):
+                    d = abs(ranges[q * n_echoes + k] - ri) * inv
+                    n_close += d < close
+                    best = min(best, d)
+                if dc == 0:
+                    ring = min(ring, best)
+                elif dc == 1 or dc == -1:
+                    cross = min(cross, best)
+        out[i, 18] = np.log10(max(ring, np.float32(1e-3)))
+        out[i, 19] = np.log10(max(cross, np.float32(1e-3)))
+        out[i, 20] = n_close
+        out[i, 21] = occupied
+        out[i, 22] = behind
+        out[i, 23] = np.log10(max(gap, np.float32(1e-3)))
+        out[i, 24] = front
+
+
 class PointFeatures:
     """Feature extractor; keeps the previous frame's radial histogram for the frame-difference feature
     (``d_radial`` is 0 on the first frame after construction or :meth:`reset`). The histogram and
     convolution features come from one numba-compiled pass (:func:`_point_features`)."""
 
-    def __init__(self, extent_m: float = 30.0, radial_bin_deg: float = 1.0) -> None:
+    def __init__(self, extent_m: float = 30.0, radial_bin_deg: float = 1.0, ri_columns: int = RI_COLUMNS,
+                 ri_channels: int = RI_CHANNELS) -> None:  # fmt: skip
         self.extent_m = float(extent_m)
+        self.ri_columns, self.ri_channels = int(ri_columns), int(ri_channels)
+        self.last_step_rad: float | None = None
         self.radial_bin_deg = float(radial_bin_deg)
         self._n_radial = int(round(360 / self.radial_bin_deg))
         shapes = [_grid_shape(cx, cy, self.extent_m) for _, cx, cy in CELL_SHAPES]
@@ -172,8 +323,17 @@ class PointFeatures:
         if previous is None:
             previous = np.zeros(self._n_radial, np.int64)
         cols = [points[name] for name in ("x", "y", "z", "echo", "channel", "epw", "intensity")]
+        azimuth = np.empty(len(points), np.float64)
         self._previous_radial = _point_features(
             *cols, self.extent_m, 1.0 / self._cxs, 1.0 / self._cys, self._nxs, self._nys, self._n_radial,
-            1.0 / self.radial_bin_deg, previous, has_previous, self._taps, self._tap_start, out,
+            1.0 / self.radial_bin_deg, previous, has_previous, self._taps, self._tap_start, out, azimuth,
         )  # fmt: skip
+        if len(points):
+            channel = points["channel"]
+            n_channels = int(channel.max()) + 1
+            step = azimuth_step(azimuth, channel, points["echo"], n_channels)
+            step = max(step if step > 0 else np.radians(DEFAULT_STEP_DEG), 2 * np.pi * n_channels / MAX_RI_CELLS)
+            self.last_step_rad = float(step)
+            _range_image_features(points["x"], points["y"], points["z"], channel, azimuth, step, n_channels, RI_ECHOES,
+                                  self.ri_columns, self.ri_channels, np.float32(RI_CLOSE), out)  # fmt: skip
         return out
