@@ -53,7 +53,8 @@ def filled_system(n: int, seed: int = 0) -> SpraySystem:
                             c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)  # fmt: skip
     system.particles = Particles(pos, vel, np.zeros(n), np.full(n, 1e6), np.where(pop, k_fi, k_in),
                                  np.where(pop, l_fi, l_in), np.zeros(n, np.int64), np.sign(pos[:, 1]) + (pos[:, 1] == 0),
-                                 pop, rng.integers(0, 4, n), np.where(pop, 1.5e-4, 0.004), np.ones(n))  # fmt: skip
+                                 pop, rng.integers(0, 4, n), np.where(pop, 1.5e-4, 0.004), np.where(pop, 1e3, 1.0),
+                                 np.where(pop, 0.005 * 24.7, 0.0), np.ones(n))  # fmt: skip
     system.tick_index = 0
     return system
 
