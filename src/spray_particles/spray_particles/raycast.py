@@ -1,11 +1,12 @@
 """Exact ray-sphere intersection for many small spheres against a batch of sub-rays.
 
 Broad phase: each sphere is projected into the angular grid of the rays (azimuth,
-elevation seen from the batch's mean origin); the rays are sorted by azimuth and
-each sphere takes the rays inside its angular radius (widened by the spread of the
-ray origins) with two binary searches. Narrow phase: the perpendicular distance of
-the sphere centre from each candidate ray, in float64 (a float32 ray-sphere test
-loses centimetre spheres at 50 m). All frames are the caller's (world); m.
+elevation seen from the batch's mean origin); the rays are binned by azimuth (a
+counting sort into ``AZIMUTH_BINS`` bins) and each sphere takes the rays of the bins
+its angular radius (widened by the spread of the ray origins) touches, then those
+within its elevation span. Narrow phase: the perpendicular distance of the sphere
+centre from each candidate ray, in float64 (a float32 ray-sphere test loses
+centimetre spheres at 50 m). All frames are the caller's (world); m.
 """
 
 from __future__ import annotations
@@ -41,8 +42,7 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     directions = np.asarray(directions, dtype=np.float64)
     centres = np.asarray(centres, dtype=np.float64)
     radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(centres),))
-    ref = origins.mean(axis=0)
-    spread = float(np.sqrt(np.max(np.sum((origins - ref) ** 2, axis=1))))
+    ref, spread = _origin_spread(origins)
     q = centres - ref
     dist = np.sqrt(np.einsum("nk,nk->n", q, q))
     near = dist - spread
@@ -58,10 +58,7 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     cos_el = np.cos(np.minimum(np.abs(el_p) + span, 0.5 * np.pi))
     half_w = np.where(cos_el > 1e-6, np.minimum(span / np.maximum(cos_el, 1e-6), np.pi), np.pi)
 
-    az_r = np.arctan2(directions[:, 1], directions[:, 0])
-    el_r = np.arcsin(np.clip(directions[:, 2], -1, 1))
-    order = np.argsort(az_r, kind="stable")
-    az_sorted = az_r[order]
+    order, bin_start, el_sorted = _bin_rays(directions, AZIMUTH_BINS)
     # azimuth windows, split where they wrap around +-pi
     lo_a, hi_a = az_p - half_w, az_p + half_w
     rows_p = [np.arange(len(az_p))]
@@ -72,15 +69,15 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     rows_p.append(np.flatnonzero(wrap_hi)); rows_lo.append(np.full(wrap_hi.sum(), -np.pi)); rows_hi.append(hi_a[wrap_hi] - 2 * np.pi)  # noqa: E702
     full = half_w >= np.pi
     rp, rlo, rhi = np.concatenate(rows_p), np.concatenate(rows_lo), np.concatenate(rows_hi)
-    rlo = np.where(full[rp], -np.inf, rlo)
-    rhi = np.where(full[rp], np.inf, rhi)
-    first = np.searchsorted(az_sorted, rlo, side="left")
-    last = np.searchsorted(az_sorted, rhi, side="right")
+    rlo = np.where(full[rp], -np.pi, rlo)
+    rhi = np.where(full[rp], np.pi, rhi)
+    first = bin_start[_azimuth_bin(rlo, AZIMUTH_BINS)]
+    last = bin_start[_azimuth_bin(rhi, AZIMUTH_BINS) + 1]
     if np.any(full):  # a full window must not be counted twice by the wrap rows
         dup = full[rp] & (np.arange(len(rp)) >= len(az_p))
         last = np.where(dup, first, last)
     sphere = idx[rp]
-    args = (first, last, rp, order, el_r, el_p, span, centres[sphere], rad[rp], origins, directions, max_range)
+    args = (first, last, rp, order, el_sorted, el_p, span, centres[sphere], rad[rp], origins, directions, max_range)
     n_hits = _narrow_phase(*args, None)
     if not n_hits:
         return _empty()
@@ -90,20 +87,69 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     return SphereHits(ray, sphere[row], entry, cos_incidence)
 
 
+AZIMUTH_BINS = 4096  # 1.5 mrad each
+
+
+def _azimuth_bin(azimuth: np.ndarray, n_bins: int) -> np.ndarray:
+    """Bin (0..n_bins-1) of azimuths in [-pi, pi] (rad)."""
+    return np.clip(np.floor((azimuth + np.pi) * (n_bins / (2.0 * np.pi))).astype(np.int64), 0, n_bins - 1)
+
+
 @numba.njit(cache=True)
-def _narrow_phase(first, last, rp, order, el_r, el_p, span, centre, radius, origins, directions, max_range, out):
-    """For each window row (a sphere's azimuth window over the sorted rays ``order[first:last]``): the
-    rays within its elevation span whose perpendicular distance from the centre is below the radius and
+def _origin_spread(origins):
+    """Mean of the ray origins (3,) and the largest distance of an origin from it (m)."""
+    ref = np.zeros(3)
+    for i in range(origins.shape[0]):
+        for k in range(3):
+            ref[k] += origins[i, k]
+    ref /= max(origins.shape[0], 1)
+    far = 0.0
+    for i in range(origins.shape[0]):
+        d = (origins[i, 0] - ref[0]) ** 2 + (origins[i, 1] - ref[1]) ** 2 + (origins[i, 2] - ref[2]) ** 2
+        far = max(far, d)
+    return ref, math.sqrt(far)
+
+
+@numba.njit(cache=True)
+def _bin_rays(directions, n_bins):
+    """Counting sort of the rays by azimuth bin: ray order (R,), the first position of each bin in it
+    (n_bins + 1,) and the rays' elevations (rad) in that order."""
+    n = directions.shape[0]
+    ray_bin = np.empty(n, np.int64)
+    start = np.zeros(n_bins + 1, np.int64)
+    for i in range(n):
+        a = math.atan2(directions[i, 1], directions[i, 0])
+        b = min(max(int(math.floor((a + math.pi) * (n_bins / (2.0 * math.pi)))), 0), n_bins - 1)
+        ray_bin[i] = b
+        start[b + 1] += 1
+    for b in range(n_bins):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    el_sorted = np.empty(n)
+    for i in range(n):
+        k = fill[ray_bin[i]]
+        order[k] = i
+        el_sorted[k] = math.asin(min(1.0, max(-1.0, directions[i, 2])))
+        fill[ray_bin[i]] += 1
+    return order, start, el_sorted
+
+
+@numba.njit(cache=True)
+def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, centre, radius, origins, directions, max_range, out):
+    """For each window row (a sphere's azimuth window over the sorted rays ``order[first:last]``, whose
+    elevations are ``el_sorted[first:last]``): the rays within its elevation span whose perpendicular distance from the centre is below the radius and
     whose entry lies in (0, max_range). Counts the hits when ``out`` is None, else fills ``out`` = (row,
     ray, entry range, cos incidence) and returns the count."""
     n = 0
     for j in range(len(first)):
         p = rp[j]
         cx, cy, cz, r = centre[j, 0], centre[j, 1], centre[j, 2], radius[j]
+        lo, hi = el_p[p] - span[p], el_p[p] + span[p]
         for k in range(first[j], last[j]):
-            i = order[k]
-            if abs(el_r[i] - el_p[p]) > span[p]:
+            if el_sorted[k] < lo or el_sorted[k] > hi:
                 continue
+            i = order[k]
             vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], cz - origins[i, 2]
             dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
             t = vx * dx + vy * dy + vz * dz
