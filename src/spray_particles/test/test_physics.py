@@ -300,3 +300,11 @@ def test_drop_packets_deposit_what_reaches_the_ground_and_lose_it_for_good():
     packets = p.population == 1
     assert packets.any() and np.all(p.airborne[packets] <= 1.0) and np.any(p.airborne[packets] < 0.99)
     assert np.all(p.airborne[~packets] == 1.0)
+
+
+def test_air_velocity_kernel_equals_the_numpy_reference():
+    s = _run(duration=1.0, speed=24.7)
+    rot, org, vel, _ = s._vehicle_state(s.tick_index)
+    assert len(s.particles) > 100
+    fast = s.air_velocity(s.particles, s.time_s, rot, org, vel)
+    assert fast == pytest.approx(s.air_velocity_reference(s.particles, s.time_s, rot, org, vel), abs=1e-9)
