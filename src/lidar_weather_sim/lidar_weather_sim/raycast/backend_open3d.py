@@ -2,7 +2,8 @@
 
 The rays go to Open3D as one (N, 6) array shared with its tensor (no copy), written by a
 kernel: numpy copies rows of three floats slowly. Another kernel turns the answer into
-distances and triangle indices in one pass.
+distances and triangle indices in one pass. Both run in chunks on the simulator's threads
+(:mod:`lidar_weather_sim.workers`).
 """
 
 from __future__ import annotations
@@ -10,9 +11,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from lidar_weather_sim import workers
+
 from .backend import CasterBase
 
 _INVALID_ID = np.uint32(0xFFFFFFFF)  # open3d.t.geometry.RaycastingScene.INVALID_ID
+CHUNK_RAYS = 65536  # rays per chunk of the copying kernels
 
 
 def check() -> None:
@@ -31,25 +35,27 @@ class Caster(CasterBase):
 
     def _cast(self, o, d):
         rays = np.empty((len(o), 6), np.float32)
-        _interleave(o, d, rays)
+        cuts = workers.bounds(len(o), CHUNK_RAYS)
+        workers.run_chunks(lambda c: _interleave(o, d, rays, cuts[c], cuts[c + 1]), len(cuts) - 1)
         out = self._scene.cast_rays(self._o3c.Tensor.from_numpy(rays))
+        t_hit, prim = out["t_hit"].numpy(), out["primitive_ids"].numpy()
         dist = np.empty(len(o), np.float32)
         tri = np.empty(len(o), np.int64)
-        _hits(out["t_hit"].numpy(), out["primitive_ids"].numpy(), _INVALID_ID, dist, tri)
+        workers.run_chunks(lambda c: _hits(t_hit, prim, _INVALID_ID, dist, tri, cuts[c], cuts[c + 1]), len(cuts) - 1)
         return dist, tri
 
 
-@numba.njit(cache=True)
-def _interleave(o, d, rays):
-    for i in range(len(o)):
+@numba.njit(cache=True, nogil=True)
+def _interleave(o, d, rays, lo, hi):
+    for i in range(lo, hi):
         rays[i, 0], rays[i, 1], rays[i, 2] = o[i, 0], o[i, 1], o[i, 2]
         rays[i, 3], rays[i, 4], rays[i, 5] = d[i, 0], d[i, 1], d[i, 2]
 
 
-@numba.njit(cache=True)
-def _hits(t_hit, prim, invalid, dist, tri):
-    """Distance (inf for a miss) and triangle index (-1 for a miss) of Open3D's answer."""
-    for i in range(len(prim)):
+@numba.njit(cache=True, nogil=True)
+def _hits(t_hit, prim, invalid, dist, tri, lo, hi):
+    """Rays lo..hi: distance (inf for a miss) and triangle index (-1 for a miss) of Open3D's answer."""
+    for i in range(lo, hi):
         if prim[i] == invalid:
             dist[i] = np.inf
             tri[i] = -1
