@@ -101,7 +101,7 @@ def main(argv=None) -> None:
             t = (now.nanoseconds - self.start_ns) * 1e-9
             self.region.step(t, t)
             system = self.region.system
-            cloud = particle_cloud(system.positions_at(t), self.region.radii(t), system.particles.population)
+            cloud = particle_cloud(system.positions_at(t), self.region.radii(t)[0], system.particles.population)
             msg, _ = build_message(cloud, stamp_ns=now.nanoseconds, frame_id=self.frame_id,
                                    types=rclpy_message_types())  # fmt: skip
             self.cloud_pub.publish(msg)

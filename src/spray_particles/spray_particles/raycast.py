@@ -24,24 +24,27 @@ class SphereHits:
     ray: np.ndarray  # (H,) index into the flattened rays
     sphere: np.ndarray  # (H,) index into the spheres
     range_m: np.ndarray  # (H,) distance from the ray origin to the entry point (m)
-    cos_incidence: np.ndarray  # (H,) cosine between the ray and the sphere normal at entry
+    cos_incidence: np.ndarray  # (H,) cosine between the ray and the sphere normal at entry (spheres)
+    half_chord_m: np.ndarray  # (H,) half the length of the ray inside the sphere or ellipsoid (m)
 
 
 def _empty() -> SphereHits:
     z = np.zeros(0)
-    return SphereHits(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z)
+    return SphereHits(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, z)
 
 
 def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarray, centres: np.ndarray,
-                radius: float | np.ndarray) -> SphereHits:  # fmt: skip
+                radius: float | np.ndarray, vertical: np.ndarray | None = None) -> SphereHits:  # fmt: skip
     """Every (ray, sphere) pair where ray i (origin (R, 3), unit direction (R, 3)) enters sphere j
-    (centre (P, 3), ``radius`` m, one for all or one per sphere (P,)) at a range in (0, max_range[i])."""
+    (centre (P, 3), ``radius`` m, one for all or one per sphere (P,)) at a range in (0, max_range[i]).
+    With ``vertical`` (P,) m <= radius the spheres are ellipsoids of that semi-axis along z."""
     if not len(centres) or not len(directions):
         return _empty()
     origins = np.asarray(origins, dtype=np.float64)
     directions = np.asarray(directions, dtype=np.float64)
     centres = np.asarray(centres, dtype=np.float64)
     radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(centres),))
+    z_scale = radius / np.asarray(vertical, dtype=np.float64) if vertical is not None else np.ones(len(centres))
     ref, spread = _origin_spread(origins)
     q = centres - ref
     dist = np.sqrt(np.einsum("nk,nk->n", q, q))
@@ -77,14 +80,15 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
         dup = full[rp] & (np.arange(len(rp)) >= len(az_p))
         last = np.where(dup, first, last)
     sphere = idx[rp]
-    args = (first, last, rp, order, el_sorted, el_p, span, centres[sphere], rad[rp], origins, directions, max_range)
+    args = (first, last, rp, order, el_sorted, el_p, span, centres[sphere], rad[rp], z_scale[sphere], origins,
+            directions, max_range)  # fmt: skip
     n_hits = _narrow_phase(*args, None)
     if not n_hits:
         return _empty()
     out = (np.empty(n_hits, np.int64), np.empty(n_hits, np.int64), np.empty(n_hits), np.empty(n_hits))
     _narrow_phase(*args, out)
-    row, ray, entry, cos_incidence = out
-    return SphereHits(ray, sphere[row], entry, cos_incidence)
+    row, ray, entry, half_chord = out
+    return SphereHits(ray, sphere[row], entry, half_chord / rad[rp][row], half_chord)
 
 
 AZIMUTH_BINS = 4096  # 1.5 mrad each
@@ -136,32 +140,35 @@ def _bin_rays(directions, n_bins):
 
 
 @numba.njit(cache=True)
-def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, centre, radius, origins, directions, max_range, out):
+def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, centre, radius, z_scale, origins, directions,
+                  max_range, out):  # fmt: skip
     """For each window row (a sphere's azimuth window over the sorted rays ``order[first:last]``, whose
-    elevations are ``el_sorted[first:last]``): the rays within its elevation span whose perpendicular distance from the centre is below the radius and
-    whose entry lies in (0, max_range). Counts the hits when ``out`` is None, else fills ``out`` = (row,
-    ray, entry range, cos incidence) and returns the count."""
+    elevations are ``el_sorted[first:last]``): the rays within its elevation span that pass through it
+    (z stretched by ``z_scale`` = radius / vertical semi-axis, so ellipsoids become spheres; rays are
+    solved along their own unit length) with the entry in (0, max_range). Counts the hits when ``out``
+    is None, else fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
     n = 0
     for j in range(len(first)):
         p = rp[j]
-        cx, cy, cz, r = centre[j, 0], centre[j, 1], centre[j, 2], radius[j]
+        cx, cy, cz, r, s = centre[j, 0], centre[j, 1], centre[j, 2], radius[j], z_scale[j]
         lo, hi = el_p[p] - span[p], el_p[p] + span[p]
         for k in range(first[j], last[j]):
             if el_sorted[k] < lo or el_sorted[k] > hi:
                 continue
             i = order[k]
-            vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], cz - origins[i, 2]
-            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-            t = vx * dx + vy * dy + vz * dz
+            vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], (cz - origins[i, 2]) * s
+            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2] * s
+            a = dx * dx + dy * dy + dz * dz
+            t = (vx * dx + vy * dy + vz * dz) / a
             wx, wy, wz = vx - t * dx, vy - t * dy, vz - t * dz
             perp2 = wx * wx + wy * wy + wz * wz
             if perp2 >= r * r:
                 continue
-            half_chord = math.sqrt(r * r - perp2)
+            half_chord = math.sqrt((r * r - perp2) / a)
             entry = t - half_chord
             if entry <= 0.0 or entry >= max_range[i]:
                 continue
             if out is not None:
-                out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord / r
+                out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
             n += 1
     return n

@@ -113,10 +113,12 @@ class SprayRegion:
             self.system.advance_to(t0_s)
         self.system.advance_to(t1_s)
 
-    def radii(self, time_s: float) -> np.ndarray:
-        """Radius (m) of every particle at ``time_s``: the render sphere of an inertial particle, the
-        ball a drop packet has spread to."""
-        return np.where(self.system.particles.population == 1, self.system.mist_radii(time_s), self.radius_m)
+    def radii(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal and vertical semi-axes (m) of every particle at ``time_s``: the render sphere of an
+        inertial particle, the ellipsoid a drop packet has spread to."""
+        packet = self.system.particles.population == 1
+        horizontal, vertical = self.system.mist_radii(time_s)
+        return np.where(packet, horizontal, self.radius_m), np.where(packet, vertical, self.radius_m)
 
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, n_sub = batch.shape
@@ -128,7 +130,7 @@ class SprayRegion:
             return RegionEffect()
         p = self.system.particles
         mist = p.population == 1
-        radii = self.radii(t)
+        radii, vertical = self.radii(t)
         dirs = batch.directions.reshape(-1, 3)
         # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
         # (one dot product per ray); only the rays inside one of these cones go further
@@ -157,7 +159,8 @@ class SprayRegion:
         beam_of_ray = rays // n_sub
         max_range = batch.distance.reshape(-1)[rays]
         max_range = np.where(np.isfinite(max_range), max_range, 1e9)
-        hits = sphere_hits(batch.origins[beam_of_ray], dirs[rays], max_range, centres[idx], radii[idx])
+        hits = sphere_hits(batch.origins[beam_of_ray], dirs[rays], max_range, centres[idx], radii[idx],
+                           vertical[idx])  # fmt: skip
         if not len(hits.ray):
             return RegionEffect()
         scene_range = max_range[hits.ray]
@@ -165,15 +168,15 @@ class SprayRegion:
         beam, sub = np.divmod(hits.ray, n_sub)
         particle = idx[hits.sphere]
         cross_section = p.weight * (np.pi / 4.0) * p.diameter**2 * p.airborne  # m^2 of drops in each packet
-        reflectance, occlusion, range_m = self._returns(hits, mist[particle], radii[particle], cross_section[particle],
-                                                        scene_range)  # fmt: skip
+        reflectance, occlusion, range_m = self._returns(hits, mist[particle], radii[particle], vertical[particle],
+                                                        cross_section[particle], scene_range)  # fmt: skip
         sc = Scatterers(
             beam=beam, subray=sub, range_m=range_m, reflectance=reflectance, occlusion=occlusion,
             label=np.full(len(beam), Label.SPRAY, np.uint8), object_id=self._actor_ids[p.vehicle[particle]],
         )  # fmt: skip
         return RegionEffect(scatterers=sc)
 
-    def _returns(self, hits, mist: np.ndarray, radius: np.ndarray, cross_section: np.ndarray,
+    def _returns(self, hits, mist: np.ndarray, radius: np.ndarray, vertical: np.ndarray, cross_section: np.ndarray,
                  scene_range: np.ndarray) -> tuple[np.ndarray, ...]:  # fmt: skip
         """Reflectance, occlusion (0-1) and range (m) of each sphere hit. An inertial particle is a solid
         sphere: albedo x cos(incidence) at its entry point, blocking the sub-ray. A mist packet is a

@@ -243,13 +243,15 @@ class SpraySystem:
         out[:, 2] -= 0.5 * self.constants.physics.gravity_m_s2 * h * h * (h > 0)
         return out
 
-    def mist_radii(self, time_s: float) -> np.ndarray:
-        """Radius (m) at ``time_s`` of every particle seen as a mist packet: sqrt(r0^2 + 2 K age), K its
-        diffusivity (m^2/s; only mist packets, population 1, have one)."""
+    def mist_radii(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal and vertical semi-axes (m) at ``time_s`` of every particle seen as a drop packet
+        (an ellipsoid, z up): horizontally sqrt(r0^2 + 2 K age), K its diffusivity (m^2/s; only packets,
+        population 1, have one); vertically no more than the height K / w_s over which turbulence holds
+        drops settling at w_s (their terminal speed), but at least r0."""
         p = self.particles
         age = p.age + max(0.0, time_s - (self.time_s or 0.0))
-        r0 = self.constants.mist.initial_radius_m
-        return np.sqrt(r0 * r0 + 2.0 * p.diffusivity * age)
+        return _packet_axes(self.constants.mist.initial_radius_m, p.diffusivity, age, p.kappa, p.lam,
+                            self.constants.physics.gravity_m_s2)  # fmt: skip
 
     def _tick(self, k: int) -> None:
         prm, c = self.params, self.constants
@@ -271,15 +273,16 @@ class SpraySystem:
 
     def _deposit_mist(self, p: Particles, rot, org) -> None:
         """Ground deposition of mist packets: the drops of the part of a packet's ball that has reached
-        the ground plane of its vehicle stay there (``airborne`` = share still airborne, never rising)."""
+        the ground plane of its vehicle stay there (``airborne`` = share still airborne, never rising;
+        the share of an ellipsoid above a plane is that of the ball of its vertical semi-axis)."""
         mist = np.flatnonzero(p.population == 1)
         if not len(mist):
             return
         k = p.vehicle[mist]
         height = np.einsum("ni,ni->n", rot[k][:, :, 2], p.pos[mist] - org[k])
-        r0 = self.constants.mist.initial_radius_m
-        radius = np.sqrt(r0 * r0 + 2.0 * p.diffusivity[mist] * p.age[mist])
-        p.airborne[mist] = np.minimum(p.airborne[mist], ball_share_above(height, radius))
+        _, vertical = _packet_axes(self.constants.mist.initial_radius_m, p.diffusivity[mist], p.age[mist],
+                                   p.kappa[mist], p.lam[mist], self.constants.physics.gravity_m_s2)  # fmt: skip
+        p.airborne[mist] = np.minimum(p.airborne[mist], ball_share_above(height, vertical))
 
     def _alive(self, p: Particles, rot, org) -> np.ndarray:
         """Particles still alive: younger than their lifetime, above the ground under their vehicle,
@@ -339,6 +342,14 @@ class SpraySystem:
                 self.emitted += n
         if len(parts) > 1:
             self.particles = Particles.concatenate(parts)
+
+
+def _packet_axes(r0: float, diffusivity, age, kappa, lam, gravity: float) -> tuple[np.ndarray, np.ndarray]:
+    """Semi-axes of drop packets (see :meth:`SpraySystem.mist_radii`). The settling speed w_s solves
+    g = kappa w^2 + lam w (quadratic and Stokes drag rates), so K / w_s = K (lam + sqrt(lam^2 + 4 kappa g)) / 2g."""
+    horizontal = np.sqrt(r0 * r0 + 2.0 * diffusivity * age)
+    held = diffusivity * (lam + np.sqrt(lam * lam + 4.0 * kappa * gravity)) / (2.0 * gravity)
+    return horizontal, np.minimum(horizontal, np.maximum(held, r0))
 
 
 def ball_share_above(height: np.ndarray, radius: np.ndarray) -> np.ndarray:
