@@ -58,6 +58,29 @@ def _region_with(centres, profile):
     return region
 
 
+def test_sphere_hits_of_flat_ellipsoids_equal_the_quadratic_solution():
+    rng = np.random.default_rng(1)
+    n_rays = 3000
+    az, el = rng.uniform(-0.6, 0.6, n_rays), rng.uniform(-0.1, 0.1, n_rays)
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], 1)
+    o = np.zeros((n_rays, 3))
+    c = np.stack([rng.uniform(3, 20, 200), rng.uniform(-8, 8, 200), rng.uniform(-1, 1, 200)], 1)
+    r, h = rng.uniform(0.2, 0.6, 200), rng.uniform(0.05, 0.2, 200)
+    hits = sphere_hits(o, d, np.full(n_rays, 1e9), c, r, h)
+    # (x - c)^2 / r^2 + (y - c)^2 / r^2 + (z - c)^2 / h^2 = 1 along x = t d: a t^2 - 2 b t + q = 0
+    w = np.array([1.0, 1.0, 0.0])[None, None, :] / r[None, :, None] ** 2 + np.array([0, 0, 1.0]) / h[None, :, None] ** 2
+    a = np.einsum("rk,rpk->rp", d * d, w)
+    b = np.einsum("rk,rpk->rp", d, w * c[None])
+    q = np.einsum("pk,rpk->rp", c * c, w) - 1.0
+    disc = b * b - a * q
+    entry = (b - np.sqrt(np.maximum(disc, 0))) / a
+    brute = np.argwhere((disc > 0) & (entry > 0))
+    assert len(brute) > 100
+    assert {tuple(x) for x in np.stack([hits.ray, hits.sphere], 1)} == {tuple(x) for x in brute}
+    assert hits.range_m == pytest.approx(entry[hits.ray, hits.sphere], abs=1e-9)
+    assert hits.half_chord_m == pytest.approx(np.sqrt(disc[hits.ray, hits.sphere]) / a[hits.ray, hits.sphere], abs=1e-9)
+
+
 def test_a_particle_on_the_ray_gives_the_first_echo_and_hides_the_vehicle_behind_it():
     profile = simple_profile()
     scene = scene_of(wall(20.0, "car_paint", 100))
