@@ -1,17 +1,20 @@
 """A minimal adaptive cruise controller on a LiDAR cloud, and the fixed definition of "brakes".
 
-No ROS import. Obstacle: the nearest cluster of at least ``min_points`` points
-inside the ego's lane corridor (|y| <= ``half_width_m``, between
-``min_height_m`` and ``max_height_m`` above the road, ``min_range_m`` to
-``max_range_m`` ahead, sensor frame: x forward, y left, z up, the road
-``sensor_height_m`` below the sensor), a cluster being the points within
-``cluster_length_m`` in x of the nearest one. As in a radar or LiDAR ACC's
-track management, the controller acts on an obstacle only once it is
-confirmed: seen in ``confirm_frames`` consecutive clouds, its distance
-changing by at most ``track_gate_m`` from one cloud to the next
-(:class:`ObstacleTrack`). Near-field clutter that appears at random ranges
-in single clouds (rain drops 0-5 m in front of the sensor) is not confirmed;
-a spray cloud that follows a vehicle, or a real obstacle, is. The controller treats the
+No ROS import. Obstacles: clusters of at least ``min_points`` points inside
+the ego's lane corridor (|y| <= ``half_width_m``, between ``min_height_m`` and
+``max_height_m`` above the road, ``min_range_m`` to ``max_range_m`` ahead,
+sensor frame: x forward, y left, z up, the road ``sensor_height_m`` below the
+sensor), a cluster being the points within ``cluster_length_m`` in x of its
+nearest one (:func:`clusters`, nearest first). As in a radar or LiDAR ACC's
+track management (:class:`ObstacleTrack`), every cluster starts or continues a
+track, and the controller acts on the nearest confirmed one: seen in
+``confirm_frames`` consecutive clouds, its distance changing by at most
+``track_gate_m`` from one cloud to the next; a confirmed track coasts through
+up to ``coast_frames`` clouds without a cluster (an obstacle hidden for a moment
+by spray). Near-field clutter that appears at random ranges in single clouds
+(rain drops 0-5 m in front of the sensor) is not confirmed, and it does not
+interrupt the track of an obstacle behind it; a spray cloud that follows a
+vehicle, or a real obstacle, is confirmed. The controller treats the
 obstacle as standing still (conservative): the deceleration needed to stop
 ``standstill_m`` before it is a = v^2 / (2 (d - standstill_m)); it brakes with
 that when a >= ``min_brake_m_s2`` (capped at ``max_brake_m_s2``), otherwise
@@ -45,6 +48,7 @@ class AccConfig(ConfigModel):
     min_points: int = Field(5, ge=1, description="Points a cluster needs to count as an obstacle")
     cluster_length_m: float = Field(1.0, gt=0, description="Cluster extent in x from its nearest point (m)")
     confirm_frames: int = Field(3, ge=1, description="Consecutive clouds an obstacle needs before the controller reacts")
+    coast_frames: int = Field(2, ge=0, description="Clouds a confirmed obstacle may be missing before its track ends")
     track_gate_m: float = Field(1.0, gt=0, description="Largest distance change of one obstacle between clouds (m)")
     standstill_m: float = Field(5.0, ge=0, description="Distance to stop before an obstacle (m)")
     min_brake_m_s2: float = Field(0.5, ge=0, description="Below this needed deceleration: no braking (m/s^2)")
@@ -52,8 +56,9 @@ class AccConfig(ConfigModel):
     accel_m_s2: float = Field(1.0, gt=0, description="Acceleration back to the set speed (m/s^2)")
 
 
-def nearest_cluster(points: np.ndarray, cfg: AccConfig) -> np.ndarray:
-    """Indices of the points of the nearest in-lane cluster of >= min_points points (empty: none)."""
+def clusters(points: np.ndarray, cfg: AccConfig) -> list[np.ndarray]:
+    """Point indices of every in-lane cluster of >= min_points points, nearest first; each starts at the
+    nearest in-lane point beyond the previous cluster whose ``cluster_length_m`` window holds enough points."""
     x, y, z = (np.asarray(points[k], dtype=np.float64) for k in ("x", "y", "z"))
     h = z + cfg.sensor_height_m
     inside = (np.abs(y) <= cfg.half_width_m) & (h >= cfg.min_height_m) & (h <= cfg.max_height_m)
@@ -61,8 +66,18 @@ def nearest_cluster(points: np.ndarray, cfg: AccConfig) -> np.ndarray:
     idx = idx[np.argsort(x[idx], kind="stable")]
     xs = x[idx]
     counts = np.searchsorted(xs, xs + cfg.cluster_length_m, side="right") - np.arange(len(xs))
-    hits = np.flatnonzero(counts >= cfg.min_points)
-    return idx[hits[0] : hits[0] + counts[hits[0]]] if len(hits) else idx[:0]
+    found, start = [], 0
+    for i in np.flatnonzero(counts >= cfg.min_points):
+        if i >= start:
+            found.append(idx[i : i + counts[i]])
+            start = i + counts[i]
+    return found
+
+
+def nearest_cluster(points: np.ndarray, cfg: AccConfig) -> np.ndarray:
+    """Indices of the points of the nearest in-lane cluster of >= min_points points (empty: none)."""
+    found = clusters(points, cfg)
+    return found[0] if found else np.zeros(0, np.int64)
 
 
 def obstacle_distance(points: np.ndarray, cfg: AccConfig) -> float | None:
@@ -71,20 +86,42 @@ def obstacle_distance(points: np.ndarray, cfg: AccConfig) -> float | None:
     return float(points["x"][cluster[0]]) if len(cluster) else None
 
 
+@dataclass
+class Track:
+    """One obstacle hypothesis: last distance (m), clouds seen in a row, clouds missed since, and the tag
+    (e.g. the label) of its last cluster."""
+
+    distance_m: float
+    hits: int = 1
+    misses: int = 0
+    tag: object = None
+
+
 class ObstacleTrack:
-    """Confirms an obstacle seen in ``confirm_frames`` consecutive clouds within ``track_gate_m`` per cloud."""
+    """Track management over the clusters of each cloud (see the module docstring)."""
 
     def __init__(self, cfg: AccConfig) -> None:
-        self.cfg, self.last_m, self.hits = cfg, None, 0
+        self.cfg, self.tracks = cfg, []
 
-    def update(self, distance_m: float | None) -> float | None:
-        """The distance (m) once confirmed, else None; call once per cloud with the nearest cluster's distance."""
-        if distance_m is None:
-            self.last_m, self.hits = None, 0
-            return None
-        same = self.last_m is not None and abs(distance_m - self.last_m) <= self.cfg.track_gate_m
-        self.last_m, self.hits = distance_m, self.hits + 1 if same else 1
-        return distance_m if self.hits >= self.cfg.confirm_frames else None
+    def update(self, distances_m, tags=None) -> Track | None:
+        """Call once per cloud with its clusters' distances (m, any order) and optional tags; returns the
+        nearest confirmed track (its distance is the last seen while it coasts), or None."""
+        cfg, distances = self.cfg, [float(d) for d in distances_m]
+        tags = list(tags) if tags is not None else [None] * len(distances)
+        free = set(range(len(distances)))
+        for track in sorted(self.tracks, key=lambda tr: (-tr.hits, tr.distance_m)):  # established tracks first
+            near = [i for i in free if abs(distances[i] - track.distance_m) <= cfg.track_gate_m]
+            if near:
+                i = min(near, key=lambda i: (abs(distances[i] - track.distance_m), i))
+                free.discard(i)
+                track.distance_m, track.hits, track.misses, track.tag = distances[i], track.hits + 1, 0, tags[i]
+            else:
+                track.misses += 1
+        confirmed = cfg.confirm_frames
+        self.tracks = [tr for tr in self.tracks if tr.misses == 0 or (tr.hits >= confirmed and tr.misses <= cfg.coast_frames)]
+        self.tracks += [Track(distances[i], tag=tags[i]) for i in sorted(free)]
+        ready = [tr for tr in self.tracks if tr.hits >= confirmed]
+        return min(ready, key=lambda tr: tr.distance_m) if ready else None
 
 
 @dataclass

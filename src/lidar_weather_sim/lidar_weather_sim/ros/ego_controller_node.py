@@ -23,7 +23,7 @@ from std_msgs.msg import Float64
 
 import numpy as np
 
-from lidar_weather_sim.acc import AccConfig, AccState, ObstacleTrack, nearest_cluster, step
+from lidar_weather_sim.acc import AccConfig, AccState, ObstacleTrack, clusters, step
 from lidar_weather_sim.cloud_codec import CloudFormatError
 from lidar_weather_sim.config import ConfigError, validate
 from lidar_weather_sim.names import TOPIC_POINTS_FILTERED
@@ -56,7 +56,7 @@ class EgoControllerNode(Node):
     def _on_cloud(self, msg: PointCloud2) -> None:
         try:
             points = msg_to_cloud(msg).points
-            cluster = nearest_cluster(points, self.cfg)
+            found = clusters(points, self.cfg)
         except (CloudFormatError, KeyError, ValueError) as exc:
             key = type(exc).__name__
             if key not in self._logged:
@@ -66,15 +66,18 @@ class EgoControllerNode(Node):
         t = stamp_to_ns(msg.header.stamp) * 1e-9
         if self.state.time_s is not None and t <= self.state.time_s:
             return  # old or repeated cloud
-        detected = float(points["x"][cluster[0]]) if len(cluster) else None
-        distance = self.track.update(detected)
+        distances = [float(points["x"][c[0]]) for c in found]
+        has_label = "label" in points.dtype.names
+        labels = [int(np.bincount(points["label"][c]).argmax()) for c in found] if has_label else None
+        track = self.track.update(distances, labels)
+        detected = distances[0] if distances else None
+        distance = track.distance_m if track is not None else None
         speed, decel = step(self.state, t, distance, self.cfg)
         self._pub.publish(Float64(data=float(speed)))
         self.commands += 1
         if self._trace:
             text = lambda d: "" if d is None else f"{d:.3f}"  # noqa: E731
-            has_label = distance is not None and "label" in points.dtype.names
-            label = int(np.bincount(points["label"][cluster]).argmax()) if has_label else ""
+            label = track.tag if track is not None and track.tag is not None else ""
             self._trace.write(f"{t:.6f},{text(detected)},{text(distance)},{label},{speed:.6f},{decel:.6f},{len(points)}\n")
 
     def destroy_node(self) -> None:
