@@ -179,13 +179,13 @@ class SprayRegion:
     def _returns(self, hits, mist: np.ndarray, radius: np.ndarray, vertical: np.ndarray, cross_section: np.ndarray,
                  scene_range: np.ndarray) -> tuple[np.ndarray, ...]:  # fmt: skip
         """Reflectance, occlusion (0-1) and range (m) of each sphere hit. An inertial particle is a solid
-        sphere: albedo x cos(incidence) at its entry point, blocking the sub-ray. A mist packet is a
-        uniform ball of drops with cross-section ``mist.cross_section_m2`` x ``share`` (the share still
-        airborne): a sub-ray through it sees the
-        optical depth tau of its chord and is returned from the chord's middle with reflectance
+        sphere: albedo x cos(incidence) at its entry point, blocking the sub-ray. A drop packet is a
+        uniform ellipsoid (semi-axes ``radius``, ``radius``, ``vertical``, m) holding ``cross_section``
+        m^2 of airborne drops: a sub-ray through it sees the optical depth tau of its chord (up to the
+        scene hit at ``scene_range``, m) and is returned from the chord's middle with reflectance
         albedo x phase x (1 - exp(-tau)), passing on exp(-tau) of its light."""
-        half_chord = hits.cos_incidence * radius
-        density = cross_section / (4.0 / 3.0 * np.pi * radius**3)  # m^2 of drops per m^3
-        opacity = np.where(mist, -np.expm1(-density * 2.0 * half_chord), 1.0)
+        chord = np.minimum(2.0 * hits.half_chord_m, scene_range - hits.range_m)
+        density = cross_section / (4.0 / 3.0 * np.pi * radius**2 * vertical)  # m^2 of drops per m^3
+        opacity = np.where(mist, -np.expm1(-density * chord), 1.0)
         phase = np.where(mist, self.constants.particles.backscatter_phase, hits.cos_incidence)
-        return self.albedo * phase * opacity, opacity, hits.range_m + np.where(mist, half_chord, 0.0)
+        return self.albedo * phase * opacity, opacity, hits.range_m + np.where(mist, 0.5 * chord, 0.0)

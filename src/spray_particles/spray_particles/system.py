@@ -62,7 +62,7 @@ class SprayParams:
     lateral_wind_scale: float = 1.0
     turbulence_intensity: float = 0.1  # RMS turbulent speed / car speed in the wake
     turbulence_length_m: float = 1.0
-    mist_packets_per_wheel_per_tick: float = 4.0  # drop packets (population 1), Poisson mean
+    mist_packets_per_wheel_per_tick: float = 16.0  # drop packets (population 1), Poisson mean
     lifetime_s: float = 2.0
     mist_lifetime_s: float = 4.0
     tick_s: float = 0.01
