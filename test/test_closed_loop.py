@@ -80,7 +80,8 @@ def test_closed_loop_brakes_for_the_box_and_not_for_filtered_weather(tmp_path):
     start = boxed.events[0][0]
     assert start >= BOX_AT_S - 0.04  # stamps are sim time since the scenario start; the frame may start before
     seen = boxed.label[boxed.stamp_s >= start]
-    assert np.mean(seen == OBSTACLE) > 0.8, seen
+    seen = seen[np.isfinite(seen)]  # clouds with a confirmed obstacle (none while the box is hidden by spray)
+    assert len(seen) >= 10 and np.mean(seen == OBSTACLE) > 0.8, seen
     assert boxed.speed_m_s[-1] < 15.0
     # without the filter: phantom braking; the confirmed obstacle it brakes for is the spray
     assert raw.brakes
