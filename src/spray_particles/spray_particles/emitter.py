@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spray_particles.fused import ring_body
+
 
 def ring_emission(i, n_vertices: int, speed_m_s: float, radius_m: float, dt_s: float):
     """Eq. 7-10 (thesis frame, m and m/s): ``(p_x, p_z, v_x, v_z)`` of vertex ``i`` of ``n_vertices``.
@@ -65,22 +67,11 @@ class WheelEmitter:
         the side of each particle's wheel (n,) (+1 left, -1 right) and the wheel index (n,).
         """
         counts = np.asarray(counts, dtype=np.int64)
-        wheel = np.repeat(np.arange(self.n_wheels), counts)
-        n = len(wheel)
         # draws laid out particle-major (particle i of wheel w at [i, w]): the first particles of a wheel
         # are the same whatever the counts
         draws = rng.random((int(counts.max(initial=0)), self.n_wheels, 2))
-        u = np.concatenate([draws[:c, w] for w, c in enumerate(counts)]) if n else np.zeros((0, 2))
-        vertex = np.minimum((u[:, 0] * self.n_vertices).astype(np.int64), self.n_vertices - 1)
-        tread = np.minimum((u[:, 1] * self.treads).astype(np.int64), self.treads - 1)
-        px, pz, vx, vz = ring_emission(vertex, self.n_vertices, speed_m_s, self.radius_m, dt_s)
-        pos = np.empty((n, 3))
-        pos[:, 0] = self.wheel_xy[wheel, 0] - px  # thesis x -> body -x
-        pos[:, 1] = self.wheel_xy[wheel, 1] + self.tread_offsets_m[tread]
-        pos[:, 2] = pz
-        vel = np.stack([-vx, np.zeros(n), vz], axis=-1)
-        side = np.where(self.wheel_xy[wheel, 1] >= 0, 1.0, -1.0)
-        return pos, vel, side, wheel
+        return ring_body(draws, counts, np.ascontiguousarray(self.wheel_xy, dtype=np.float64), self.tread_offsets_m,
+                         self.n_vertices, self.treads, float(speed_m_s), float(self.radius_m), float(dt_s))  # fmt: skip
 
 
 def vehicle_emitter(length_m: float, width_m: float, height_m: float, tyre_radius_m: float, tyre_width_m: float,

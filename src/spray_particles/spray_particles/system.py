@@ -25,11 +25,17 @@ from typing import Callable
 
 import numpy as np
 
+from spray_particles import fused
 from spray_particles.constants import SprayConstants, load_constants
 from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
 from spray_particles.emitter import WheelEmitter
 from spray_particles.forces import CurlNoise, drag_rates, lateral_wind_speed
 from spray_particles.integrator import step as integrate_step
+from spray_particles.kernels import PARALLEL_FROM
+
+#: Ticks of vehicle poses fetched at once from a pose source with ``actor_poses_at`` (s are pure
+#: functions of time: fetching ahead changes no value, only the number of calls).
+POSE_LOOKAHEAD = 16
 
 #: A mist packet with less than this share of its drops still airborne is dropped.
 MIN_MIST_SHARE = 0.01
@@ -135,6 +141,7 @@ class SpraySystem:
         #: wheel arch: a cylinder 5 cm larger than the tyre, 5 cm wider on each side (m)
         self._arch_r = np.array([v.emitter.radius_m + 0.05 for v in vs], dtype=np.float64)
         self._arch_half_w = np.array([0.5 * v.emitter.width_m + 0.05 for v in vs], dtype=np.float64)
+        self._ambient = np.asarray(self.params.ambient_wind_m_s, dtype=np.float64)
 
     @property
     def time_s(self) -> float | None:
@@ -147,7 +154,7 @@ class SpraySystem:
             t = k * self.params.tick_s
             many = getattr(self.poses, "__self__", None)
             if many is not None and hasattr(many, "actor_poses_at"):  # batch the rest of the step's ticks
-                ticks = list(range(k, max(k + 1, self._target_tick + 2)))
+                ticks = list(range(k, max(k + 1 + POSE_LOOKAHEAD, self._target_tick + 2)))
                 for tick, p in zip(ticks, many.actor_poses_at(np.array(ticks) * self.params.tick_s)):
                     cache[tick] = p
             else:
@@ -257,19 +264,44 @@ class SpraySystem:
         prm, c = self.params, self.constants
         dt = prm.tick_s
         t = k * dt
-        rng = np.random.default_rng([prm.seed & 0xFFFFFFFF, k & 0xFFFFFFFF, 0x5B2A])
+        rng = tick_generator(prm.seed, k)
         cached = getattr(self, "_state_cache", None)
         s0 = cached[1] if cached is not None and cached[0] == k else self._vehicle_state(k)
         s1 = self._vehicle_state(k + 1)
         self._state_cache = (k + 1, s1)
         p = self.particles
-        if len(p):
+        if len(p) and (len(p) >= PARALLEL_FROM or not self.vehicles):  # big sets: the parallel kernels
             air = self.air_velocity(p, t, *s0[:3])
             p.pos, p.vel = integrate_step(p.pos, p.vel, air, p.kappa, p.lam, c.physics.gravity_m_s2, dt)
             p.age = p.age + dt
             self._deposit_mist(p, s1[0], s1[1])
             self.particles = p.select(self._alive(p, s1[0], s1[1]))
+        elif len(p):
+            self.particles = self._fused_step(p, t, s0, s1, 0)
         self._emit(rng, k, s1[3], s1[2], s1[0], s1[1])
+
+    def _fused_step(self, p: "Particles", t: float, s0, s1, extra: int) -> "Particles":
+        """The update of :meth:`_tick` (air at ``t`` with the vehicle state ``s0``, one step, ageing,
+        deposition and death with the state ``s1`` of the next tick) in two numba calls
+        (spray_particles.fused); the survivors come back with ``extra`` empty rows at the end."""
+        prm, c = self.params, self.constants
+        rot, org, vel = s0[:3]
+        lat = c.lateral_wind
+        v_lat = prm.lateral_wind_scale * lateral_wind_speed(np.linalg.norm(vel, axis=1), lat.slope,
+                                                            lat.threshold_speed_m_s)  # fmt: skip
+        lo, hi = c.particles.lateral_field_range_m
+        nz, g = self.noise, c.physics.gravity_m_s2
+        pos, vel_p, age, vertical = fused.move(
+            p.pos, p.vel, p.age, p.kappa, p.lam, p.diffusivity, p.vehicle, p.side, rot, org, vel, self._length,
+            self._width, self._height, np.asarray(v_lat, dtype=np.float64), self._ambient, float(prm.wind_over_speed),
+            float(prm.wake_length_m), float(lo), float(hi), float(prm.turbulence_intensity), nz.k, nz.omega, nz.phase,
+            nz.curl, float(t), float(g), float(prm.tick_s), 0.5, float(c.mist.initial_radius_m))  # fmt: skip
+        arrays, _ = fused.survive(
+            pos, vel_p, age, p.lifetime, p.kappa, p.lam, p.vehicle, p.side, p.population, p.wheel, p.diameter, p.weight,
+            p.diffusivity, p.airborne, vertical, vertical**3, s1[0], s1[1], self._length, self._width, self._height,
+            self._clearance, self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w,
+            MIN_MIST_SHARE, extra)  # fmt: skip
+        return Particles(*arrays)
 
     def _deposit_mist(self, p: Particles, rot, org) -> None:
         """Ground deposition of mist packets: the drops of the part of a packet's ball that has reached
@@ -301,9 +333,12 @@ class SpraySystem:
         return self.params.emission_scale * e.gain_per_mm_m_s * film_mm * max(0.0, speed_m_s - e.threshold_speed_m_s)
 
     def _emit(self, rng, tick: int, present, vel, rot, org) -> None:
+        """Emission of the tick into ``self.particles``: per vehicle, Poisson counts per wheel of both
+        populations from ``rng``, then each population's own generator for where and (packets) which
+        drop size; appended in the order vehicle, population."""
         prm, c = self.params, self.constants
         dt = prm.tick_s
-        parts = [self.particles]
+        blocks = []
         for k, v in enumerate(self.vehicles):
             if not present[k]:
                 continue
@@ -323,25 +358,48 @@ class SpraySystem:
                 n = int(counts.sum())
                 if not n:
                     continue
-                draws = np.random.default_rng([prm.seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, k, 1 + pop])
+                draws = tick_generator(prm.seed, tick, k, 1 + pop)
                 pos_b, vel_b, side, wheel = v.emitter.emit(draws, counts, speed, dt)
-                new = Particles(pos_b @ rot[k].T + org[k], vel_b @ rot[k].T + vel[k], np.zeros(n), side=side,
-                                vehicle=np.full(n, k, np.int64), population=np.full(n, pop, np.uint8), wheel=wheel,
-                                airborne=np.ones(n))  # fmt: skip
+                block = {"pos": pos_b @ rot[k].T + org[k], "vel": vel_b @ rot[k].T + vel[k], "age": 0.0, "side": side,
+                         "vehicle": k, "population": pop, "wheel": wheel, "airborne": 1.0}  # fmt: skip
                 if pop == 0:
-                    new.lifetime, new.diameter = np.full(n, prm.lifetime_s), np.full(n, c.particles.diameter_m)
-                    new.kappa, new.lam = np.full(n, self._kappa_inertial), np.full(n, self._lam_inertial)
-                    new.weight, new.diffusivity = np.ones(n), np.zeros(n)
+                    block.update(lifetime=prm.lifetime_s, diameter=c.particles.diameter_m, kappa=self._kappa_inertial,
+                                 lam=self._lam_inertial, weight=1.0, diffusivity=0.0)  # fmt: skip
                 else:  # drop packets: an equal share of the wheel's airborne water each, in drops of one size
-                    new.lifetime, new.diameter = np.full(n, prm.mist_lifetime_s), volume_weighted_diameters(c, draws, n, speed)
-                    new.kappa, new.lam = drag_rates(new.diameter, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
-                                                    c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)  # fmt: skip
-                    new.weight = drops_per_volume(new.diameter, water / n_packets)
-                    new.diffusivity = np.full(n, c.mist.mixing_length_m * speed)
-                parts.append(new)
+                    d = volume_weighted_diameters(c, draws, n, speed)
+                    kappa, lam_d = drag_rates(d, c.physics.drag_coefficient, c.physics.air_density_kg_m3,
+                                              c.physics.water_density_kg_m3, c.physics.air_viscosity_pa_s)  # fmt: skip
+                    block.update(lifetime=prm.mist_lifetime_s, diameter=d, kappa=kappa, lam=lam_d,
+                                 weight=drops_per_volume(d, water / n_packets),
+                                 diffusivity=c.mist.mixing_length_m * speed)  # fmt: skip
+                blocks.append((n, block))
                 self.emitted += n
-        if len(parts) > 1:
-            self.particles = Particles.concatenate(parts)
+        if blocks:
+            self.particles = _append(self.particles, blocks)
+
+
+def _append(p: Particles, blocks: list[tuple[int, dict]]) -> Particles:
+    """``p`` followed by the ``blocks`` (row count, {field: array or one value for all rows})."""
+    n0 = len(p)
+    n = n0 + sum(m for m, _ in blocks)
+    out = []
+    for name in Particles.__dataclass_fields__:
+        old = getattr(p, name)
+        a = np.empty((n,) + old.shape[1:], old.dtype)
+        a[:n0] = old
+        j = n0
+        for m, block in blocks:
+            a[j : j + m] = block[name]
+            j += m
+        out.append(a)
+    return Particles(*out)
+
+
+def tick_generator(seed: int, tick: int, *words: int) -> np.random.Generator:
+    """``np.random.default_rng([seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, *words])`` (words < 2^32),
+    built from a uint32 array: the same generator in a third of the time."""
+    key = np.array([seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, *words], np.uint32)
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(key)))
 
 
 def _packet_axes(r0: float, diffusivity, age, kappa, lam, gravity: float) -> tuple[np.ndarray, np.ndarray]:
@@ -364,7 +422,24 @@ def _poisson_quantile(u: np.ndarray, lam: float) -> np.ndarray:
     the smallest k whose CDF reaches u."""
     if lam <= 0:
         return np.zeros(len(u), np.int64)
-    k = np.arange(int(lam + 12.0 * np.sqrt(lam) + 12.0))
-    log_factorial = np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
-    cdf = np.cumsum(np.exp(k * np.log(lam) - lam - log_factorial))
-    return np.minimum(np.searchsorted(cdf, u, side="left"), len(k) - 1).astype(np.int64)
+    cdf = _POISSON_CDF.get(lam)
+    if cdf is None:
+        k = np.arange(int(lam + 12.0 * np.sqrt(lam) + 12.0))
+        log_factorial = _log_factorial(len(k))
+        cdf = np.cumsum(np.exp(k * np.log(lam) - lam - log_factorial))
+        if len(_POISSON_CDF) > 64:
+            _POISSON_CDF.clear()
+        _POISSON_CDF[lam] = cdf
+    return np.minimum(np.searchsorted(cdf, u, side="left"), len(cdf) - 1).astype(np.int64)
+
+
+_POISSON_CDF: dict[float, np.ndarray] = {}  # CDF tables by mean (the packets' mean is the same every tick)
+_LOG_FACTORIAL: dict[int, np.ndarray] = {}
+
+
+def _log_factorial(n: int) -> np.ndarray:
+    """log(k!) for k = 0 .. n - 1 (cached by n)."""
+    if n not in _LOG_FACTORIAL:
+        k = np.arange(n)
+        _LOG_FACTORIAL[n] = np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
+    return _LOG_FACTORIAL[n]

@@ -1,0 +1,120 @@
+"""One particle tick in two numba calls, and the wheel emission geometry (serial, cached on disk).
+
+They do what :class:`spray_particles.system.SpraySystem` did stage by stage with numpy
+(air velocity, integration, ageing, drop-packet deposition, collisions, death and the
+compaction of the survivors) in the same floating-point operations, so the particles
+are bit for bit the same: only IEEE-exact operations (+ - * / sqrt min max) and libm's
+sin / cos (which numpy's float64 loops also use) run here; what numpy computes with its
+own SIMD code (exp, pow) stays in numpy between the two calls. World frame, m, s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from spray_particles.kernels import air_velocity, collisions, integrate_inplace
+
+_air = air_velocity.serial
+_integrate = integrate_inplace.serial
+_collisions = collisions.serial
+
+
+@numba.njit(cache=True)
+def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, length, width, height, v_lat,
+         ambient, wind_over_speed, wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t, gravity, dt,
+         stiff_limit, r0):  # fmt: skip
+    """Air at tick time ``t`` (s; vehicle state ``rot``, ``org``, ``vcar`` of that tick), one step of
+    ``dt`` and ageing; returns new (pos, vel, age) and each particle's vertical packet semi-axis (m,
+    see ``system._packet_axes``) at its new age. The inputs are not modified."""
+    air = _air(pos, vehicle, side, rot, org, vcar, length, width, height, v_lat, ambient, wind_over_speed,
+               wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t)  # fmt: skip
+    new_pos, new_vel = pos.copy(), vel.copy()
+    _integrate(new_pos, new_vel, air, kappa, lam, gravity, dt, stiff_limit)
+    n = pos.shape[0]
+    new_age = np.empty(n)
+    vertical = np.empty(n)
+    for i in range(n):
+        new_age[i] = age[i] + dt
+        horizontal = math.sqrt(r0 * r0 + 2.0 * diffusivity[i] * new_age[i])
+        held = diffusivity[i] * (lam[i] + math.sqrt(lam[i] * lam[i] + 4.0 * kappa[i] * gravity)) / (2.0 * gravity)
+        vertical[i] = min(horizontal, max(held, r0))
+    return new_pos, new_vel, new_age, vertical
+
+
+@numba.njit(cache=True)
+def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, wheel, diameter, weight, diffusivity,
+            airborne, vertical, vertical_cubed, rot, org, length, width, height, clearance, wheel_xz, wheel_y,
+            n_wheels, arch_r, arch_half_w, min_share, extra):  # fmt: skip
+    """Deposition of drop packets (population 1: ``airborne`` = min(airborne, share of the ball of
+    radius ``vertical`` above the vehicle's ground plane)), then the survivors (younger than their
+    lifetime, outside body and ground, packets above ``min_share``) compacted into new arrays with
+    ``extra`` free rows at the end (for the particles emitted this tick), in the field order of
+    ``system.Particles``."""
+    n = pos.shape[0]
+    dead = _collisions(pos, vehicle, rot, org, length, width, height, clearance, wheel_xz, wheel_y, n_wheels,
+                       arch_r, arch_half_w)  # fmt: skip
+    share = airborne.copy()
+    keep = np.empty(n, np.bool_)
+    m = 0
+    for i in range(n):
+        if population[i] == 1:
+            k = vehicle[i]
+            d0, d1, d2 = pos[i, 0] - org[k, 0], pos[i, 1] - org[k, 1], pos[i, 2] - org[k, 2]
+            above = rot[k, 0, 2] * d0 + rot[k, 1, 2] * d1 + rot[k, 2, 2] * d2
+            r = vertical[i]
+            h = min(max(r - above, 0.0), 2.0 * r)
+            share[i] = min(airborne[i], 1.0 - h * h * (3.0 * r - h) / (4.0 * vertical_cubed[i]))
+        keep[i] = age[i] < lifetime[i] and not dead[i] and not (population[i] == 1 and share[i] <= min_share)
+        m += keep[i]
+    size = m + extra
+    out = (np.empty((size, 3)), np.empty((size, 3)), np.empty(size), np.empty(size), np.empty(size), np.empty(size),
+           np.empty(size, np.int64), np.empty(size), np.empty(size, np.uint8), np.empty(size, np.int64),
+           np.empty(size), np.empty(size), np.empty(size), np.empty(size))  # fmt: skip
+    j = 0
+    for i in range(n):
+        if not keep[i]:
+            continue
+        for q in range(3):
+            out[0][j, q] = pos[i, q]
+            out[1][j, q] = vel[i, q]
+        out[2][j], out[3][j], out[4][j], out[5][j] = age[i], lifetime[i], kappa[i], lam[i]
+        out[6][j], out[7][j], out[8][j], out[9][j] = vehicle[i], side[i], population[i], wheel[i]
+        out[10][j], out[11][j], out[12][j], out[13][j] = diameter[i], weight[i], diffusivity[i], share[i]
+        j += 1
+    return out, m
+
+
+@numba.njit(cache=True)
+def ring_body(draws, counts, wheel_xy, tread_offsets, n_vertices, treads, speed, radius, dt):
+    """Body-frame positions (n, 3) m, velocities (n, 3) m/s, side (n,) and wheel (n,) of ``counts[w]``
+    particles per wheel w from the uniforms ``draws`` (max count, W, 2): vertex and tread of eq. 7-10
+    (see ``emitter.ring_emission``, thesis x mapped to body -x), particle-major like ``WheelEmitter.emit``."""
+    n = 0
+    for w in range(counts.shape[0]):
+        n += counts[w]
+    pos = np.empty((n, 3))
+    vel = np.empty((n, 3))
+    side = np.empty(n)
+    wheel = np.empty(n, np.int64)
+    nv = float(n_vertices)
+    j = 0
+    for w in range(counts.shape[0]):
+        for c in range(counts[w]):
+            vertex = float(min(int(draws[c, w, 0] * n_vertices), n_vertices - 1))
+            tread = min(int(draws[c, w, 1] * treads), treads - 1)
+            angle = 2.0 * np.pi * vertex / nv - 0.5 * np.pi + speed * dt * vertex / (nv * radius)
+            mag = speed * vertex / nv
+            ca, sa = math.cos(angle), math.sin(angle)
+            pos[j, 0] = wheel_xy[w, 0] - radius * ca
+            pos[j, 1] = wheel_xy[w, 1] + tread_offsets[tread]
+            pos[j, 2] = radius * sa + radius
+            vel[j, 0] = -(-mag * sa)
+            vel[j, 1] = 0.0
+            vel[j, 2] = mag * ca
+            side[j] = 1.0 if wheel_xy[w, 1] >= 0 else -1.0
+            wheel[j] = w
+            j += 1
+    return pos, vel, side, wheel
