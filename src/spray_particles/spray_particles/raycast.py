@@ -82,12 +82,13 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     sphere = idx[rp]
     args = (first, last, rp, order, el_sorted, el_p, span, centres[sphere], rad[rp], z_scale[sphere], origins,
             directions, max_range)  # fmt: skip
-    n_hits = _narrow_phase(*args, None)
+    # one pass: a ray is a candidate of a row at most once, so the candidates bound the hits
+    room = int(np.sum(last - first))
+    out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
+    n_hits = _narrow_phase(*args, out)
     if not n_hits:
         return _empty()
-    out = (np.empty(n_hits, np.int64), np.empty(n_hits, np.int64), np.empty(n_hits), np.empty(n_hits))
-    _narrow_phase(*args, out)
-    row, ray, entry, half_chord = out
+    row, ray, entry, half_chord = (a[:n_hits] for a in out)
     return SphereHits(ray, sphere[row], entry, half_chord / rad[rp][row], half_chord)
 
 
