@@ -48,56 +48,23 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     ref, spread = _origin_spread(origins)
     q = centres - ref
     dist = np.sqrt(np.einsum("nk,nk->n", q, q))
-    near = dist - spread
-    keep = near < np.max(max_range) + radius
-    if not keep.any():
+    idx, q, dist, near, rad, span_sine, el_sine = _near_spheres(q, dist, radius, spread, float(np.max(max_range)))
+    if not len(idx):
         return _empty()
-    idx = np.flatnonzero(keep)
-    q, dist, near, rad = q[keep], dist[keep], near[keep], radius[keep]
-    span = np.where(near > rad + 1e-9, np.arcsin(np.clip((rad + spread) / np.maximum(near, 1e-9), 0, 1)), np.pi)
-    span = span * 1.0001 + 1e-9
+    # numpy's own arcsin / arctan2 (the kernels use only IEEE-exact operations and libm's cos)
+    span_arcsin = np.arcsin(span_sine)
     az_p = np.arctan2(q[:, 1], q[:, 0])
-    el_p = np.arcsin(np.clip(q[:, 2] / np.maximum(dist, 1e-12), -1, 1))
-    cos_el = np.cos(np.minimum(np.abs(el_p) + span, 0.5 * np.pi))
-    half_w = np.where(cos_el > 1e-6, np.minimum(span / np.maximum(cos_el, 1e-6), np.pi), np.pi)
-
+    el_p = np.arcsin(el_sine)
     order, bin_start, el_sorted = _bin_rays(directions, AZIMUTH_BINS)
-    # azimuth windows, split where they wrap around +-pi
-    lo_a, hi_a = az_p - half_w, az_p + half_w
-    rows_p = [np.arange(len(az_p))]
-    rows_lo, rows_hi = [np.maximum(lo_a, -np.pi)], [np.minimum(hi_a, np.pi)]
-    wrap_lo = lo_a < -np.pi
-    rows_p.append(np.flatnonzero(wrap_lo)); rows_lo.append(lo_a[wrap_lo] + 2 * np.pi); rows_hi.append(np.full(wrap_lo.sum(), np.pi))  # noqa: E702
-    wrap_hi = hi_a > np.pi
-    rows_p.append(np.flatnonzero(wrap_hi)); rows_lo.append(np.full(wrap_hi.sum(), -np.pi)); rows_hi.append(hi_a[wrap_hi] - 2 * np.pi)  # noqa: E702
-    full = half_w >= np.pi
-    rp, rlo, rhi = np.concatenate(rows_p), np.concatenate(rows_lo), np.concatenate(rows_hi)
-    rlo = np.where(full[rp], -np.pi, rlo)
-    rhi = np.where(full[rp], np.pi, rhi)
-    first = bin_start[_azimuth_bin(rlo, AZIMUTH_BINS)]
-    last = bin_start[_azimuth_bin(rhi, AZIMUTH_BINS) + 1]
-    if np.any(full):  # a full window must not be counted twice by the wrap rows
-        dup = full[rp] & (np.arange(len(rp)) >= len(az_p))
-        last = np.where(dup, first, last)
-    sphere = idx[rp]
-    args = (first, last, rp, order, el_sorted, el_p, span, centres[sphere], rad[rp], z_scale[sphere], origins,
-            directions, max_range)  # fmt: skip
-    # one pass: a ray is a candidate of a row at most once, so the candidates bound the hits
-    room = int(np.sum(last - first))
-    out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
-    n_hits = _narrow_phase(*args, out)
-    if not n_hits:
+    ray, sphere, entry, cos_incidence, half_chord = _cast(
+        idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, el_sorted, centres, z_scale, origins, directions,
+        max_range)  # fmt: skip
+    if not len(ray):
         return _empty()
-    row, ray, entry, half_chord = (a[:n_hits] for a in out)
-    return SphereHits(ray, sphere[row], entry, half_chord / rad[rp][row], half_chord)
+    return SphereHits(ray, sphere, entry, cos_incidence, half_chord)
 
 
 AZIMUTH_BINS = 4096  # 1.5 mrad each
-
-
-def _azimuth_bin(azimuth: np.ndarray, n_bins: int) -> np.ndarray:
-    """Bin (0..n_bins-1) of azimuths in [-pi, pi] (rad)."""
-    return np.clip(np.floor((azimuth + np.pi) * (n_bins / (2.0 * np.pi))).astype(np.int64), 0, n_bins - 1)
 
 
 @numba.njit(cache=True)
@@ -141,17 +108,101 @@ def _bin_rays(directions, n_bins):
 
 
 @numba.njit(cache=True)
-def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, centre, radius, z_scale, origins, directions,
+def _near_spheres(q, dist, radius, spread, max_range):
+    """The spheres (centre ``q`` from the rays' mean origin, m; ``dist`` its length) that can lie within
+    ``max_range`` of a ray origin: their indices, q, dist, distance beyond the origins' ``spread``
+    (near), radius, the sine of their angular radius seen from the origins and of their elevation."""
+    n = q.shape[0]
+    keep = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if dist[i] - spread < max_range + radius[i]:
+            keep[m] = i
+            m += 1
+    idx = keep[:m].copy()
+    q_k, dist_k, near, rad = np.empty((m, 3)), np.empty(m), np.empty(m), np.empty(m)
+    span_sine, el_sine = np.empty(m), np.empty(m)
+    for j in range(m):
+        i = idx[j]
+        for k in range(3):
+            q_k[j, k] = q[i, k]
+        dist_k[j], near[j], rad[j] = dist[i], dist[i] - spread, radius[i]
+        span_sine[j] = min(max((rad[j] + spread) / max(near[j], 1e-9), 0.0), 1.0)
+        el_sine[j] = min(max(q[i, 2] / max(dist[i], 1e-12), -1.0), 1.0)
+    return idx, q_k, dist_k, near, rad, span_sine, el_sine
+
+
+@numba.njit(cache=True, inline="always")
+def _azimuth_bin(azimuth, n_bins):
+    """Bin (0..n_bins-1) of an azimuth in [-pi, pi] (rad)."""
+    return min(max(int(math.floor((azimuth + np.pi) * (n_bins / (2.0 * np.pi)))), 0), n_bins - 1)
+
+
+@numba.njit(cache=True)
+def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, el_sorted, centres, z_scale, origins,
+          directions, max_range):  # fmt: skip
+    """Azimuth windows of the near spheres (their angular radius ``span`` widened by 1e-4 and 1e-9 rad,
+    over cos(elevation); windows crossing +-pi split into two rows, listed after all first rows; a
+    sphere around the origins gets the full circle once), then the narrow phase over each window's
+    rays (see :func:`_narrow_phase`). Returns (ray, sphere, entry range, cos incidence, half chord)."""
+    m = idx.shape[0]
+    span = np.empty(m)
+    lo_a, hi_a = np.empty(m), np.empty(m)
+    full = np.empty(m, np.bool_)
+    n_rows = m
+    for j in range(m):
+        s = span_arcsin[j] if near[j] > rad[j] + 1e-9 else np.pi  # inside the sphere: all around
+        span[j] = s * 1.0001 + 1e-9
+        cos_el = math.cos(min(abs(el_p[j]) + span[j], 0.5 * np.pi))
+        half_w = min(span[j] / max(cos_el, 1e-6), np.pi) if cos_el > 1e-6 else np.pi
+        lo_a[j], hi_a[j] = az_p[j] - half_w, az_p[j] + half_w
+        full[j] = half_w >= np.pi
+        n_rows += (lo_a[j] < -np.pi) + (hi_a[j] > np.pi)
+    rp = np.empty(n_rows, np.int64)
+    rlo, rhi = np.empty(n_rows), np.empty(n_rows)
+    for j in range(m):
+        rp[j], rlo[j], rhi[j] = j, max(lo_a[j], -np.pi), min(hi_a[j], np.pi)
+    r = m
+    for j in range(m):
+        if lo_a[j] < -np.pi:
+            rp[r], rlo[r], rhi[r] = j, lo_a[j] + 2 * np.pi, np.pi
+            r += 1
+    for j in range(m):
+        if hi_a[j] > np.pi:
+            rp[r], rlo[r], rhi[r] = j, -np.pi, hi_a[j] - 2 * np.pi
+            r += 1
+    n_bins = bin_start.shape[0] - 1
+    first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
+    room = 0
+    for r in range(n_rows):
+        lo, hi = (-np.pi, np.pi) if full[rp[r]] else (rlo[r], rhi[r])
+        first[r] = bin_start[_azimuth_bin(lo, n_bins)]
+        last[r] = first[r] if full[rp[r]] and r >= m else bin_start[_azimuth_bin(hi, n_bins) + 1]
+        room += last[r] - first[r]  # a ray is a candidate of a row at most once: room for every hit
+    out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
+    n = _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, rad, z_scale, origins, directions,
+                      max_range, out)  # fmt: skip
+    row, ray, entry, half_chord = out[0][:n], out[1][:n], out[2][:n], out[3][:n]
+    sphere, cos_incidence = np.empty(n, np.int64), np.empty(n)
+    for h in range(n):
+        sphere[h] = idx[rp[row[h]]]
+        cos_incidence[h] = half_chord[h] / rad[rp[row[h]]]
+    return ray, sphere, entry, cos_incidence, half_chord
+
+
+@numba.njit(cache=True, inline="always")
+def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, radius, z_scale, origins, directions,
                   max_range, out):  # fmt: skip
-    """For each window row (a sphere's azimuth window over the sorted rays ``order[first:last]``, whose
-    elevations are ``el_sorted[first:last]``): the rays within its elevation span that pass through it
-    (z stretched by ``z_scale`` = radius / vertical semi-axis, so ellipsoids become spheres; rays are
-    solved along their own unit length) with the entry in (0, max_range). Counts the hits when ``out``
-    is None, else fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
+    """For each window row (sphere ``idx[rp[j]]``'s azimuth window over the sorted rays
+    ``order[first:last]``, whose elevations are ``el_sorted[first:last]``): the rays within its
+    elevation span that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
+    ellipsoids become spheres; rays are solved along their own unit length) with the entry in
+    (0, max_range). Fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
     n = 0
     for j in range(len(first)):
         p = rp[j]
-        cx, cy, cz, r, s = centre[j, 0], centre[j, 1], centre[j, 2], radius[j], z_scale[j]
+        c = idx[p]
+        cx, cy, cz, r, s = centres[c, 0], centres[c, 1], centres[c, 2], radius[p], z_scale[c]
         lo, hi = el_p[p] - span[p], el_p[p] + span[p]
         for k in range(first[j], last[j]):
             if el_sorted[k] < lo or el_sorted[k] > hi:
@@ -169,7 +220,6 @@ def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, centre, radius,
             entry = t - half_chord
             if entry <= 0.0 or entry >= max_range[i]:
                 continue
-            if out is not None:
-                out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
+            out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
             n += 1
     return n
