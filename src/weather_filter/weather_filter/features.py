@@ -214,81 +214,107 @@ def azimuth_step(azimuth, channel, echo, n_channels):
     return np.median(diffs)
 
 
+#: Range stored in the empty cells of a range image's first-echo plane (m): finite (fastmath assumes no inf), and
+#: its relative difference to any return is far above 1, so it changes no minimum and counts as no close return.
+_EMPTY_RANGE = np.float32(1e30)
+
+
 @njit(cache=True, nogil=True, fastmath=True)
-def _range_image_features(x, y, z, channel, azimuth, step, n_channels, n_echoes, columns, channels, close, out):
-    """``ri_*`` columns (18-24) of ``out`` from a range image of ``n_channels`` rows and 2 pi / ``step``
-    columns (wrapping round), ``n_echoes`` ranges per cell (further ones of a crowded cell are dropped).
-    Stored column-major (a column's channels adjacent: the order points arrive in) with ``channels`` empty
-    rows and ``columns`` wrapped columns of padding on each side, so the window needs no bounds checks."""
-    n = len(x)
+def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, channels, close):
+    """``ri_*`` columns (18-24) of ``out`` (whose columns 0-2 and 4 hold x, y, z in m and the channel) from a
+    range image of ``n_channels`` rows and 2 pi / ``step`` columns (``step`` and ``azimuth`` in rad, wrapping
+    round), ``n_echoes`` ranges per cell (further ones of a crowded cell are dropped).
+
+    Stored column-major (a column's channels adjacent: the order points arrive in) with ``channels`` empty rows
+    and ``columns`` wrapped columns of padding on each side, so the window needs no bounds checks. A cell's first
+    range is in ``first`` (:data:`_EMPTY_RANGE` if empty), so the window's first echoes are read without
+    branches; its later ones (``extra``) are visited only for windows holding a crowded cell."""
+    n = out.shape[0]
     n_cols = max(int(2.0 * np.pi / step + 0.5), 1)
     stride = n_channels + 2 * channels
     n_cells = (n_cols + 2 * columns) * stride
+    n_extra = max(n_echoes - 1, 1)
     counts = np.zeros(n_cells, np.int8)
-    ranges = np.empty(n_cells * n_echoes, np.float32)
+    first = np.full(n_cells, _EMPTY_RANGE)
+    extra = np.empty((n_cells, n_extra), np.float32)
     cell = np.empty(n, np.int64)
     r = np.empty(n, np.float32)
     inv_step = 1.0 / step
     for i in range(n):
-        xi, yi, zi = np.float64(x[i]), np.float64(y[i]), np.float64(z[i])
+        xi, yi, zi = np.float64(out[i, 0]), np.float64(out[i, 1]), np.float64(out[i, 2])
         r[i] = np.sqrt(xi * xi + yi * yi + zi * zi)
         b = int((azimuth[i] + np.pi) * inv_step)
         if b >= n_cols:
             b -= n_cols
         b = min(max(b, 0), n_cols - 1)
-        c = (b + columns) * stride + channels + np.int64(channel[i])
+        c = (b + columns) * stride + channels + np.int64(out[i, 4])
         cell[i] = c
         k = counts[c]
-        if k < n_echoes:
-            ranges[c * n_echoes + k] = r[i]
-            counts[c] = k + 1
+        if k == 0:
+            first[c] = r[i]
+        elif k < n_echoes:
+            extra[c, k - 1] = r[i]
+        counts[c] = min(k + 1, n_echoes)
     for j in range(columns):  # wrap: the last columns before the first, the first after the last
         for src, dst in ((n_cols + j, j), (columns + j, n_cols + columns + j)):
             for t in range(stride):
                 counts[dst * stride + t] = counts[src * stride + t]
-                for k in range(n_echoes):
-                    ranges[(dst * stride + t) * n_echoes + k] = ranges[(src * stride + t) * n_echoes + k]
+                first[dst * stride + t] = first[src * stride + t]
+                for k in range(n_extra):
+                    extra[dst * stride + t, k] = extra[src * stride + t, k]
     for i in range(n):
         ri = r[i]
         inv = np.float32(1.0) / max(ri, np.float32(0.05))
         c = cell[i]
+        # the point's own cell: returns behind / in front of it
         behind = 0
         front = 0
         gap = np.float32(1.0)
         for k in range(counts[c]):
-            d = (ranges[c * n_echoes + k] - ri) * inv
+            d = ((first[c] if k == 0 else extra[c, k - 1]) - ri) * inv
             if d > 1e-3:
                 behind += 1
                 gap = min(gap, d)
             elif d < -1e-3:
                 front += 1
+        # the window's first echoes (the own cell's counted, then taken off, and left out of ring)
         ring = np.float32(1.0)
         cross = np.float32(1.0)
         n_close = 0
         occupied = 0
+        crowded = False
         for db in range(-columns, columns + 1):
-            base = c + db * stride
-            for dc in range(-channels, channels + 1):
-                q = base + dc
+            q0 = c + db * stride
+            if db != 0:
+                ring = min(ring, abs(first[q0] - ri) * inv)
+            if channels >= 1:
+                cross = min(cross, min(abs(first[q0 - 1] - ri) * inv, abs(first[q0 + 1] - ri) * inv))
+            for q in range(q0 - channels, q0 + channels + 1):
                 m = counts[q]
-                if m == 0 or q == c:
-                    continue
-                occupied += 1
-                best = np.float32(1.0)
-                for k in range(m):
-                    d = abs(ranges[q * n_echoes + k] - ri) * inv
-                    n_close += d < close
-                    best = min(best, d)
-                if dc == 0:
-                    ring = min(ring, best)
-                elif dc == 1 or dc == -1:
-                    cross = min(cross, best)
-        out[i, 18] = np.log10(max(ring, np.float32(1e-3)))
-        out[i, 19] = np.log10(max(cross, np.float32(1e-3)))
+                occupied += m > 0
+                crowded |= m > 1
+                n_close += abs(first[q] - ri) * inv < close
+        n_close -= abs(first[c] - ri) * inv < close
+        occupied -= 1
+        if crowded:  # later echoes of the window's cells but the own one
+            for db in range(-columns, columns + 1):
+                for dc in range(-channels, channels + 1):
+                    q = c + db * stride + dc
+                    if q == c:
+                        continue
+                    for k in range(counts[q] - 1):
+                        d = abs(extra[q, k] - ri) * inv
+                        n_close += d < close
+                        if dc == 0:
+                            ring = min(ring, d)
+                        elif dc == 1 or dc == -1:
+                            cross = min(cross, d)
+        out[i, 18] = np.log10(max(ring, np.float32(1e-3))) if ring < 1 else np.float32(0.0)
+        out[i, 19] = np.log10(max(cross, np.float32(1e-3))) if cross < 1 else np.float32(0.0)
         out[i, 20] = n_close
         out[i, 21] = occupied
         out[i, 22] = behind
-        out[i, 23] = np.log10(max(gap, np.float32(1e-3)))
+        out[i, 23] = np.log10(max(gap, np.float32(1e-3))) if gap < 1 else np.float32(0.0)
         out[i, 24] = front
 
 
@@ -334,6 +360,6 @@ class PointFeatures:
             step = azimuth_step(azimuth, channel, points["echo"], n_channels)
             step = max(step if step > 0 else np.radians(DEFAULT_STEP_DEG), 2 * np.pi * n_channels / MAX_RI_CELLS)
             self.last_step_rad = float(step)
-            _range_image_features(points["x"], points["y"], points["z"], channel, azimuth, step, n_channels, RI_ECHOES,
-                                  self.ri_columns, self.ri_channels, np.float32(RI_CLOSE), out)  # fmt: skip
+            _range_image_features(out, azimuth, step, n_channels, RI_ECHOES, self.ri_columns, self.ri_channels,
+                                  np.float32(RI_CLOSE))  # fmt: skip
         return out
