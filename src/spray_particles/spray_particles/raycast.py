@@ -223,3 +223,51 @@ def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, r
             out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
             n += 1
     return n
+
+
+@numba.njit(cache=True)
+def group_bounds(centres, radius, group, n_groups):
+    """Per group (e.g. the emitting vehicle) of spheres: the lower and upper corners (G, 3) of its
+    centres' box and its largest radius (G,), -1 for a group without spheres."""
+    lo = np.full((n_groups, 3), np.inf)
+    hi = np.full((n_groups, 3), -np.inf)
+    largest = np.full(n_groups, -1.0)
+    for i in range(centres.shape[0]):
+        g = group[i]
+        for k in range(3):
+            lo[g, k] = min(lo[g, k], centres[i, k])
+            hi[g, k] = max(hi[g, k], centres[i, k])
+        largest[g] = max(largest[g], radius[i])
+    return lo, hi, largest
+
+
+@numba.njit(cache=True)
+def candidates(ray_mask, chosen, group, beam_origins, directions, distance, n_sub):
+    """The rays of ``ray_mask`` (indices into the flattened (beam, sub-ray) directions) with their
+    beam's origin, direction and scene range (inf -> 1e9 m), and the spheres whose ``group`` is
+    ``chosen``: (rays, spheres, origins, directions, max_range)."""
+    n = 0
+    for i in range(ray_mask.shape[0]):
+        n += ray_mask[i]
+    rays = np.empty(n, np.int64)
+    origins, dirs, max_range = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
+    j = 0
+    for i in range(ray_mask.shape[0]):
+        if ray_mask[i]:
+            rays[j] = i
+            for k in range(3):
+                origins[j, k] = beam_origins[i // n_sub, k]
+                dirs[j, k] = directions[i, k]
+            d = distance[i]
+            max_range[j] = d if np.isfinite(d) else 1e9
+            j += 1
+    m = 0
+    for i in range(group.shape[0]):
+        m += chosen[group[i]]
+    spheres = np.empty(m, np.int64)
+    m = 0
+    for i in range(group.shape[0]):
+        if chosen[group[i]]:
+            spheres[m] = i
+            m += 1
+    return rays, spheres, origins, dirs, max_range

@@ -31,7 +31,7 @@ from lidar_weather_sim.points import Label
 from lidar_weather_sim.regions import RayBatch, RegionContext, RegionEffect, Scatterers
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
-from spray_particles.raycast import sphere_hits
+from spray_particles.raycast import candidates, group_bounds, sphere_hits
 from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
 from spray_particles.water import tyre_dimensions, water_film_mm
 
@@ -136,31 +136,26 @@ class SprayRegion:
         # (one dot product per ray); only the rays inside one of these cones go further
         ref = batch.origins.mean(axis=0)
         spread = float(np.sqrt(np.max(np.sum((batch.origins - ref) ** 2, axis=1))))
-        keep = np.zeros(len(centres), bool)
+        lo, hi, largest = group_bounds(centres, radii, p.vehicle, len(self.system.vehicles))
+        chosen = np.zeros(len(lo), bool)
         ray_mask = np.zeros(len(dirs), bool)
-        for k in np.unique(p.vehicle):
-            m = p.vehicle == k
-            lo, hi = centres[m].min(axis=0), centres[m].max(axis=0)
-            q = 0.5 * (lo + hi) - ref
-            rad = 0.5 * float(np.linalg.norm(hi - lo)) + float(radii[m].max()) + spread
+        for k in np.flatnonzero(largest >= 0):  # vehicles with particles
+            q = 0.5 * (lo[k] + hi[k]) - ref
+            rad = 0.5 * float(np.linalg.norm(hi[k] - lo[k])) + float(largest[k]) + spread
             dist = float(np.linalg.norm(q))
             if dist <= rad:
-                keep |= m
+                chosen[k] = True
                 ray_mask[:] = True
                 continue
             inside = dirs @ (q / dist) >= np.cos(min(np.pi, np.arcsin(min(1.0, rad / dist)) * 1.001 + 1e-6))
             if inside.any():
-                keep |= m
+                chosen[k] = True
                 ray_mask |= inside
-        rays = np.flatnonzero(ray_mask)
-        if not len(rays):
+        rays, idx, origins, directions, max_range = candidates(ray_mask, chosen, p.vehicle, batch.origins, dirs,
+                                                               batch.distance.reshape(-1), n_sub)  # fmt: skip
+        if not len(rays) or not len(idx):
             return RegionEffect()
-        idx = np.flatnonzero(keep)
-        beam_of_ray = rays // n_sub
-        max_range = batch.distance.reshape(-1)[rays]
-        max_range = np.where(np.isfinite(max_range), max_range, 1e9)
-        hits = sphere_hits(batch.origins[beam_of_ray], dirs[rays], max_range, centres[idx], radii[idx],
-                           vertical[idx])  # fmt: skip
+        hits = sphere_hits(origins, directions, max_range, centres[idx], radii[idx], vertical[idx])
         if not len(hits.ray):
             return RegionEffect()
         scene_range = max_range[hits.ray]
