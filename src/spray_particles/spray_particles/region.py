@@ -136,7 +136,8 @@ class SprayRegion:
         # (one dot product per ray); only the rays inside one of these cones go further
         ref = batch.origins.mean(axis=0)
         spread = float(np.sqrt(np.max(np.sum((batch.origins - ref) ** 2, axis=1))))
-        lo, hi, largest = group_bounds(centres, radii, p.vehicle, len(self.system.vehicles))
+        groups = max(len(self.system.vehicles), int(p.vehicle.max()) + 1)  # particles may be placed by hand
+        lo, hi, largest = group_bounds(centres, radii, p.vehicle, groups)
         chosen = np.zeros(len(lo), bool)
         ray_mask = np.zeros(len(dirs), bool)
         for k in np.flatnonzero(largest >= 0):  # vehicles with particles
