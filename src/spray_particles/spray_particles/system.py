@@ -32,6 +32,7 @@ from spray_particles.emitter import WheelEmitter
 from spray_particles.forces import CurlNoise, drag_rates, lateral_wind_speed
 from spray_particles.integrator import step as integrate_step
 from spray_particles.kernels import PARALLEL_FROM
+from spray_particles.seeds import TickGenerators
 
 #: Ticks of vehicle poses fetched at once from a pose source with ``actor_poses_at`` (s are pure
 #: functions of time: fetching ahead changes no value, only the number of calls).
@@ -142,6 +143,7 @@ class SpraySystem:
         self._arch_r = np.array([v.emitter.radius_m + 0.05 for v in vs], dtype=np.float64)
         self._arch_half_w = np.array([0.5 * v.emitter.width_m + 0.05 for v in vs], dtype=np.float64)
         self._ambient = np.asarray(self.params.ambient_wind_m_s, dtype=np.float64)
+        self._generators = TickGenerators(2)  # the tick's and a population's draws
 
     @property
     def time_s(self) -> float | None:
@@ -264,7 +266,7 @@ class SpraySystem:
         prm, c = self.params, self.constants
         dt = prm.tick_s
         t = k * dt
-        rng = tick_generator(prm.seed, k)
+        rng = self._generators.get([prm.seed & 0xFFFFFFFF, k & 0xFFFFFFFF, 0x5B2A])
         cached = getattr(self, "_state_cache", None)
         s0 = cached[1] if cached is not None and cached[0] == k else self._vehicle_state(k)
         s1 = self._vehicle_state(k + 1)
@@ -358,7 +360,7 @@ class SpraySystem:
                 n = int(counts.sum())
                 if not n:
                     continue
-                draws = tick_generator(prm.seed, tick, k, 1 + pop)
+                draws = self._generators.get([prm.seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, k, 1 + pop], 1)
                 pos_b, vel_b, side, wheel = v.emitter.emit(draws, counts, speed, dt)
                 block = {"pos": pos_b @ rot[k].T + org[k], "vel": vel_b @ rot[k].T + vel[k], "age": 0.0, "side": side,
                          "vehicle": k, "population": pop, "wheel": wheel, "airborne": 1.0}  # fmt: skip
@@ -393,13 +395,6 @@ def _append(p: Particles, blocks: list[tuple[int, dict]]) -> Particles:
             j += m
         out.append(a)
     return Particles(*out)
-
-
-def tick_generator(seed: int, tick: int, *words: int) -> np.random.Generator:
-    """``np.random.default_rng([seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, *words])`` (words < 2^32),
-    built from a uint32 array: the same generator in a third of the time."""
-    key = np.array([seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, *words], np.uint32)
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(key)))
 
 
 def _packet_axes(r0: float, diffusivity, age, kappa, lam, gravity: float) -> tuple[np.ndarray, np.ndarray]:

@@ -6,12 +6,12 @@ per-tick generators against ``np.random.default_rng``.
 """
 
 import numpy as np
-import pytest
 
 from spray_particles import system as system_module
 from spray_particles.constants import load_constants
 from spray_particles.emitter import ring_emission, vehicle_emitter
-from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem, tick_generator
+from spray_particles.seeds import TickGenerators
+from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
 from spray_particles.water import tyre_dimensions
 
 C = load_constants()
@@ -77,10 +77,15 @@ def test_emitter_kernel_equals_eq7_10_in_numpy():
     assert np.array_equal(side, np.where(em.wheel_xy[w_of, 1] >= 0, 1.0, -1.0)) and np.array_equal(wheel, w_of)
 
 
-@pytest.mark.parametrize("seed, tick, words", [(0, 0, ()), (5, 301, (0, 1)), (2**32 + 7, 2**32 - 1, (3, 2))])
-def test_tick_generator_is_default_rng_of_the_same_words(seed, tick, words):
-    expected = np.random.default_rng([seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, *words])
-    assert np.array_equal(tick_generator(seed, tick, *words).random(8), expected.random(8))
+def test_tick_generators_are_default_rng_of_the_same_words():
+    generators = TickGenerators(2)
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        words = [int(w) for w in rng.integers(0, 2**32, rng.integers(1, 8))] + [0] * (trial % 2)
+        expected = np.random.default_rng(words)
+        drawn = generators.get(words, trial % 2)
+        assert np.array_equal(drawn.random(3), expected.random(3)), words
+        assert np.array_equal(drawn.normal(size=3), expected.normal(size=3)) and drawn.gamma(3.0) == expected.gamma(3.0)
 
 
 def test_same_seed_same_particles_whatever_the_pose_lookahead(monkeypatch):
