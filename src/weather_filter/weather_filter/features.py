@@ -38,6 +38,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from weather_filter.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
+
 IMPULSE = np.array([[-1, -1, -1], [-1, 4, -1], [-1, -1, -1]], dtype=np.float32)  # A1
 HORIZONTAL = np.array([[-1] * 10, [2] * 10, [-1] * 10], dtype=np.float32)  # A2
 CORNER = np.array(
@@ -91,12 +93,15 @@ def _kernel_taps() -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv_cys, nxs, nys, n_radial,
-                    inv_bin_deg, previous, has_previous, taps, start, out, azimuth):  # fmt: skip
-    """All feature columns (see :class:`PointFeatures`) in one compiled pass; returns the radial histogram.
-    Convolutions follow ``ndimage.correlate`` (zero outside the grid, kernel centre at (rows//2, cols//2)),
-    from the taps of :func:`_kernel_taps`, computed once per occupied cell. Writes each point's azimuth
-    (rad) to ``azimuth``, and ``dz_min`` / ``dz_max`` in the 4th (50 cm) grid."""
+def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_deg, previous, has_previous, taps,
+                    start, azimuth):  # fmt: skip
+    """Feature columns 7-17 and 25-26 (see :class:`PointFeatures`) in one compiled pass, from the point fields in
+    columns 0-6 of ``out``; returns the radial histogram. ``azimuth`` holds :func:`approx_azimuth` on entry, and
+    where that leaves a point's radial bin in doubt, the exact ``np.arctan2`` (rad) on return. Convolutions follow
+    ``ndimage.correlate`` (zero outside the grid, kernel centre at (rows//2, cols//2)), from the taps of
+    :func:`_kernel_taps`, computed once per occupied cell. Writes ``dz_min`` / ``dz_max`` (m) in the 4th (50 cm)
+    grid."""
+    x, y, z = out[:, 0], out[:, 1], out[:, 2]
     n = len(x)
     n_shapes = len(inv_cxs)
     radial = np.zeros(n_radial, np.int64)
@@ -109,13 +114,14 @@ def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv
     rad2deg = 180.0 / np.pi
     for i in range(n):
         xi, yi = np.float64(x[i]), np.float64(y[i])
-        out[i, 0] = xi
-        out[i, 1] = yi
         out[i, 7] = np.sqrt(xi * xi + yi * yi)
-        a = np.arctan2(yi, xi)
-        azimuth[i] = a
-        b = int((a * rad2deg + 180.0) * inv_bin_deg)
-        b = min(max(b, 0), n_radial - 1)
+        a = azimuth[i]
+        b = min(max(int(((a - AZIMUTH_ERROR_RAD) * rad2deg + 180.0) * inv_bin_deg), 0), n_radial - 1)
+        if yi == 0 or b != min(max(int(((a + AZIMUTH_ERROR_RAD) * rad2deg + 180.0) * inv_bin_deg), 0), n_radial - 1):
+            a = np.arctan2(yi, xi)
+            azimuth[i] = a
+            b = int((a * rad2deg + 180.0) * inv_bin_deg)
+            b = min(max(b, 0), n_radial - 1)
         ridx[i] = b
         radial[b] += 1
         for s in range(n_shapes):
@@ -125,16 +131,6 @@ def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv
             c = ix * ny + iy
             cells[s, i] = c
             grids[offsets[s] + c] += 1
-    for i in range(n):
-        out[i, 2] = z[i]
-    for i in range(n):
-        out[i, 3] = echo[i]
-    for i in range(n):
-        out[i, 4] = channel[i]
-    for i in range(n):
-        out[i, 5] = epw[i]
-    for i in range(n):
-        out[i, 6] = intensity[i]
     for i in range(n):
         out[i, 8] = radial[ridx[i]]
     for i in range(n):
@@ -190,11 +186,11 @@ def _point_features(x, y, z, echo, channel, epw, intensity, extent, inv_cxs, inv
 
 
 @njit(cache=True, nogil=True)
-def azimuth_step(azimuth, channel, echo, n_channels):
+def azimuth_step(x, y, channel, echo, n_channels):
     """Median azimuth difference (rad) between consecutive first echoes of the channel with the most
-    first echoes (differences below 1e-4 rad ignored); 0 if fewer than 10."""
+    first echoes (differences below 1e-4 rad ignored; azimuths ``np.arctan2(y, x)``); 0 if fewer than 10."""
     counts = np.zeros(n_channels, np.int64)
-    for i in range(len(azimuth)):
+    for i in range(len(x)):
         if echo[i] <= 1:
             counts[channel[i]] += 1
     best = np.argmax(counts)
@@ -202,9 +198,9 @@ def azimuth_step(azimuth, channel, echo, n_channels):
         return 0.0
     sel = np.empty(counts[best], np.float64)
     j = 0
-    for i in range(len(azimuth)):
+    for i in range(len(x)):
         if echo[i] <= 1 and channel[i] == best:
-            sel[j] = azimuth[i]
+            sel[j] = np.arctan2(np.float64(y[i]), np.float64(x[i]))
             j += 1
     sel.sort()
     diffs = np.diff(sel)
@@ -223,7 +219,8 @@ _EMPTY_RANGE = np.float32(1e30)
 def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, channels, close):
     """``ri_*`` columns (18-24) of ``out`` (whose columns 0-2 and 4 hold x, y, z in m and the channel) from a
     range image of ``n_channels`` rows and 2 pi / ``step`` columns (``step`` and ``azimuth`` in rad, wrapping
-    round), ``n_echoes`` ranges per cell (further ones of a crowded cell are dropped).
+    round; ``azimuth`` from :func:`approx_azimuth`, the exact one taken where the column is in doubt), ``n_echoes``
+    ranges per cell (further ones of a crowded cell are dropped).
 
     Stored column-major (a column's channels adjacent: the order points arrive in) with ``channels`` empty rows
     and ``columns`` wrapped columns of padding on each side, so the window needs no bounds checks. A cell's first
@@ -243,7 +240,10 @@ def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, cha
     for i in range(n):
         xi, yi, zi = np.float64(out[i, 0]), np.float64(out[i, 1]), np.float64(out[i, 2])
         r[i] = np.sqrt(xi * xi + yi * yi + zi * zi)
-        b = int((azimuth[i] + np.pi) * inv_step)
+        a = azimuth[i]
+        b = int((a - AZIMUTH_ERROR_RAD + np.pi) * inv_step)
+        if yi == 0 or b != int((a + AZIMUTH_ERROR_RAD + np.pi) * inv_step):
+            b = int((np.arctan2(yi, xi) + np.pi) * inv_step)
         if b >= n_cols:
             b -= n_cols
         b = min(max(b, 0), n_cols - 1)
@@ -348,16 +348,18 @@ class PointFeatures:
         has_previous = previous is not None
         if previous is None:
             previous = np.zeros(self._n_radial, np.int64)
-        cols = [points[name] for name in ("x", "y", "z", "echo", "channel", "epw", "intensity")]
+        for k, name in enumerate(("x", "y", "z", "echo", "channel", "epw", "intensity")):
+            out[:, k] = points[name]
         azimuth = np.empty(len(points), np.float64)
+        approx_azimuth(out[:, 0], out[:, 1], azimuth)
         self._previous_radial = _point_features(
-            *cols, self.extent_m, 1.0 / self._cxs, 1.0 / self._cys, self._nxs, self._nys, self._n_radial,
-            1.0 / self.radial_bin_deg, previous, has_previous, self._taps, self._tap_start, out, azimuth,
+            out, self.extent_m, 1.0 / self._cxs, 1.0 / self._cys, self._nxs, self._nys, self._n_radial,
+            1.0 / self.radial_bin_deg, previous, has_previous, self._taps, self._tap_start, azimuth,
         )  # fmt: skip
         if len(points):
             channel = points["channel"]
             n_channels = int(channel.max()) + 1
-            step = azimuth_step(azimuth, channel, points["echo"], n_channels)
+            step = azimuth_step(out[:, 0], out[:, 1], channel, points["echo"], n_channels)
             step = max(step if step > 0 else np.radians(DEFAULT_STEP_DEG), 2 * np.pi * n_channels / MAX_RI_CELLS)
             self.last_step_rad = float(step)
             _range_image_features(out, azimuth, step, n_channels, RI_ECHOES, self.ri_columns, self.ri_channels,
