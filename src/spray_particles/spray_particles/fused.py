@@ -84,7 +84,7 @@ def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, whee
         out[6][j], out[7][j], out[8][j], out[9][j] = vehicle[i], side[i], population[i], wheel[i]
         out[10][j], out[11][j], out[12][j], out[13][j] = diameter[i], weight[i], diffusivity[i], share[i]
         j += 1
-    return out, m
+    return out
 
 
 @numba.njit(cache=True)

@@ -278,9 +278,19 @@ class SpraySystem:
             p.age = p.age + dt
             self._deposit_mist(p, s1[0], s1[1])
             self.particles = p.select(self._alive(p, s1[0], s1[1]))
-        elif len(p):
-            self.particles = self._fused_step(p, t, s0, s1, 0)
-        self._emit(rng, k, s1[3], s1[2], s1[0], s1[1])
+            self._emit(rng, k, s1[3], s1[2], s1[0], s1[1])
+        elif type(self)._emit is SpraySystem._emit:  # the emission drawn first, into the survivors' free rows
+            blocks = self._emission(rng, k, s1[3], s1[2], s1[0], s1[1])
+            extra = sum(n for n, _ in blocks)
+            if len(p):
+                self.particles = self._fused_step(p, t, s0, s1, extra)
+                _fill(self.particles, len(self.particles) - extra, blocks)
+            elif blocks:
+                self.particles = _append(p, blocks)
+        else:  # a subclass' own emission, after the update
+            if len(p):
+                self.particles = self._fused_step(p, t, s0, s1, 0)
+            self._emit(rng, k, s1[3], s1[2], s1[0], s1[1])
 
     def _fused_step(self, p: "Particles", t: float, s0, s1, extra: int) -> "Particles":
         """The update of :meth:`_tick` (air at ``t`` with the vehicle state ``s0``, one step, ageing,
@@ -298,7 +308,7 @@ class SpraySystem:
             self._width, self._height, np.asarray(v_lat, dtype=np.float64), self._ambient, float(prm.wind_over_speed),
             float(prm.wake_length_m), float(lo), float(hi), float(prm.turbulence_intensity), nz.k, nz.omega, nz.phase,
             nz.curl, float(t), float(g), float(prm.tick_s), 0.5, float(c.mist.initial_radius_m))  # fmt: skip
-        arrays, _ = fused.survive(
+        arrays = fused.survive(
             pos, vel_p, age, p.lifetime, p.kappa, p.lam, p.vehicle, p.side, p.population, p.wheel, p.diameter, p.weight,
             p.diffusivity, p.airborne, vertical, vertical**3, s1[0], s1[1], self._length, self._width, self._height,
             self._clearance, self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w,
@@ -335,9 +345,15 @@ class SpraySystem:
         return self.params.emission_scale * e.gain_per_mm_m_s * film_mm * max(0.0, speed_m_s - e.threshold_speed_m_s)
 
     def _emit(self, rng, tick: int, present, vel, rot, org) -> None:
-        """Emission of the tick into ``self.particles``: per vehicle, Poisson counts per wheel of both
+        """Append the tick's emission (:meth:`_emission`) to ``self.particles``."""
+        blocks = self._emission(rng, tick, present, vel, rot, org)
+        if blocks:
+            self.particles = _append(self.particles, blocks)
+
+    def _emission(self, rng, tick: int, present, vel, rot, org) -> list[tuple[int, dict]]:
+        """The particles emitted at the end of tick ``tick``: per vehicle, Poisson counts per wheel of both
         populations from ``rng``, then each population's own generator for where and (packets) which
-        drop size; appended in the order vehicle, population."""
+        drop size; blocks (row count, {field: values}) in the order vehicle, population."""
         prm, c = self.params, self.constants
         dt = prm.tick_s
         blocks = []
@@ -376,8 +392,7 @@ class SpraySystem:
                                  diffusivity=c.mist.mixing_length_m * speed)  # fmt: skip
                 blocks.append((n, block))
                 self.emitted += n
-        if blocks:
-            self.particles = _append(self.particles, blocks)
+        return blocks
 
 
 def _append(p: Particles, blocks: list[tuple[int, dict]]) -> Particles:
@@ -389,12 +404,19 @@ def _append(p: Particles, blocks: list[tuple[int, dict]]) -> Particles:
         old = getattr(p, name)
         a = np.empty((n,) + old.shape[1:], old.dtype)
         a[:n0] = old
-        j = n0
+        out.append(a)
+    out = Particles(*out)
+    _fill(out, n0, blocks)
+    return out
+
+
+def _fill(p: Particles, start: int, blocks: list[tuple[int, dict]]) -> None:
+    """Write the ``blocks`` into the rows of ``p`` from ``start`` on."""
+    for name in Particles.__dataclass_fields__:
+        a, j = getattr(p, name), start
         for m, block in blocks:
             a[j : j + m] = block[name]
             j += m
-        out.append(a)
-    return Particles(*out)
 
 
 def _packet_axes(r0: float, diffusivity, age, kappa, lam, gravity: float) -> tuple[np.ndarray, np.ndarray]:
