@@ -1,0 +1,86 @@
+"""The learned filter's fast paths give the exact features: the polynomial azimuth (bins re-read from np.arctan2
+where in doubt) and the range image's dense first-echo plane."""
+
+import numpy as np
+import pytest
+
+import weather_filter.features as features
+from lidar_weather_sim.points import empty_points
+from weather_filter.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
+from weather_filter.features import FEATURE_NAMES, PointFeatures
+
+
+def _scan(seed=0, n_channels=16, n_cols=900):
+    """A synthetic organised scan: ``n_channels`` x ``n_cols`` beams over 360 deg, ranges 1-60 m, every 7th beam a
+    second echo (some 6 echoes in one beam: more than a range-image cell keeps), and points on the axes (y = +-0
+    with x < 0: azimuth +-pi) and at whole degrees."""
+    rng = np.random.default_rng(seed)
+    az = np.repeat(np.linspace(-np.pi, np.pi, n_cols, endpoint=False), n_channels)
+    ch = np.tile(np.arange(n_channels), n_cols)
+    el = np.radians(-15 + 2 * ch)
+    r = rng.uniform(1, 60, len(az))
+    extra = np.arange(0, len(az), 7)
+    crowd = np.full(5, 3 * n_channels + 2)
+    az, ch, el = (np.concatenate([v, v[extra], v[crowd]]) for v in (az, ch, el))
+    r = np.concatenate([r, r[extra] * rng.uniform(1.001, 1.5, len(extra)), 2 + np.arange(5.0)])
+    echo = np.concatenate([np.ones(len(az) - len(extra) - 5), np.full(len(extra) + 5, 2)])
+    pts = empty_points(len(az) + 4)
+    pts["x"][: len(az)] = r * np.cos(el) * np.cos(az)
+    pts["y"][: len(az)] = r * np.cos(el) * np.sin(az)
+    pts["z"][: len(az)] = r * np.sin(el)
+    pts["channel"][: len(az)], pts["echo"][: len(az)] = ch, echo
+    pts["x"][-4:], pts["y"][-4:] = [-5.0, -5.0, 3.0, -0.0], [0.0, -0.0, 0.0, 4.0]
+    pts["channel"][-4:], pts["echo"][-4:] = 1, 1
+    pts["epw"], pts["intensity"] = rng.uniform(0, 5, len(pts)), rng.integers(0, 255, len(pts))
+    return pts
+
+
+def test_approx_azimuth_is_within_its_bound():
+    rng = np.random.default_rng(1)
+    x = (rng.standard_normal(200_000) * 10 ** rng.uniform(-3, 3, 200_000)).astype(np.float32)
+    y = (rng.standard_normal(200_000) * 10 ** rng.uniform(-3, 3, 200_000)).astype(np.float32)
+    x[:8], y[:8] = [1, -1, 0, 0, 1, -1, 1, -1], [0, 1, 1, -1, 1, 1, -1, -1]
+    a = np.empty(len(x))
+    approx_azimuth(x, y, a)
+    assert np.abs(a - np.arctan2(y.astype(float), x.astype(float))).max() < AZIMUTH_ERROR_RAD / 100
+
+
+@pytest.mark.parametrize("offset", [-0.999, 0.999, "random"])
+def test_features_do_not_depend_on_the_azimuth_error(monkeypatch, offset):
+    """Any azimuth within the bound (here the exact one moved by up to 0.999 of it) gives bit-identical features."""
+    pts = _scan()
+    reference = PointFeatures()(pts)  # the polynomial azimuth
+    exact = np.arctan2(pts["y"].astype(float), pts["x"].astype(float))
+    shift = np.random.default_rng(2).uniform(-1, 1, len(pts)) if offset == "random" else offset
+
+    def perturbed(x, y, azimuth):
+        azimuth[:] = exact + shift * AZIMUTH_ERROR_RAD
+
+    monkeypatch.setattr(features, "approx_azimuth", perturbed)
+    out = PointFeatures()(pts)
+    assert np.array_equal(out.view(np.uint32), reference.view(np.uint32))
+
+
+def test_bins_of_points_on_the_negative_x_axis_follow_the_sign_of_y():
+    pts = _scan()
+    out = PointFeatures()(pts)
+    n_radial = out[:, FEATURE_NAMES.index("n_radial")]
+    az = np.degrees(np.arctan2(pts["y"].astype(float), pts["x"].astype(float)))
+    counts = np.bincount(np.clip(((az + 180) / 1.0).astype(int), 0, 359), minlength=360)
+    assert az[-4] == 180 and az[-3] == -180  # y = +0 and -0 at x = -5 m
+    assert n_radial[-4] == counts[359] and n_radial[-3] == counts[0]
+
+
+def test_range_image_features_with_crowded_cells_equal_a_direct_computation():
+    """Second echoes and a beam of six returns (more than a cell keeps) against the numpy reference."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("_sim_trained", Path(__file__).with_name("test_sim_trained.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    pts = _scan()
+    extractor = PointFeatures()
+    out = extractor(pts)
+    for name, expected in module._range_image_reference(pts, extractor.last_step_rad).items():
+        assert np.allclose(out[:, FEATURE_NAMES.index(name)], expected, atol=1e-5), name
