@@ -15,6 +15,7 @@ up. Velocities are relative to the vehicle body (m/s); positions in m.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -50,11 +51,15 @@ class WheelEmitter:
     treads: int = 3
     n_vertices: int = 36
 
+    @cached_property
+    def _wheel_xy(self) -> np.ndarray:
+        return np.ascontiguousarray(self.wheel_xy, dtype=np.float64)
+
     @property
     def n_wheels(self) -> int:
         return len(self.wheel_xy)
 
-    @property
+    @cached_property
     def tread_offsets_m(self) -> np.ndarray:
         """Lateral offsets (m) of the tread rings from the wheel's mid-plane."""
         k = np.arange(self.treads) - 0.5 * (self.treads - 1)
@@ -70,7 +75,7 @@ class WheelEmitter:
         # draws laid out particle-major (particle i of wheel w at [i, w]): the first particles of a wheel
         # are the same whatever the counts
         draws = rng.random((int(counts.max(initial=0)), self.n_wheels, 2))
-        return ring_body(draws, counts, np.ascontiguousarray(self.wheel_xy, dtype=np.float64), self.tread_offsets_m,
+        return ring_body(draws, counts, self._wheel_xy, self.tread_offsets_m,
                          self.n_vertices, self.treads, float(speed_m_s), float(self.radius_m), float(dt_s))  # fmt: skip
 
 

@@ -4,7 +4,7 @@ Inertial particles are spheres of the thesis' mesh diameter (1.8 cm) with water'
 single scattering albedo (0.53, absorption 0.47, Table II): a sub-ray that enters
 one is returned from the sphere's surface like a Lambertian surface hit
 (reflectance = albedo x cos(incidence)) and is fully blocked behind it (occlusion
-1). Drop packets are balls of drops seen by their optical depth (``_returns``):
+1). Drop packets are balls of drops seen by their optical depth (``_hit_returns``):
 dense young packets near the wheels and dilute old ones close to the sensor return
 light, dilute ones far away do not (the 1/R^2 of the echo threshold), and each lets
 exp(-tau) of the light through. So spray creates first echoes in front of the
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numba
 import numpy as np
 from pydantic import Field
 
@@ -129,7 +130,6 @@ class SprayRegion:
         if not len(centres):
             return RegionEffect()
         p = self.system.particles
-        mist = p.population == 1
         radii, vertical = self.radii(t)
         dirs = batch.directions.reshape(-1, 3)
         # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
@@ -159,29 +159,54 @@ class SprayRegion:
         hits = sphere_hits(origins, directions, max_range, centres[idx], radii[idx], vertical[idx])
         if not len(hits.ray):
             return RegionEffect()
-        scene_range = max_range[hits.ray]
-        hits.ray = rays[hits.ray]
-        beam, sub = np.divmod(hits.ray, n_sub)
-        particle = idx[hits.sphere]
-        cross_section = p.weight * (np.pi / 4.0) * p.diameter**2 * p.airborne  # m^2 of drops in each packet
-        reflectance, occlusion, range_m = self._returns(hits, mist[particle], radii[particle], vertical[particle],
-                                                        cross_section[particle], scene_range)  # fmt: skip
+        beam, sub, particle, range_m, chord, tau, packet = _hit_geometry(
+            hits.ray, hits.sphere, hits.range_m, hits.half_chord_m, rays, idx, max_range, n_sub, p.population, p.weight,
+            p.diameter, p.airborne, radii, vertical)  # fmt: skip
+        reflectance, occlusion, range_m = _hit_returns(packet, -np.expm1(-tau), hits.cos_incidence, range_m, chord,
+                                                       self.albedo, self.constants.particles.backscatter_phase)  # fmt: skip
         sc = Scatterers(
             beam=beam, subray=sub, range_m=range_m, reflectance=reflectance, occlusion=occlusion,
             label=np.full(len(beam), Label.SPRAY, np.uint8), object_id=self._actor_ids[p.vehicle[particle]],
         )  # fmt: skip
         return RegionEffect(scatterers=sc)
 
-    def _returns(self, hits, mist: np.ndarray, radius: np.ndarray, vertical: np.ndarray, cross_section: np.ndarray,
-                 scene_range: np.ndarray) -> tuple[np.ndarray, ...]:  # fmt: skip
-        """Reflectance, occlusion (0-1) and range (m) of each sphere hit. An inertial particle is a solid
-        sphere: albedo x cos(incidence) at its entry point, blocking the sub-ray. A drop packet is a
-        uniform ellipsoid (semi-axes ``radius``, ``radius``, ``vertical``, m) holding ``cross_section``
-        m^2 of airborne drops: a sub-ray through it sees the optical depth tau of its chord (up to the
-        scene hit at ``scene_range``, m) and is returned from the chord's middle with reflectance
-        albedo x phase x (1 - exp(-tau)), passing on exp(-tau) of its light."""
-        chord = np.minimum(2.0 * hits.half_chord_m, scene_range - hits.range_m)
-        density = cross_section / (4.0 / 3.0 * np.pi * radius**2 * vertical)  # m^2 of drops per m^3
-        opacity = np.where(mist, -np.expm1(-density * chord), 1.0)
-        phase = np.where(mist, self.constants.particles.backscatter_phase, hits.cos_incidence)
-        return self.albedo * phase * opacity, opacity, hits.range_m + np.where(mist, 0.5 * chord, 0.0)
+
+@numba.njit(cache=True)
+def _hit_geometry(ray, sphere, entry, half_chord, rays, idx, max_range, n_sub, population, weight, diameter, airborne,
+                  radius, vertical):  # fmt: skip
+    """Per hit of the candidate rays ``rays`` (indices of (beam, sub-ray) pairs) and spheres ``idx``
+    (indices of particles): beam, sub-ray, particle, entry range (m), the chord (m) inside the sphere
+    or ellipsoid up to the scene hit (``max_range``), its optical depth tau had the particle been a drop
+    packet (a uniform ellipsoid, semi-axes ``radius``, ``radius``, ``vertical``, holding ``weight``
+    drops of ``diameter`` of which ``airborne`` are left: cross-section per volume x chord) and
+    whether it is one (population 1)."""
+    n = ray.shape[0]
+    beam, sub, particle = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    chord, tau, packet = np.empty(n), np.empty(n), np.empty(n, np.bool_)
+    for h in range(n):
+        r = rays[ray[h]]
+        beam[h], sub[h] = r // n_sub, r % n_sub
+        i = idx[sphere[h]]
+        particle[h] = i
+        chord[h] = min(2.0 * half_chord[h], max_range[ray[h]] - entry[h])
+        cross_section = weight[i] * (np.pi / 4.0) * (diameter[i] * diameter[i]) * airborne[i]  # m^2 of drops
+        density = cross_section / (4.0 / 3.0 * np.pi * (radius[i] * radius[i]) * vertical[i])  # per m^3
+        tau[h] = density * chord[h]
+        packet[h] = population[i] == 1
+    return beam, sub, particle, entry, chord, tau, packet
+
+
+@numba.njit(cache=True)
+def _hit_returns(packet, opacity_of_packet, cos_incidence, entry, chord, albedo, phase_of_packet):
+    """Reflectance, occlusion (0-1) and range (m) of each hit. An inertial particle is a solid sphere:
+    albedo x cos(incidence) at its entry point, blocking the sub-ray. A drop packet is returned from
+    its chord's middle with reflectance albedo x phase x (1 - exp(-tau)) and passes on exp(-tau) of
+    the light (``opacity_of_packet`` = 1 - exp(-tau), from numpy's expm1)."""
+    n = packet.shape[0]
+    reflectance, occlusion, range_m = np.empty(n), np.empty(n), np.empty(n)
+    for h in range(n):
+        occlusion[h] = opacity_of_packet[h] if packet[h] else 1.0
+        phase = phase_of_packet if packet[h] else cos_incidence[h]
+        reflectance[h] = albedo * phase * occlusion[h]
+        range_m[h] = entry[h] + (0.5 * chord[h] if packet[h] else 0.0)
+    return reflectance, occlusion, range_m
