@@ -34,10 +34,6 @@ from spray_particles.integrator import step as integrate_step
 from spray_particles.kernels import PARALLEL_FROM
 from spray_particles.seeds import TickGenerators
 
-#: Ticks of vehicle poses fetched at once from a pose source with ``actor_poses_at`` (s are pure
-#: functions of time: fetching ahead changes no value, only the number of calls).
-POSE_LOOKAHEAD = 16
-
 #: A mist packet with less than this share of its drops still airborne is dropped.
 MIN_MIST_SHARE = 0.01
 
@@ -156,7 +152,7 @@ class SpraySystem:
             t = k * self.params.tick_s
             many = getattr(self.poses, "__self__", None)
             if many is not None and hasattr(many, "actor_poses_at"):  # batch the rest of the step's ticks
-                ticks = list(range(k, max(k + 1 + POSE_LOOKAHEAD, self._target_tick + 2)))
+                ticks = list(range(k, max(k + 1, self._target_tick + 2)))
                 for tick, p in zip(ticks, many.actor_poses_at(np.array(ticks) * self.params.tick_s)):
                     cache[tick] = p
             else:

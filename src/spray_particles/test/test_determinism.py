@@ -20,7 +20,6 @@ C = load_constants()
 def _system(seed=3):
     r, w = tyre_dimensions(C.tyre.size)
     vehicle = EmittingVehicle(100, 4.7, 1.85, 1.45, 0.15, vehicle_emitter(4.7, 1.85, 1.45, r, w))
-
     prm = SprayParams(water_film_mm=0.7, film_cv=0.57, wind_over_speed=1.0, seed=seed)
     return SpraySystem([vehicle], _Track().actor_poses, prm, C)
 
@@ -37,7 +36,6 @@ class _Track:
         return {100: m}
 
     def actor_poses_at(self, times):
-        self.batches = getattr(self, "batches", 0) + 1
         return [self.actor_poses(float(t)) for t in times]
 
 
@@ -88,15 +86,30 @@ def test_tick_generators_are_default_rng_of_the_same_words():
         assert np.array_equal(drawn.normal(size=3), expected.normal(size=3)) and drawn.gamma(3.0) == expected.gamma(3.0)
 
 
-def test_same_seed_same_particles_whatever_the_pose_lookahead(monkeypatch):
-    a = _system(seed=8)
-    a.advance_to(0.0)
-    a.advance_to(0.8)
-    monkeypatch.setattr(system_module, "POSE_LOOKAHEAD", 0)
-    b = _system(seed=8)
-    b.advance_to(0.0)
-    for t in np.linspace(0.017, 0.8, 23):
-        b.advance_to(t)
-    assert a.poses.__self__.batches < b.poses.__self__.batches
-    for name, value in _fields(a.particles).items():
-        assert np.array_equal(value, getattr(b.particles, name)), name
+def test_hit_returns_equal_the_optical_depth_formula_in_numpy():
+    from spray_particles.region import _hit_geometry, _hit_returns
+
+    rng = np.random.default_rng(2)
+    n_hits, n_particles = 500, 60
+    population = rng.integers(0, 2, n_particles).astype(np.uint8)
+    weight, diameter = rng.uniform(1, 1e4, n_particles), rng.uniform(1e-4, 4e-3, n_particles)
+    airborne, radius = rng.uniform(0, 1, n_particles), rng.uniform(0.01, 0.8, n_particles)
+    vertical = radius * rng.uniform(0.2, 1.0, n_particles)
+    rays, idx = rng.permutation(3000)[:400], rng.permutation(n_particles)[:40]
+    ray, sphere = rng.integers(0, 400, n_hits), rng.integers(0, 40, n_hits)
+    entry, half_chord, cos_incidence = rng.uniform(1, 30, n_hits), rng.uniform(0, 0.8, n_hits), rng.uniform(0, 1, n_hits)
+    max_range = np.where(rng.random(400) < 0.3, rng.uniform(1, 40, 400), 1e9)
+    beam, sub, particle, range_m, chord, tau, packet = _hit_geometry(
+        ray, sphere, entry, half_chord, rays, idx, max_range, 3, population, weight, diameter, airborne, radius, vertical)
+    reflectance, occlusion, range_m = _hit_returns(packet, -np.expm1(-tau), cos_incidence, range_m, chord, 0.53, 0.11)
+    # the numpy expressions the region used before its kernels
+    i = idx[sphere]
+    mist = population[i] == 1
+    chord_np = np.minimum(2.0 * half_chord, max_range[ray] - entry)
+    cross_section = (weight * (np.pi / 4.0) * diameter**2 * airborne)[i]
+    density = cross_section / (4.0 / 3.0 * np.pi * radius[i] ** 2 * vertical[i])
+    opacity = np.where(mist, -np.expm1(-density * chord_np), 1.0)
+    phase = np.where(mist, 0.11, cos_incidence)
+    assert np.array_equal(beam * 3 + sub, rays[ray]) and np.array_equal(particle, i)
+    assert np.array_equal(occlusion, opacity) and np.array_equal(reflectance, 0.53 * phase * opacity)
+    assert np.array_equal(range_m, entry + np.where(mist, 0.5 * chord_np, 0.0))
