@@ -118,3 +118,23 @@ def ring_body(draws, counts, wheel_xy, tread_offsets, n_vertices, treads, speed,
             wheel[j] = w
             j += 1
     return pos, vel, side, wheel
+
+
+@numba.njit(cache=True)
+def poisson_log_pmf(n, log_lam, lam, log_factorial):
+    """log P(k) = k log(lam) - lam - log(k!) of a Poisson(lam) for k < n (numpy's exp follows)."""
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = k * log_lam - lam - log_factorial[k]
+    return out
+
+
+@numba.njit(cache=True)
+def quantiles(pmf, u):
+    """The smallest k whose CDF (the running sum of ``pmf``) reaches each uniform of ``u``, at most
+    len(pmf) - 1."""
+    cdf = np.cumsum(pmf)
+    out = np.empty(u.shape[0], np.int64)
+    for i in range(u.shape[0]):
+        out[i] = min(np.searchsorted(cdf, u[i]), cdf.shape[0] - 1)
+    return out

@@ -368,13 +368,14 @@ class SpraySystem:
             u = rng.random((2, v.emitter.n_wheels))
             water = prm.emission_scale * airborne_water_m3(c, film, speed, dt)
             n_packets = prm.mist_packets_per_wheel_per_tick if water > 0 else 0.0
+            to_world = rot[k].T
             for pop, counts in ((0, _poisson_quantile(u[0], lam)), (1, _poisson_quantile(u[1], n_packets))):
                 n = int(counts.sum())
                 if not n:
                     continue
                 draws = self._generators.get([prm.seed & 0xFFFFFFFF, tick & 0xFFFFFFFF, 0x5B2A, k, 1 + pop], 1)
                 pos_b, vel_b, side, wheel = v.emitter.emit(draws, counts, speed, dt)
-                block = {"pos": pos_b @ rot[k].T + org[k], "vel": vel_b @ rot[k].T + vel[k], "age": 0.0, "side": side,
+                block = {"pos": pos_b @ to_world + org[k], "vel": vel_b @ to_world + vel[k], "age": 0.0, "side": side,
                          "vehicle": k, "population": pop, "wheel": wheel, "airborne": 1.0}  # fmt: skip
                 if pop == 0:
                     block.update(lifetime=prm.lifetime_s, diameter=c.particles.diameter_m, kappa=self._kappa_inertial,
@@ -435,18 +436,17 @@ def _poisson_quantile(u: np.ndarray, lam: float) -> np.ndarray:
     the smallest k whose CDF reaches u."""
     if lam <= 0:
         return np.zeros(len(u), np.int64)
-    cdf = _POISSON_CDF.get(lam)
-    if cdf is None:
-        k = np.arange(int(lam + 12.0 * np.sqrt(lam) + 12.0))
-        log_factorial = _log_factorial(len(k))
-        cdf = np.cumsum(np.exp(k * np.log(lam) - lam - log_factorial))
-        if len(_POISSON_CDF) > 64:
-            _POISSON_CDF.clear()
-        _POISSON_CDF[lam] = cdf
-    return np.minimum(np.searchsorted(cdf, u, side="left"), len(cdf) - 1).astype(np.int64)
+    pmf = _POISSON_PMF.get(lam)
+    if pmf is None:
+        n = int(lam + 12.0 * np.sqrt(lam) + 12.0)
+        pmf = np.exp(fused.poisson_log_pmf(n, np.log(lam), lam, _log_factorial(n)))
+        if len(_POISSON_PMF) > 64:
+            _POISSON_PMF.clear()
+        _POISSON_PMF[lam] = pmf
+    return fused.quantiles(pmf, u)
 
 
-_POISSON_CDF: dict[float, np.ndarray] = {}  # CDF tables by mean (the packets' mean is the same every tick)
+_POISSON_PMF: dict[float, np.ndarray] = {}  # probabilities by mean (the packets' mean is the same every tick)
 _LOG_FACTORIAL: dict[int, np.ndarray] = {}
 
 
