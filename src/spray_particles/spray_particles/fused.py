@@ -138,3 +138,19 @@ def quantiles(pmf, u):
     for i in range(u.shape[0]):
         out[i] = min(np.searchsorted(cdf, u[i]), cdf.shape[0] - 1)
     return out
+
+
+@numba.njit(cache=True)
+def packet_radii(age, later, diffusivity, kappa, lam, population, r0, gravity, sphere_radius):
+    """Horizontal and vertical semi-axes (m) of every particle ``later`` s after its ``age``: those of
+    ``system._packet_axes`` for drop packets (population 1), ``sphere_radius`` for the others."""
+    n = age.shape[0]
+    horizontal, vertical = np.empty(n), np.empty(n)
+    for i in range(n):
+        if population[i] != 1:
+            horizontal[i] = vertical[i] = sphere_radius
+            continue
+        h = math.sqrt(r0 * r0 + 2.0 * diffusivity[i] * (age[i] + later))
+        held = diffusivity[i] * (lam[i] + math.sqrt(lam[i] * lam[i] + 4.0 * kappa[i] * gravity)) / (2.0 * gravity)
+        horizontal[i], vertical[i] = h, min(h, max(held, r0))
+    return horizontal, vertical

@@ -32,6 +32,7 @@ from lidar_weather_sim.points import Label
 from lidar_weather_sim.regions import RayBatch, RegionContext, RegionEffect, Scatterers
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
+from spray_particles.fused import packet_radii
 from spray_particles.raycast import candidates, group_bounds, sphere_hits
 from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
 from spray_particles.water import tyre_dimensions, water_film_mm
@@ -117,9 +118,10 @@ class SprayRegion:
     def radii(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Horizontal and vertical semi-axes (m) of every particle at ``time_s``: the render sphere of an
         inertial particle, the ellipsoid a drop packet has spread to."""
-        packet = self.system.particles.population == 1
-        horizontal, vertical = self.system.mist_radii(time_s)
-        return np.where(packet, horizontal, self.radius_m), np.where(packet, vertical, self.radius_m)
+        s, c = self.system, self.constants
+        p = s.particles
+        return packet_radii(p.age, max(0.0, time_s - (s.time_s or 0.0)), p.diffusivity, p.kappa, p.lam, p.population,
+                            c.mist.initial_radius_m, c.physics.gravity_m_s2, self.radius_m)  # fmt: skip
 
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, n_sub = batch.shape

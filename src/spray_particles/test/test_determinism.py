@@ -113,3 +113,19 @@ def test_hit_returns_equal_the_optical_depth_formula_in_numpy():
     assert np.array_equal(beam * 3 + sub, rays[ray]) and np.array_equal(particle, i)
     assert np.array_equal(occlusion, opacity) and np.array_equal(reflectance, 0.53 * phase * opacity)
     assert np.array_equal(range_m, entry + np.where(mist, 0.5 * chord_np, 0.0))
+
+
+def test_region_radii_are_the_packet_axes_of_the_system():
+    from lidar_weather_sim.regions import REGISTRY, RegionContext
+    from lidar_weather_sim.testing import simple_profile
+
+    region = REGISTRY.create("spray", {}, RegionContext(simple_profile()))
+    region.system = _system()
+    region.system.advance_to(0.0)
+    region.system.advance_to(0.7)
+    packet = region.system.particles.population == 1
+    horizontal, vertical = region.system.mist_radii(0.7042)
+    fast = region.radii(0.7042)
+    assert packet.any() and not packet.all()
+    assert np.array_equal(fast[0], np.where(packet, horizontal, region.radius_m))
+    assert np.array_equal(fast[1], np.where(packet, vertical, region.radius_m))
