@@ -16,6 +16,11 @@ ones follow the air and linger (the low-Stokes population the thesis names as
 missing); a packet spreads by turbulent mixing (``diffusivity``, config/spray.yaml
 ``mist``), loses the drops that reach the ground (``airborne``) and is seen by its
 optical depth (:meth:`SpraySystem.mist_radii`, the ``spray`` region).
+
+A tick of fewer than ``kernels.PARALLEL_FROM`` particles runs in two numba calls
+(spray_particles.fused) with the emission drawn first into the survivors' free rows;
+bigger sets (the droplet reference) go stage by stage through the parallel kernels.
+Both give the same particles bit for bit (test_determinism.py).
 """
 
 from __future__ import annotations
