@@ -150,14 +150,17 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
         c = cells[3, i]
         out[i, 25] = z[i] - zlo[c]
         out[i, 26] = zhi[c] - z[i]
-    # convolutions on the small (first) grid, once per occupied cell (far fewer cells than points)
+    # convolutions on the small (first) grid, once per occupied cell (far fewer cells than points), in integers
+    # (the kernels' weights and the counts are; exact), without bounds checks away from the grid's border
     nx0, ny0 = nxs[0], nys[0]
     n_kernels = len(start) - 1
     tap_i = np.empty(len(taps), np.int64)
     tap_j = np.empty(len(taps), np.int64)
-    tap_w = np.empty(len(taps), np.float32)
+    tap_w = np.empty(len(taps), np.int64)
     for t in range(len(taps)):
-        tap_i[t], tap_j[t], tap_w[t] = int(taps[t, 0]), int(taps[t, 1]), taps[t, 2]
+        tap_i[t], tap_j[t], tap_w[t] = int(taps[t, 0]), int(taps[t, 1]), int(taps[t, 2])
+    margin = max(np.abs(tap_i).max(), np.abs(tap_j).max()) if len(taps) else 0
+    tap_offset = tap_i * ny0 + tap_j
     slot = np.full(nx0 * ny0, -1, np.int32)
     responses = np.empty((n, n_kernels), np.float32)
     used = 0
@@ -170,13 +173,18 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
         if slot[c] < 0:
             slot[c] = used
             ci, cj = c // ny0, c % ny0
+            interior = margin <= ci < nx0 - margin and margin <= cj < ny0 - margin
             for k in range(n_kernels):
-                acc = np.float32(0.0)
-                for t in range(start[k], start[k + 1]):
-                    gi = ci + tap_i[t]
-                    gj = cj + tap_j[t]
-                    if 0 <= gi < nx0 and 0 <= gj < ny0:
-                        acc += tap_w[t] * grids[gi * ny0 + gj]
+                acc = 0
+                if interior:
+                    for t in range(start[k], start[k + 1]):
+                        acc += tap_w[t] * grids[c + tap_offset[t]]
+                else:
+                    for t in range(start[k], start[k + 1]):
+                        gi = ci + tap_i[t]
+                        gj = cj + tap_j[t]
+                        if 0 <= gi < nx0 and 0 <= gj < ny0:
+                            acc += tap_w[t] * grids[gi * ny0 + gj]
                 responses[used, k] = acc
             used += 1
         r = slot[c]
