@@ -49,6 +49,7 @@ CORNER = np.array(
 
 #: (name, cell size x m, cell size y m) of the Cartesian bird's-eye histograms.
 CELL_SHAPES = (("small", 0.1, 0.1), ("rear", 0.2, 2.0), ("side", 4.0, 0.1), ("middle", 0.5, 0.5))
+N_SHAPES = len(CELL_SHAPES)
 FEATURE_NAMES = (
     "x", "y", "z", "echo", "channel", "epw", "intensity", "range",
     "n_radial", "n_small", "n_rear", "n_side", "n_middle", "d_radial",
@@ -103,7 +104,7 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
     grid."""
     x, y, z = out[:, 0], out[:, 1], out[:, 2]
     n = len(x)
-    n_shapes = len(inv_cxs)
+    n_shapes = N_SHAPES
     radial = np.zeros(n_radial, np.int64)
     ridx = np.empty(n, np.int32)
     cells = np.empty((n_shapes, n), np.int32)
@@ -112,25 +113,29 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
         offsets[s + 1] = offsets[s] + nxs[s] * nys[s]
     grids = np.zeros(offsets[n_shapes], np.int32)
     rad2deg = 180.0 / np.pi
-    for i in range(n):
+    doubt = np.empty(n, np.bool_)
+    for i in range(n):  # bins and cells (no calls, no scatter: vectorised)
         xi, yi = np.float64(x[i]), np.float64(y[i])
         out[i, 7] = np.sqrt(xi * xi + yi * yi)
         a = azimuth[i]
         b = min(max(int(((a - AZIMUTH_ERROR_RAD) * rad2deg + 180.0) * inv_bin_deg), 0), n_radial - 1)
-        if yi == 0 or b != min(max(int(((a + AZIMUTH_ERROR_RAD) * rad2deg + 180.0) * inv_bin_deg), 0), n_radial - 1):
-            a = np.arctan2(yi, xi)
-            azimuth[i] = a
-            b = int((a * rad2deg + 180.0) * inv_bin_deg)
-            b = min(max(b, 0), n_radial - 1)
+        b_hi = min(max(int(((a + AZIMUTH_ERROR_RAD) * rad2deg + 180.0) * inv_bin_deg), 0), n_radial - 1)
+        doubt[i] = (yi == 0) | (b != b_hi)
         ridx[i] = b
-        radial[b] += 1
-        for s in range(n_shapes):
+        for s in range(N_SHAPES):
             ny = nys[s]
             ix = min(max(int((xi + extent) * inv_cxs[s]), 0), nxs[s] - 1)
             iy = min(max(int((yi + extent) * inv_cys[s]), 0), ny - 1)
-            c = ix * ny + iy
-            cells[s, i] = c
-            grids[offsets[s] + c] += 1
+            cells[s, i] = ix * ny + iy
+    for i in range(n):  # the exact azimuth where the bin is in doubt, and the histograms
+        if doubt[i]:
+            a = np.arctan2(np.float64(y[i]), np.float64(x[i]))
+            azimuth[i] = a
+            b = int((a * rad2deg + 180.0) * inv_bin_deg)
+            ridx[i] = min(max(b, 0), n_radial - 1)
+        radial[ridx[i]] += 1
+        for s in range(N_SHAPES):
+            grids[offsets[s] + cells[s, i]] += 1
     for i in range(n):
         out[i, 8] = radial[ridx[i]]
     for i in range(n):
