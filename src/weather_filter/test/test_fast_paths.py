@@ -71,8 +71,10 @@ def test_bins_of_points_on_the_negative_x_axis_follow_the_sign_of_y():
     assert n_radial[-4] == counts[359] and n_radial[-3] == counts[0]
 
 
-def test_range_image_features_with_crowded_cells_equal_a_direct_computation():
-    """Second echoes and a beam of six returns (more than a cell keeps) against the numpy reference."""
+@pytest.mark.parametrize("window", [(2, 2), (1, 1), (3, 0)])
+def test_range_image_features_with_crowded_cells_equal_a_direct_computation(window):
+    """Second echoes and a beam of six returns (more than a cell keeps) against the numpy reference, for the
+    shipped window (2 columns, 2 channels: compiled with constant bounds) and others."""
     import importlib.util
     from pathlib import Path
 
@@ -80,7 +82,8 @@ def test_range_image_features_with_crowded_cells_equal_a_direct_computation():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     pts = _scan()
-    extractor = PointFeatures()
+    extractor = PointFeatures(ri_columns=window[0], ri_channels=window[1])
     out = extractor(pts)
-    for name, expected in module._range_image_reference(pts, extractor.last_step_rad).items():
+    reference = module._range_image_reference(pts, extractor.last_step_rad, columns=window[0], channels=window[1])
+    for name, expected in reference.items():
         assert np.allclose(out[:, FEATURE_NAMES.index(name)], expected, atol=1e-5), name
