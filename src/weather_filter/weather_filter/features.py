@@ -29,8 +29,12 @@ range poorly on the 128-channel scans.
 
 Histograms cover |x|, |y| <= ``extent_m`` (sensor frame); points outside get
 the counts of the border cell clipped to, and zero convolution responses.
-The histograms and convolutions are one numba-compiled pass over the points (convolutions once per
-occupied cell): ~5 ms for a 131k-point frame.
+Computed by numba-compiled passes, each point's features bit-identical to the direct definitions above (CPU
+time min on a 120k-point os1_128_2048 frame, 2 shared cores): the point fields copied to the feature columns
+(0.7 ms); the azimuth, a vectorised polynomial (:mod:`weather_filter.azimuth`, 0.14 ms; ``np.arctan2`` per
+point took 2.4 ms); histograms, cell heights and convolutions (once per occupied cell, in integers: 4.4 ms);
+the azimuth step (0.7 ms); the range image (8 ms: a dense first-echo plane read without branches by a window
+of constant size, later echoes only where the window holds a crowded cell).
 """
 
 from __future__ import annotations
@@ -96,7 +100,7 @@ def _kernel_taps() -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True, nogil=True, fastmath=True)
 def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_deg, previous, has_previous, taps,
                     start, azimuth):  # fmt: skip
-    """Feature columns 7-17 and 25-26 (see :class:`PointFeatures`) in one compiled pass, from the point fields in
+    """Feature columns 7-17 and 25-26 (see :class:`PointFeatures`), from the point fields (m, sensor frame) in
     columns 0-6 of ``out``; returns the radial histogram. ``azimuth`` holds :func:`approx_azimuth` on entry, and
     where that leaves a point's radial bin in doubt, the exact ``np.arctan2`` (rad) on return. Convolutions follow
     ``ndimage.correlate`` (zero outside the grid, kernel centre at (rows//2, cols//2)), from the taps of
@@ -104,7 +108,7 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
     grid."""
     x, y, z = out[:, 0], out[:, 1], out[:, 2]
     n = len(x)
-    n_shapes = N_SHAPES
+    n_shapes = N_SHAPES  # a constant: the loops over the shapes unroll
     radial = np.zeros(n_radial, np.int64)
     ridx = np.empty(n, np.int32)
     cells = np.empty((n_shapes, n), np.int32)
@@ -122,7 +126,7 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
         b_hi = min(max(int(((a + AZIMUTH_ERROR_RAD) * rad2deg + 180.0) * inv_bin_deg), 0), n_radial - 1)
         doubt[i] = (yi == 0) | (b != b_hi)
         ridx[i] = b
-        for s in range(N_SHAPES):
+        for s in range(n_shapes):
             ny = nys[s]
             ix = min(max(int((xi + extent) * inv_cxs[s]), 0), nxs[s] - 1)
             iy = min(max(int((yi + extent) * inv_cys[s]), 0), ny - 1)
@@ -134,7 +138,7 @@ def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_d
             b = int((a * rad2deg + 180.0) * inv_bin_deg)
             ridx[i] = min(max(b, 0), n_radial - 1)
         radial[ridx[i]] += 1
-        for s in range(N_SHAPES):
+        for s in range(n_shapes):
             grids[offsets[s] + cells[s, i]] += 1
     for i in range(n):
         out[i, 8] = radial[ridx[i]]
@@ -357,8 +361,8 @@ def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, cha
 
 class PointFeatures:
     """Feature extractor; keeps the previous frame's radial histogram for the frame-difference feature
-    (``d_radial`` is 0 on the first frame after construction or :meth:`reset`). The histogram and
-    convolution features come from one numba-compiled pass (:func:`_point_features`)."""
+    (``d_radial`` is 0 on the first frame after construction or :meth:`reset`). The histogram, convolution and
+    height features come from :func:`_point_features`, the range-image ones from :func:`_range_image_features`."""
 
     def __init__(self, extent_m: float = 30.0, radial_bin_deg: float = 1.0, ri_columns: int = RI_COLUMNS,
                  ri_channels: int = RI_CHANNELS) -> None:  # fmt: skip
