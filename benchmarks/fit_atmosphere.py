@@ -15,7 +15,8 @@ Stages per class, each a Nelder-Mead search on a fixed seed (common random numbe
 loss sum(max(0, |z| - 0.8)^2) + 0.01 sum z^2, z = (sim - paper) / paper_sigma:
 1. near field (Table 3: n_total, n_peak, x_sigma, n_e1, EPW): rate_per_beam, cover_share,
    cover_scale_m, amplitude_median, amplitude_sigma_ln, cover_amp_scale_m;
-2. street (Table 4: n_peak, x_mean, x_sigma, n_e2, EPW): path_rate_per_beam, path_amplitude_median; wetness
+2. street (Table 4: n_peak, x_mean, x_sigma, n_e2, EPW): path_rate_per_beam, path_amplitude_median,
+   path_amplitude_sigma_ln (how strongly sunlight thins the drops' first echoes); wetness
    (rain, fog: the water film; clear is dry by definition, snow is covered); snow_depth_m
    (snow only); splash_rate_per_beam (rain, snow: precipitation hitting the street).
 Before the classes, street_gain (the dry asphalt's 905 nm backscatter relative to a Lambertian
@@ -29,7 +30,7 @@ The reference weather (rain 2 mm/h, snow 1 mm/h water equivalent, fog visual ran
 is an assumption: the paper reports the classes, not the intensities (rain mostly below
 5 mm/h, Fig. A2). Output: config/atmosphere_fit.yaml (with the fit's residuals).
 
-Usage: python benchmarks/fit_atmosphere.py [--frames 6] [--iters 60] [--classes clear,rain]
+Usage: python benchmarks/fit_atmosphere.py [--frames 6] [--iters 60] [--classes clear,rain] [--stages street]
 (fit clear first, or together with the others: it sets street_gain for all classes)
 """
 
@@ -52,10 +53,10 @@ NEAR = {"rate_per_beam": "log", "cover_share": "logit", "cover_scale_m": "log", 
         "amplitude_sigma_ln": "log", "cover_amp_scale_m": "log"}
 #: path/splash drops: a single drop at tens of metres is far below the threshold; what the sensor
 #: sees there are clusters of drops, bounded to at most 20x the dark threshold (median)
-STREET = {"path_rate_per_beam": "log", "path_amplitude_median": "log:0.1:20", "wetness": "logit", "snow_depth_m": "log",
-          "splash_rate_per_beam": "log"}
+STREET = {"path_rate_per_beam": "log", "path_amplitude_median": "log:0.1:20", "path_amplitude_sigma_ln": "log:0.1:2",
+          "wetness": "logit", "snow_depth_m": "log", "splash_rate_per_beam": "log"}
 #: start values of parameters a class has not had yet (0 cannot be encoded)
-START = {"cover_amp_scale_m": 0.3, "street_gain": 3.0, "snow_depth_m": 0.05, "splash_rate_per_beam": 0.3}
+START = {"path_amplitude_sigma_ln": 0.8, "cover_amp_scale_m": 0.3, "street_gain": 3.0, "snow_depth_m": 0.05, "splash_rate_per_beam": 0.3}
 TARGETS = {"near": {"atmosphere": ["n_total", "n_peak", "x_sigma", "n_e1", "epw_mean"]},
            "street": {"street": ["n_peak", "x_mean", "x_sigma", "n_e2", "epw_mean"]}}
 
@@ -135,6 +136,10 @@ def main() -> None:
     parser.add_argument("--tables", default=str(default_tables_path()))
     parser.add_argument("--near-start", default="", help="e.g. fog=clear: start a class's near-field stage from "
                                                          "another class's fitted values (a better basin)")
+    parser.add_argument("--start", default="", help="e.g. path_rate_per_beam=0.5,path_amplitude_median=2: start "
+                                                     "values for the fitted classes (out of a flat basin)")
+    parser.add_argument("--stages", default="near,street", help="stages to fit (the others keep their values); "
+                                                                  "street alone after a change of the scene geometry")
     parser.add_argument("--out", default=str(OUT))
     args = parser.parse_args()
     tables = yaml.safe_load(Path(args.tables).read_text())
@@ -150,8 +155,15 @@ def main() -> None:
         starts = dict(kv.split("=") for kv in args.near_start.split(",") if kv)
         if weather in starts:
             c.update({k: data["classes"][starts[weather]][k] for k in NEAR})
-        c, z_near = fit_stage(c, NEAR, weather, "near", tables, args.frames, args.iters, args.out)
-        c, z_street = fit_stage(c, street_params(weather), weather, "street", tables, args.frames, args.iters, args.out)
+        c.update({k: float(v) for k, v in (kv.split("=") for kv in args.start.split(",") if kv)})
+        stages = {"near": NEAR, "street": street_params(weather)}
+        z = {}
+        for stage, names in stages.items():
+            if stage in args.stages.split(","):
+                c, z[stage] = fit_stage(c, names, weather, stage, tables, args.frames, args.iters, args.out)
+            else:
+                z[stage] = residuals(c, weather, stage, tables, args.frames, args.out)
+        z_near, z_street = z["near"], z["street"]
         c.pop("street_gain")
         data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items()}
         data.setdefault("fit_report", {})[weather] = {"z_atmosphere": [round(float(v), 2) for v in z_near],

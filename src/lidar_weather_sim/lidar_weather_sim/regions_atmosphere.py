@@ -62,6 +62,8 @@ class ClassParams(ConfigModel):
     amplitude_sigma_ln: float = Field(ge=0, description="Log-sd of the near-field peak amplitude")
     path_rate_per_beam: float = Field(0.0, ge=0, description="Scatterers between 5 m and the scene hit per beam and frame")
     path_amplitude_median: float = Field(1.0, gt=0, description="Median peak of path scatterers over the dark threshold")
+    path_amplitude_sigma_ln: float | None = Field(None, ge=0, description="Log-sd of the path scatterers' peak "
+                                                                          "(none: amplitude_sigma_ln)")
     splash_rate_per_beam: float = Field(0.0, ge=0, description="Splash drops per beam and frame just above an up-facing "
                                                                  "hit (the paper's street region includes splash, line 1550)")
     wetness: float = Field(0.0, ge=0, le=1, description="Road wetness: reflectance x (rho_wet/rho_dry)^wetness")
@@ -184,10 +186,11 @@ class AtmosphereRegion:
         far = np.where(np.isfinite(hit), hit - p.path_gap_m, -np.inf)
         # the near-field volume ends near_field_max_m ahead horizontally along the sensor's axis (the
         # paper's x, not the range); path drops keep path_gap_m from it, as from the hit
-        horizontal = np.hypot(batch.directions[:, core, 0], batch.directions[:, core, 1])
-        sd = batch.sensor_directions[:, core]
-        cos_az = sd[:, 0] / np.maximum(np.hypot(sd[:, 0], sd[:, 1]), 1e-9)
-        near = (p.near_field_max_m + p.path_gap_m) / np.maximum(horizontal * cos_az, 0.1)
+        # (a sensor without roll: the ray's lateral component is its sensor-frame y, the rest of its
+        # horizontal part lies along the axis)
+        horizontal_sq = batch.directions[:, core, 0] ** 2 + batch.directions[:, core, 1] ** 2
+        along_axis = np.sqrt(np.maximum(horizontal_sq - batch.sensor_directions[:, core, 1] ** 2, 0.0))
+        near = (p.near_field_max_m + p.path_gap_m) / np.maximum(along_axis, 0.1)
         eligible = far > near
         counts = rng.poisson(c.path_rate_per_beam * self.rate_scale, len(hit)) * eligible
         beam = np.repeat(np.arange(len(hit)), counts)
@@ -203,7 +206,8 @@ class AtmosphereRegion:
         m = len(beam)
         if m == 0:
             return None
-        amp = c.path_amplitude_median * np.exp(c.amplitude_sigma_ln * rng.standard_normal(m))
+        sigma_ln = c.amplitude_sigma_ln if c.path_amplitude_sigma_ln is None else c.path_amplitude_sigma_ln
+        amp = c.path_amplitude_median * np.exp(sigma_ln * rng.standard_normal(m))
         det = self.profile.detection
         dark = det.noise_mean + det.threshold_sigma * det.noise_sigma
         refl = amp * dark * np.maximum(r, MIN_RANGE_M) ** 2 / (det.power_constant * w[core])
