@@ -243,14 +243,13 @@ _EMPTY_RANGE = np.float32(1e30)
 
 
 @njit(inline="always", fastmath=True)
-def _first_echoes(first, counts, c, stride, ri, inv, close, columns, channels):
-    """(ring, cross, n_close, occupied, crowded) of :func:`_range_image_features` over the first echoes of the
-    window of cell ``c``, the own cell counted in ``n_close`` and ``occupied`` and left out of ``ring``."""
+def _first_echoes(first, c, stride, ri, inv, close, columns, channels):
+    """(ring, cross, n_close, occupied) of :func:`_range_image_features` over the first echoes of the window of
+    cell ``c``, the own cell counted in ``n_close`` and ``occupied`` and left out of ``ring``."""
     ring = np.float32(1.0)
     cross = np.float32(1.0)
     n_close = 0
     occupied = 0
-    crowded = False
     for db in range(-columns, columns + 1):
         q0 = c + db * stride
         if db != 0:
@@ -258,11 +257,9 @@ def _first_echoes(first, counts, c, stride, ri, inv, close, columns, channels):
         if channels >= 1:
             cross = min(cross, min(abs(first[q0 - 1] - ri) * inv, abs(first[q0 + 1] - ri) * inv))
         for q in range(q0 - channels, q0 + channels + 1):
-            m = counts[q]
-            occupied += m > 0
-            crowded |= m > 1
+            occupied += first[q] < _EMPTY_RANGE
             n_close += abs(first[q] - ri) * inv < close
-    return ring, cross, n_close, occupied, crowded
+    return ring, cross, n_close, occupied
 
 
 @njit(cache=True, nogil=True, fastmath=True)
@@ -312,6 +309,13 @@ def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, cha
                 first[dst * stride + t] = first[src * stride + t]
                 for k in range(n_extra):
                     extra[dst * stride + t, k] = extra[src * stride + t, k]
+    near_crowded = np.zeros(n_cells, np.bool_)  # cells whose window holds a crowded cell (few)
+    for q in range(n_cells):
+        if counts[q] > 1:
+            for db in range(-columns, columns + 1):
+                for dc in range(-channels, channels + 1):
+                    if 0 <= q + db * stride + dc < n_cells:
+                        near_crowded[q + db * stride + dc] = True
     for i in range(n):
         ri = r[i]
         inv = np.float32(1.0) / max(ri, np.float32(0.05))
@@ -330,14 +334,12 @@ def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, cha
         # the window's first echoes (the own cell's counted, then taken off, and left out of ring); the shipped
         # window size as constants, so the compiler unrolls the window
         if columns == RI_COLUMNS and channels == RI_CHANNELS:
-            ring, cross, n_close, occupied, crowded = _first_echoes(first, counts, c, stride, ri, inv, close,
-                                                                    RI_COLUMNS, RI_CHANNELS)  # fmt: skip
+            ring, cross, n_close, occupied = _first_echoes(first, c, stride, ri, inv, close, RI_COLUMNS, RI_CHANNELS)
         else:
-            ring, cross, n_close, occupied, crowded = _first_echoes(first, counts, c, stride, ri, inv, close,
-                                                                    columns, channels)  # fmt: skip
+            ring, cross, n_close, occupied = _first_echoes(first, c, stride, ri, inv, close, columns, channels)
         n_close -= abs(first[c] - ri) * inv < close
         occupied -= 1
-        if crowded:  # later echoes of the window's cells but the own one
+        if near_crowded[c]:  # later echoes of the window's cells but the own one
             for db in range(-columns, columns + 1):
                 for dc in range(-channels, channels + 1):
                     q = c + db * stride + dc
