@@ -87,3 +87,15 @@ def test_range_image_features_with_crowded_cells_equal_a_direct_computation(wind
     reference = module._range_image_reference(pts, extractor.last_step_rad, columns=window[0], channels=window[1])
     for name, expected in reference.items():
         assert np.allclose(out[:, FEATURE_NAMES.index(name)], expected, atol=1e-5), name
+
+
+def test_stage_timing_runs_each_stage():
+    from weather_filter.learned import LearnedFilter
+    from weather_filter.stage_timing import stages
+
+    pts = _scan()
+    filt = LearnedFilter.load()
+    expected = filt(pts).remove
+    for fn in stages(filt, pts).values():
+        fn()
+    assert np.array_equal(filt(pts).remove, expected)
