@@ -35,6 +35,27 @@ def _scan(seed=0, n_channels=16, n_cols=900):
     return pts
 
 
+def test_log10_clamped_equals_the_compiled_log10_on_every_float32_it_sees():
+    """Exhaustive over [1e-3, 1) (83.7M values, in chunks), plus values beyond both ends."""
+    from numba import njit
+
+    from weather_filter.log10f import log10_clamped
+
+    @njit
+    def compiled(v, out):
+        for i in range(len(v)):
+            out[i] = np.log10(max(v[i], np.float32(1e-3))) if v[i] < 1 else np.float32(0.0)
+
+    lo, hi = int(np.float32(1e-3).view(np.uint32)), int(np.float32(1.0).view(np.uint32))
+    for start in range(lo - 1000, hi + 1000, 1 << 23):
+        bits = np.arange(start, min(start + (1 << 23), hi + 1000), dtype=np.uint32)
+        values = bits.view(np.float32)
+        expected = np.empty_like(values)
+        compiled(values, expected)
+        log10_clamped(values, bits)
+        assert np.array_equal(values.view(np.uint32), expected.view(np.uint32)), start
+
+
 def test_approx_azimuth_is_within_its_bound():
     rng = np.random.default_rng(1)
     x = (rng.standard_normal(200_000) * 10 ** rng.uniform(-3, 3, 200_000)).astype(np.float32)

@@ -43,6 +43,7 @@ import numpy as np
 from numba import njit
 
 from weather_filter.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
+from weather_filter.log10f import log10_clamped
 
 IMPULSE = np.array([[-1, -1, -1], [-1, 4, -1], [-1, -1, -1]], dtype=np.float32)  # A1
 HORIZONTAL = np.array([[-1] * 10, [2] * 10, [-1] * 10], dtype=np.float32)  # A2
@@ -264,7 +265,8 @@ def _first_echoes(first, c, stride, ri, inv, close, columns, channels):
 
 @njit(cache=True, nogil=True, fastmath=True)
 def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, channels, close):
-    """``ri_*`` columns (18-24) of ``out`` (whose columns 0-2 and 4 hold x, y, z in m and the channel) from a
+    """``ri_*`` columns (18-24) of ``out`` (whose columns 0-2 and 4 hold x, y, z in m and the channel; ``ri_ring``
+    and ``ri_cross`` as relative differences, the caller takes their :func:`log10_clamped`) from a
     range image of ``n_channels`` rows and 2 pi / ``step`` columns (``step`` and ``azimuth`` in rad, wrapping
     round; ``azimuth`` from :func:`approx_azimuth`, the exact one taken where the column is in doubt), ``n_echoes``
     ranges per cell (further ones of a crowded cell are dropped).
@@ -352,8 +354,8 @@ def _range_image_features(out, azimuth, step, n_channels, n_echoes, columns, cha
                             ring = min(ring, d)
                         elif dc == 1 or dc == -1:
                             cross = min(cross, d)
-        out[i, 18] = np.log10(max(ring, np.float32(1e-3))) if ring < 1 else np.float32(0.0)
-        out[i, 19] = np.log10(max(cross, np.float32(1e-3))) if cross < 1 else np.float32(0.0)
+        out[i, 18] = ring  # their log10 in one vectorised pass after (log10_clamped)
+        out[i, 19] = cross
         out[i, 20] = n_close
         out[i, 21] = occupied
         out[i, 22] = behind
@@ -407,4 +409,6 @@ class PointFeatures:
             self.last_step_rad = float(step)
             _range_image_features(out, azimuth, step, n_channels, RI_ECHOES, self.ri_columns, self.ri_channels,
                                   np.float32(RI_CLOSE))  # fmt: skip
+            for k in (FEATURE_NAMES.index("ri_ring"), FEATURE_NAMES.index("ri_cross")):
+                log10_clamped(out[:, k], out[:, k].view(np.uint32))
         return out
