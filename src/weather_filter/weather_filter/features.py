@@ -30,11 +30,12 @@ range poorly on the 128-channel scans.
 Histograms cover |x|, |y| <= ``extent_m`` (sensor frame); points outside get
 the counts of the border cell clipped to, and zero convolution responses.
 Computed by numba-compiled passes, each point's features bit-identical to the direct definitions above (CPU
-time min on a 120k-point os1_128_2048 frame, 2 shared cores): the point fields copied to the feature columns
-(0.7 ms); the azimuth, a vectorised polynomial (:mod:`weather_filter.azimuth`, 0.14 ms; ``np.arctan2`` per
-point took 2.4 ms); histograms, cell heights and convolutions (once per occupied cell, in integers: 4.4 ms);
-the azimuth step (0.7 ms); the range image (8 ms: a dense first-echo plane read without branches by a window
-of constant size, later echoes only where the window holds a crowded cell).
+time min on a 120k-point os1_128_2048 frame, 2 shared cores; ``python -m weather_filter.stage_timing``): the
+point fields copied to the feature columns (0.7 ms); the azimuth, a vectorised polynomial
+(:mod:`weather_filter.azimuth`, 0.14 ms; ``np.arctan2`` per point took 2.4 ms); histograms, cell heights and
+convolutions (once per occupied cell, in integers: 4.4 ms); the azimuth step (0.7 ms); the range image (~7 ms:
+a dense first-echo plane read without branches by a window of constant size, later echoes only where the
+window holds a crowded cell, the logarithms vectorised by :mod:`weather_filter.log10f`).
 """
 
 from __future__ import annotations
