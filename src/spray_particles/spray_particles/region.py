@@ -164,8 +164,9 @@ class SprayRegion:
         beam, sub, particle, range_m, chord, tau, packet = _hit_geometry(
             hits.ray, hits.sphere, hits.range_m, hits.half_chord_m, rays, idx, max_range, n_sub, p.population, p.weight,
             p.diameter, p.airborne, radii, vertical)  # fmt: skip
+        phase = self.constants.particles.backscatter_phase
         reflectance, occlusion, range_m = _hit_returns(packet, -np.expm1(-tau), hits.cos_incidence, range_m, chord,
-                                                       self.albedo, self.constants.particles.backscatter_phase)  # fmt: skip
+                                                       self.albedo, phase)  # fmt: skip
         sc = Scatterers(
             beam=beam, subray=sub, range_m=range_m, reflectance=reflectance, occlusion=occlusion,
             label=np.full(len(beam), Label.SPRAY, np.uint8), object_id=self._actor_ids[p.vehicle[particle]],
