@@ -12,8 +12,8 @@ seeds and writes a byte-identical model on the same library versions
 version that wrote it).
 
 Inference does not call scikit-learn: the scaler is folded into the first layer
-and the forward pass is two float32 matrix products (:class:`FastMLP`), ~2 ms for
-a 121k-point frame; :meth:`FastMLP.logit` equals the pipeline's decision to float32 precision.
+and the forward pass is two float32 matrix products (:class:`FastMLP`; bias and ReLU one compiled pass between
+them), 2.5 ms CPU for a 120k-point frame; :meth:`FastMLP.logit` equals the pipeline's decision to float32 precision.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from numba import njit
 
 from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS
 
@@ -71,14 +72,26 @@ class FastMLP:
         h = x.T
         for w, b in zip(self.weights[:-1], self.biases[:-1]):
             h = w.T @ h
-            h += b[:, None]
             if self.activation == "relu":
-                np.maximum(h, 0, out=h)
-            elif self.activation == "tanh":
+                _add_relu(h, b)
+                continue
+            h += b[:, None]
+            if self.activation == "tanh":
                 np.tanh(h, out=h)
             elif self.activation == "logistic":
                 h = 1 / (1 + np.exp(-h))
         return (self.weights[-1].T @ h)[0] + self.biases[-1][0]
+
+
+@njit(cache=True, nogil=True)
+def _add_relu(h, b):
+    """``h = maximum(h + b[:, None], 0)`` in place (float32, hidden units x points) in one pass instead of
+    numpy's two over the 7.7 MB of a 120k-point frame; same values (a -0.0 stays -0.0, as in ``np.maximum``)."""
+    for j in range(h.shape[0]):
+        row, bj = h[j], b[j]
+        for p in range(len(row)):
+            v = row[p] + bj
+            row[p] = v if v >= 0 else np.float32(0.0)
 
 
 def _logit_threshold(p: float) -> float:
