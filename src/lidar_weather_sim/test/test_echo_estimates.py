@@ -1,0 +1,57 @@
+"""The echo detector's sample estimates: within their error bound of the exact samples, and the
+echoes of overlapping pulses those of the exactly sampled waveform."""
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim import echo
+
+
+def _cluster(rng, n, spread):
+    r = np.sort(rng.uniform(20.0, 20.0 + spread, n))
+    a = np.exp(rng.uniform(0.0, 12.0, n))
+    return r, a
+
+
+@pytest.mark.parametrize("spread", [0.1, 1.0, 4.0])
+def test_estimates_are_within_their_bound(spread):
+    rng = np.random.default_rng(3)
+    s = 0.75 * echo.FWHM_TO_SIGMA
+    dx = s / 8.0
+    for _ in range(50):
+        r, a = _cluster(rng, int(rng.integers(2, 6)), spread)
+        lo = r[0] - 6.0 * s
+        n = int((r[-1] - r[0] + 12.0 * s) / dx)
+        buf = np.empty(n)
+        tol = echo._fill_estimates(r, a, 0, len(r), s, lo, dx, 0, n, buf)
+        exact = np.array([echo._sample(r, a, 0, len(r), s, lo + k * dx) for k in range(n)])
+        assert tol == echo.ESTIMATE_TOLERANCE
+        assert np.all(np.abs(buf - exact) <= 1e-3 * tol * exact)
+
+
+def test_far_windows_are_sampled_exactly():
+    r, a = np.array([10.0, 40.0]), np.array([50.0, 60.0])
+    s = 0.3
+    buf = np.empty(2000)
+    assert echo._fill_estimates(r, a, 0, 2, s, 9.0, s / 8.0, 0, 1500, buf) == 0.0
+    assert buf[100] == echo._sample(r, a, 0, 2, s, 9.0 + 100 * (s / 8.0))
+
+
+def test_two_pulses_match_a_sampled_waveform():
+    """Two pulses 0.5 m apart: one echo, its range, peak and EPW those of the waveform (sampled
+    every s / 8 on the detector's own grid: within a sample)."""
+    fwhm, thr = 0.75, 4.0
+    s = fwhm * echo.FWHM_TO_SIGMA
+    r, a = np.array([30.0, 30.5]), np.array([200.0, 100.0])
+    out = echo.detect_echoes(np.zeros(2, np.int64), r, a, np.array([1, 2], np.uint8), np.array([7, 8], np.uint32),
+                             threshold=echo.Threshold(1.0, 1.0, 3.0), fwhm_m=fwhm, resolution_m=0.03, max_echoes=2)  # fmt: skip
+    (start,), (count,) = out.runs
+    assert count == 1
+    x = np.arange(r[0] - 8.0, r[1] + 8.0, s / 64.0)
+    w = (a[:, None] * np.exp(-0.5 * ((x[None, :] - r[:, None]) / s) ** 2)).sum(0)
+    above = np.flatnonzero(w > thr)
+    assert out.range_m[start] == pytest.approx(x[np.argmax(w)], abs=s / 8.0)
+    assert out.amplitude[start] == pytest.approx(w.max(), rel=1e-2)
+    width = (above[-1] - above[0]) * (s / 64.0)
+    assert out.epw_m[start] == pytest.approx(width, abs=s / 8.0)
+    assert (out.label[start], out.object_id[start]) == (1, 7)
