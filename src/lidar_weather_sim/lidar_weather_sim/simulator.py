@@ -360,12 +360,11 @@ class LidarSimulator:
         profile = self.profile
         starts, counts = echoes.runs
         rng = region_rng(self.seed, acc.index, "range_noise", first_column)
-        noise = rng.normal(0.0, profile.range.noise_sigma_m, int(counts.sum()))
         # where the echoes are: their ranges with noise; of those kept, the indices and amplitude ratios
         ranges, kept, log_ratio = (self._scratch.get(name, len(echoes.range_m), dtype) for name, dtype in
                                    (("noisy_range", np.float64), ("kept", np.int64), ("log_ratio", np.float64)))  # fmt: skip
-        count = _kept_echoes(noise, echoes.range_m, echoes.amplitude, starts, counts, max(profile.range.min_m, 0.0),
-                             self.dark_threshold(), ranges, kept, log_ratio)  # fmt: skip
+        count = _kept_echoes(rng, float(profile.range.noise_sigma_m), echoes.range_m, echoes.amplitude, starts, counts,
+                             max(profile.range.min_m, 0.0), self.dark_threshold(), ranges, kept, log_ratio)  # fmt: skip
         kept, log_ratio = kept[:count], log_ratio[:count]
         if acc.points is None:
             # at most max_echoes per beam: one allocation per frame, no copies (pages never written cost nothing)
@@ -615,16 +614,17 @@ def _surface_returns_run(distance, triangle, normal, material, actor, object_id,
 
 
 @numba.njit(cache=True)
-def _kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio):
+def _kept_echoes(rng, sigma, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio):
     """The echoes in the runs (starts, counts) in order: ``ranges`` (where the echoes are) gets
-    each one's range plus its ``noise``; those at or beyond ``min_range`` get their index
-    into ``kept`` and their peak amplitude (at least 1e-12) over ``dark`` into ``ratio``, as
-    numpy's sum, flatnonzero, maximum and division. Returns how many were kept."""
-    j = count = 0
+    each one's range (m) plus Gaussian noise of ``sigma`` (m) drawn from the generator ``rng``
+    (numba's port of numpy's: the values of ``rng.normal(0, sigma, n)``, 3x faster); those at
+    or beyond ``min_range`` get their index into ``kept`` and their peak amplitude (at least
+    1e-12) over ``dark`` into ``ratio``, as numpy's sum, flatnonzero, maximum and division.
+    Returns how many were kept."""
+    count = 0
     for c in range(len(counts)):
         for i in range(starts[c], starts[c] + counts[c]):
-            ranges[i] = noise[j] + range_m[i]
-            j += 1
+            ranges[i] = rng.normal(0.0, sigma) + range_m[i]
             if ranges[i] >= min_range:
                 a = amplitude[i]
                 kept[count] = i
