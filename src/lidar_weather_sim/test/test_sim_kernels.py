@@ -17,7 +17,7 @@ from lidar_weather_sim.sensor_profile import SensorProfile
 from lidar_weather_sim.simulator import (
     LidarSimulator,
     _compact_candidates,
-    _kept_echoes,
+    _range_noise,
     _sub_ray_order,
     _surface_returns,
     _world_rays,
@@ -321,19 +321,9 @@ def test_padded_mitsuba_casts_equal_unpadded():
         assert np.isfinite(padded[0]).any()
 
 
-def test_range_noise_is_numpys_normal_stream():
-    """_kept_echoes draws the range noise in numba from the batch's generator: the values of
-    ``rng.normal(0, sigma, n)`` in run order, the echoes kept as numpy would keep them."""
-    rng = np.random.default_rng(11)
-    range_m = rng.uniform(-0.2, 50.0, 1000)
-    amplitude = np.where(rng.random(1000) < 0.1, 0.0, rng.uniform(0.5, 1e4, 1000))
-    starts, counts = np.array([0, 400, 900]), np.array([300, 350, 60])
-    ranges, kept, ratio = np.full(1000, np.nan), np.empty(1000, np.int64), np.empty(1000)
-    count = _kept_echoes(np.random.default_rng([1, 2, 3]), 0.01, range_m, amplitude, starts, counts, 0.3, 4.0, ranges,
-                         kept, ratio)  # fmt: skip
-    where = np.concatenate([np.arange(s, s + c) for s, c in zip(starts, counts)])
-    noisy = np.random.default_rng([1, 2, 3]).normal(0.0, 0.01, len(where)) + range_m[where]
-    np.testing.assert_array_equal(ranges[where], noisy)
-    expected = where[noisy >= 0.3]
-    np.testing.assert_array_equal(kept[:count], expected)
-    np.testing.assert_array_equal(ratio[:count], np.maximum(amplitude[expected], 1e-12) / 4.0)
+
+@pytest.mark.parametrize("n", [10, 5000])
+def test_range_noise_is_numpys_normal_stream(n):
+    """Drawn by numpy or numba (many draws): the values of ``rng.normal(0, sigma, n)``."""
+    noise = _range_noise(np.random.default_rng([1, 2, 3]), 0.01, n, workers.Scratch())
+    np.testing.assert_array_equal(noise, np.random.default_rng([1, 2, 3]).normal(0.0, 0.01, n))
