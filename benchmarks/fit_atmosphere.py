@@ -16,6 +16,7 @@ loss sum(max(0, |z| - 0.8)^2) + 0.01 sum z^2, z = (sim - paper) / paper_sigma:
 1. near field (Table 3: n_total, n_peak, x_sigma, n_e1, EPW): rate_per_beam, cover_share,
    cover_scale_m, amplitude_median, amplitude_sigma_ln, cover_amp_scale_m;
 2. street (Table 4: n_peak, x_mean, x_sigma, n_e2, EPW): path_rate_per_beam, path_amplitude_median,
+   (not fog: see street_params)
    path_amplitude_sigma_ln (how strongly sunlight thins the drops' first echoes); wetness
    (rain, fog: the water film; clear is dry by definition, snow is covered); snow_depth_m
    (snow only); splash_rate_per_beam (rain, snow: precipitation hitting the street).
@@ -44,7 +45,7 @@ import numpy as np
 import yaml
 from scipy.optimize import minimize
 
-from lidar_weather_sim.regions_atmosphere import WEATHER_CLASSES
+from lidar_weather_sim.regions_atmosphere import WEATHER_CLASSES, ClassParams
 from lidar_weather_sim.reproduce import default_tables_path, paper_value, rows_of, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,10 +64,19 @@ TARGETS = {"near": {"atmosphere": ["n_total", "n_peak", "x_sigma", "n_e1", "epw_
 
 def street_params(weather: str) -> dict:
     """The street-stage parameters a class fits (see the module doc)."""
+    path = ("path_rate_per_beam", "path_amplitude_median", "path_amplitude_sigma_ln")
+    # fog: droplets of ~10 um make no discrete returns beyond the near field (their backscatter is the
+    # volume's, close to the sensor); with path drops the fog class mimicked rain under sunlight
     skip = {"clear": ("wetness", "snow_depth_m", "splash_rate_per_beam"), "snow": ("wetness",),
-            "fog": ("snow_depth_m", "splash_rate_per_beam")}
+            "fog": ("snow_depth_m", "splash_rate_per_beam", *path)}
     skip = skip.get(weather, ("snow_depth_m",))
     return {k: v for k, v in STREET.items() if k not in skip}
+
+
+def unfitted_to_defaults(c: dict, weather: str) -> dict:
+    """A class's street parameters that it does not fit, at their defaults (no effect)."""
+    fitted = street_params(weather)
+    return {**c, **{k: ClassParams.model_fields[k].default for k in STREET if k not in fitted}}
 
 
 def encode(value: float, kind: str) -> float:
@@ -156,6 +166,7 @@ def main() -> None:
         if weather in starts:
             c.update({k: data["classes"][starts[weather]][k] for k in NEAR})
         c.update({k: float(v) for k, v in (kv.split("=") for kv in args.start.split(",") if kv)})
+        c = unfitted_to_defaults(c, weather)
         stages = {"near": NEAR, "street": street_params(weather)}
         z = {}
         for stage, names in stages.items():
@@ -165,7 +176,7 @@ def main() -> None:
                 z[stage] = residuals(c, weather, stage, tables, args.frames, args.out)
         z_near, z_street = z["near"], z["street"]
         c.pop("street_gain")
-        data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items()}
+        data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items() if v is not None}
         data.setdefault("fit_report", {})[weather] = {"z_atmosphere": [round(float(v), 2) for v in z_near],
                                                       "z_street": [round(float(v), 2) for v in z_street]}
         data["source"] = ("fitted by benchmarks/fit_atmosphere.py to paper 2 Tables 3 and 4 (thesis_tables.yaml "
