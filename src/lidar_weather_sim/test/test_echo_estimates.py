@@ -13,7 +13,7 @@ def _cluster(rng, n, spread):
     return r, a
 
 
-@pytest.mark.parametrize("spread", [0.1, 1.0, 4.0])
+@pytest.mark.parametrize("spread", [0.1, 1.0, 4.0, 5.5])
 def test_estimates_are_within_their_bound(spread):
     rng = np.random.default_rng(3)
     s = 0.75 * echo.FWHM_TO_SIGMA
