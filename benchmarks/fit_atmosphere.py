@@ -16,7 +16,7 @@ loss sum(max(0, |z| - 0.8)^2) + 0.01 sum z^2, z = (sim - paper) / paper_sigma:
 1. near field (Table 3: n_total, n_peak, x_sigma, n_e1, EPW): rate_per_beam, cover_share,
    cover_scale_m, amplitude_median, amplitude_sigma_ln, cover_amp_scale_m;
 2. street (Table 4: n_peak, x_mean, x_sigma, n_e2, EPW): path_rate_per_beam, path_amplitude_median,
-   (not fog: see street_params)
+   (rain and snow only: see street_params)
    path_amplitude_sigma_ln (how strongly sunlight thins the drops' first echoes); wetness
    (rain, fog: the water film; clear is dry by definition, snow is covered); snow_depth_m
    (snow only); splash_rate_per_beam (rain, snow: precipitation hitting the street).
@@ -65,9 +65,11 @@ TARGETS = {"near": {"atmosphere": ["n_total", "n_peak", "x_sigma", "n_e1", "epw_
 def street_params(weather: str) -> dict:
     """The street-stage parameters a class fits (see the module doc)."""
     path = ("path_rate_per_beam", "path_amplitude_median", "path_amplitude_sigma_ln")
-    # fog: droplets of ~10 um make no discrete returns beyond the near field (their backscatter is the
-    # volume's, close to the sensor); with path drops the fog class mimicked rain under sunlight
-    skip = {"clear": ("wetness", "snow_depth_m", "splash_rate_per_beam"), "snow": ("wetness",),
+    # clear air holds nothing that returns a pulse beyond the near field: fitted "dust" path scatterers
+    # put ~1000 noise points per scala4 frame into clear driving scenes. fog: droplets of ~10 um make no
+    # discrete returns beyond the near field either (their backscatter is the volume's, close to the
+    # sensor); with path drops the fog class mimicked rain under sunlight
+    skip = {"clear": ("wetness", "snow_depth_m", "splash_rate_per_beam", *path), "snow": ("wetness",),
             "fog": ("snow_depth_m", "splash_rate_per_beam", *path)}
     skip = skip.get(weather, ("snow_depth_m",))
     return {k: v for k, v in STREET.items() if k not in skip}
@@ -170,7 +172,7 @@ def main() -> None:
         stages = {"near": NEAR, "street": street_params(weather)}
         z = {}
         for stage, names in stages.items():
-            if stage in args.stages.split(","):
+            if stage in args.stages.split(",") and names:
                 c, z[stage] = fit_stage(c, names, weather, stage, tables, args.frames, args.iters, args.out)
             else:
                 z[stage] = residuals(c, weather, stage, tables, args.frames, args.out)
