@@ -45,14 +45,15 @@ ENTRY_POINT_GROUP = "lidar_weather_sim.regions"
 @dataclass(frozen=True)
 class RegionContext:
     """What a region may know about the set-up: the sensor profile, the weather block of the
-    scenario (may be None), the scene's materials table (may be None), the scenario's actors
-    and a source of their poses over simulated time (may be None)."""
+    scenario (may be None), the scene's materials table (may be None), the scenario's actors,
+    a source of their poses over simulated time and the topic inputs (may be None)."""
 
     profile: Any
     weather: Any = None
     materials: Any = None
     actors: Any = None  # the scenario's actors (list of scenario.Actor), for emitting regions (spray)
     pose_source: Any = None  # anything with actor_poses(t) -> {actor id: 4x4 body-to-world}, e.g. the player
+    inputs: Any = None  # a topic_inputs.TopicInputs: points other nodes publish (spray source: topic)
 
 
 @dataclass

@@ -14,6 +14,7 @@ from lidar_weather_sim.regions import REGISTRY, Region, RegionContext
 from lidar_weather_sim.scenario import Scenario
 from lidar_weather_sim.scene import Scene, load_static_mesh, vehicle_mesh
 from lidar_weather_sim.sensor_profile import SensorProfile, load_profile
+from lidar_weather_sim.topic_inputs import TopicInputs
 
 
 def _map_path(name: str) -> Path:
@@ -52,11 +53,13 @@ class World:
         return cls(scenario, profile, scene, ScenarioPlayer(scenario, scene.roads))
 
     def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None,
-                pose_source=None) -> list[tuple[str, Region]]:  # fmt: skip
+                pose_source=None, inputs=None) -> list[tuple[str, Region]]:  # fmt: skip
         """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``;
-        actor poses come from ``pose_source`` (default: the scenario player)."""
+        actor poses come from ``pose_source`` (default: the scenario player), topic points from ``inputs``
+        (a :class:`~lidar_weather_sim.topic_inputs.TopicInputs`, default a new one)."""
         context = RegionContext(self.profile, self.scenario.weather, self.scene.materials,
-                                actors=self.scenario.actors, pose_source=pose_source or self.player)  # fmt: skip
+                                actors=self.scenario.actors, pose_source=pose_source or self.player,
+                                inputs=TopicInputs() if inputs is None else inputs)  # fmt: skip
         names = self.scenario.regions if names is None else names
         merged = {**self.scenario.region_params}
         for name, values in (params or {}).items():

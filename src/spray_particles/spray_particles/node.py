@@ -2,35 +2,28 @@
 
 The vehicles and their poses come from a scenario (``scenario`` parameter, a name in
 config/scenarios or a path; its ``spray`` region parameters are used). Every
-``1 / rate_hz`` s of node time (``use_sim_time`` honoured) the system advances to
-the node clock's time since start (s, simulated) and publishes, in frame ``map``:
+``1 / rate_hz`` s of node time the system advances to the scenario time and publishes,
+in frame ``map``. Scenario time is the /clock time with ``use_sim_time`` (the clock
+lidar_sim_node publishes in scenario mode starts at the scenario's t = 0, so both
+nodes see the vehicles at the same places), else the wall-clock time since start:
 
-- ``/spray/particles`` sensor_msgs/PointCloud2, fields x, y, z (float32, m), radius
-  (float32, m: the render sphere of an inertial particle, the ball of a drop packet) and
-  population (uint8: 0 inertial, 1 drop packet);
+- ``/spray/particles`` sensor_msgs/PointCloud2 (fields in spray_particles.particle_cloud: centre,
+  semi-axes, population, drop cross-section, emitting actor id), which the ``spray`` region of
+  ``lidar_sim_node`` reads with ``source: topic``;
 - ``/spray/markers`` visualization_msgs/MarkerArray, one SPHERE_LIST per population.
 
 Parameters: ``scenario`` (string), ``rate_hz`` (double), ``frame_id`` (string),
-``max_steps`` (int, 0 = forever). The builders :func:`particle_cloud` and
-:func:`marker_array` need no running node.
+``max_steps`` (int, 0 = forever). :func:`marker_array` and
+:func:`spray_particles.particle_cloud.particle_cloud` need no running node.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-PARTICLE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("radius", "<f4"), ("population", "u1")])
-TOPIC_PARTICLES = "/spray/particles"
+from spray_particles.particle_cloud import TOPIC_PARTICLES
+
 TOPIC_MARKERS = "/spray/markers"
-
-
-def particle_cloud(positions: np.ndarray, radius_m: float | np.ndarray, population: np.ndarray) -> np.ndarray:
-    """Structured array (PARTICLE_DTYPE) of particle centres (n, 3) m, radii (m, one or (n,)), populations (n,)."""
-    out = np.zeros(len(positions), PARTICLE_DTYPE)
-    out["x"], out["y"], out["z"] = positions[:, 0], positions[:, 1], positions[:, 2]
-    out["radius"] = radius_m
-    out["population"] = population
-    return out
 
 
 def marker_array(cloud: np.ndarray, stamp, frame_id: str):
@@ -91,7 +84,8 @@ def main(argv=None) -> None:
             self.max_steps = int(self.get_parameter("max_steps").value)
             self.cloud_pub = self.create_publisher(PointCloud2, TOPIC_PARTICLES, 10)
             self.marker_pub = self.create_publisher(MarkerArray, TOPIC_MARKERS, 10)
-            self.start_ns = self.get_clock().now().nanoseconds
+            sim_time = self.get_parameter("use_sim_time").value
+            self.start_ns = 0 if sim_time else self.get_clock().now().nanoseconds
             self.steps = 0
             self.region.step(0.0, 0.0)
             self.timer = self.create_timer(1.0 / float(self.get_parameter("rate_hz").value), self.tick)
@@ -100,8 +94,7 @@ def main(argv=None) -> None:
             now = self.get_clock().now()
             t = (now.nanoseconds - self.start_ns) * 1e-9
             self.region.step(t, t)
-            system = self.region.system
-            cloud = particle_cloud(system.positions_at(t), self.region.radii(t)[0], system.particles.population)
+            cloud = self.region.particle_cloud(t)
             msg, _ = build_message(cloud, stamp_ns=now.nanoseconds, frame_id=self.frame_id,
                                    types=rclpy_message_types())  # fmt: skip
             self.cloud_pub.publish(msg)

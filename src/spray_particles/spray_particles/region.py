@@ -17,11 +17,16 @@ The region needs the scenario's actors and their poses: ``RegionContext.actors``
 ``RegionContext.pose_source`` (anything with ``actor_poses(t) -> {id: 4x4}``,
 e.g. the scenario player). ``step(t0, t1)`` advances the particles in simulated
 time (the simulator calls it before each batch).
+
+With ``source: topic`` the particles come from spray_node instead
+(``RegionContext.inputs``, a :class:`~lidar_weather_sim.topic_inputs.TopicInputs` that
+lidar_sim_node fills from ``topic``): the newest message, as published, with the fields
+of :mod:`spray_particles.particle_cloud`; no particles until the first one arrives.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numba
 import numpy as np
@@ -33,6 +38,7 @@ from lidar_weather_sim.regions import RayBatch, RegionContext, RegionEffect, Sca
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.fused import packet_radii
+from spray_particles.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.raycast import candidates, group_bounds, sphere_hits
 from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
 from spray_particles.water import tyre_dimensions, water_film_mm
@@ -42,7 +48,9 @@ class SprayRegion:
     name = "spray"
 
     class Params(ConfigModel):
-        source: Literal["internal"] = Field("internal", description="Particle source: the in-process system")
+        source: Literal["internal", "topic"] = Field(
+            "internal", description="Particles: 'internal' (this process steps them) or 'topic' (spray_node's)")
+        topic: str = Field(TOPIC_PARTICLES, description="PointCloud2 of spray_node's particles (source 'topic')")
         seed: int = Field(0, description="Seed of emission and turbulence")
         actor_ids: list[int] | None = Field(None, description="Emitting actors (default: those with emits_spray)")
         water_film_mm: float | None = Field(None, ge=0, le=3, description="Water film (mm); default eq. 1 from the rain")
@@ -64,6 +72,11 @@ class SprayRegion:
     def __init__(self, params: "SprayRegion.Params", context: RegionContext) -> None:
         self.p = params
         self.constants = c = load_constants()
+        self.inputs = getattr(context, "inputs", None)
+        if params.source == "topic":
+            if self.inputs is None:
+                raise ConfigError("region 'spray': source 'topic' but no topic inputs in the RegionContext")
+            self.inputs.want(params.topic, TOPIC_FIELDS)
         actors = list(getattr(context, "actors", None) or [])
         wanted = params.actor_ids
         chosen = [a for a in actors if (a.id in wanted if wanted is not None else getattr(a, "emits_spray", False))]
@@ -110,7 +123,10 @@ class SprayRegion:
         self._actor_ids = np.array([v.actor_id for v in vehicles], dtype=np.uint32)
 
     def step(self, t0_s: float, t1_s: float) -> None:
-        """Advance the particles to ``t1_s`` (simulated s; the system keeps its own fixed-step clock)."""
+        """Advance the particles to ``t1_s`` (simulated s; the system keeps its own fixed-step clock;
+        nothing to do with source 'topic')."""
+        if self.p.source == "topic":
+            return
         if self.system.time_s is None:
             self.system.advance_to(t0_s)
         self.system.advance_to(t1_s)
@@ -123,23 +139,50 @@ class SprayRegion:
         return packet_radii(p.age, max(0.0, time_s - (s.time_s or 0.0)), p.diffusivity, p.kappa, p.lam, p.population,
                             c.mist.initial_radius_m, c.physics.gravity_m_s2, self.radius_m)  # fmt: skip
 
+    def particle_cloud(self, time_s: float) -> np.ndarray:
+        """The particles of the in-process system at ``time_s`` as spray_node publishes them
+        (:data:`~spray_particles.particle_cloud.PARTICLE_DTYPE`, world frame)."""
+        p = self.system.particles
+        radii, vertical = self.radii(time_s)
+        return particle_cloud(self.system.positions_at(time_s), radii, p.population, vertical, _cross_section(p),
+                              self._actor_ids[p.vehicle])  # fmt: skip
+
+    def _particles(self, time_s: float) -> "_Particles | None":
+        """What the ray test needs of the particles at ``time_s``: from the in-process system, or the
+        newest message of the topic (as published; None before the first)."""
+        if self.p.source == "topic":
+            got = self.inputs.latest(self.p.topic)
+            if got is None or not len(got.points):
+                return None
+            c = got.points
+            ids, group = np.unique(c["object_id"], return_inverse=True)
+            centres = np.stack([c["x"], c["y"], c["z"]], axis=1).astype(np.float64)
+            return _Particles(centres, c["radius"].astype(np.float64), c["vertical"].astype(np.float64),
+                              group.astype(np.int64), len(ids), c["population"], c["cross_section_m2"].astype(np.float64),
+                              c["object_id"].astype(np.uint32))  # fmt: skip
+        centres = self.system.positions_at(time_s)
+        if not len(centres):
+            return None
+        p = self.system.particles
+        radii, vertical = self.radii(time_s)
+        groups = max(len(self.system.vehicles), int(p.vehicle.max()) + 1)  # particles may be placed by hand
+        return _Particles(centres, radii, vertical, p.vehicle, groups, p.population, _cross_section(p),
+                          self._actor_ids[p.vehicle])  # fmt: skip
+
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, n_sub = batch.shape
-        if self.system.time_s is None:
+        if self.p.source == "internal" and self.system.time_s is None:
             self.step(float(batch.time_s.min()), float(batch.time_s.max()))
-        t = float(batch.time_s.mean())
-        centres = self.system.positions_at(t)
-        if not len(centres):
+        p = self._particles(float(batch.time_s.mean()))
+        if p is None:
             return RegionEffect()
-        p = self.system.particles
-        radii, vertical = self.radii(t)
+        centres, radii, vertical = p.centres, p.radius, p.vertical
         dirs = batch.directions.reshape(-1, 3)
         # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
         # (one dot product per ray); only the rays inside one of these cones go further
         ref = batch.origins.mean(axis=0)
         spread = float(np.sqrt(np.max(np.sum((batch.origins - ref) ** 2, axis=1))))
-        groups = max(len(self.system.vehicles), int(p.vehicle.max()) + 1)  # particles may be placed by hand
-        lo, hi, largest = group_bounds(centres, radii, p.vehicle, groups)
+        lo, hi, largest = group_bounds(centres, radii, p.group, p.n_groups)
         chosen = np.zeros(len(lo), bool)
         ray_mask = np.zeros(len(dirs), bool)
         for k in np.flatnonzero(largest >= 0):  # vehicles with particles
@@ -154,7 +197,7 @@ class SprayRegion:
             if inside.any():
                 chosen[k] = True
                 ray_mask |= inside
-        rays, idx, origins, directions, max_range = candidates(ray_mask, chosen, p.vehicle, batch.origins, dirs,
+        rays, idx, origins, directions, max_range = candidates(ray_mask, chosen, p.group, batch.origins, dirs,
                                                                batch.distance.reshape(-1), n_sub)  # fmt: skip
         if not len(rays) or not len(idx):
             return RegionEffect()
@@ -162,27 +205,47 @@ class SprayRegion:
         if not len(hits.ray):
             return RegionEffect()
         beam, sub, particle, range_m, chord, tau, packet = _hit_geometry(
-            hits.ray, hits.sphere, hits.range_m, hits.half_chord_m, rays, idx, max_range, n_sub, p.population, p.weight,
-            p.diameter, p.airborne, radii, vertical)  # fmt: skip
+            hits.ray, hits.sphere, hits.range_m, hits.half_chord_m, rays, idx, max_range, n_sub, p.population,
+            p.cross_section, radii, vertical)  # fmt: skip
         phase = self.constants.particles.backscatter_phase
         reflectance, occlusion, range_m = _hit_returns(packet, -np.expm1(-tau), hits.cos_incidence, range_m, chord,
                                                        self.albedo, phase)  # fmt: skip
         sc = Scatterers(
             beam=beam, subray=sub, range_m=range_m, reflectance=reflectance, occlusion=occlusion,
-            label=np.full(len(beam), Label.SPRAY, np.uint8), object_id=self._actor_ids[p.vehicle[particle]],
+            label=np.full(len(beam), Label.SPRAY, np.uint8), object_id=p.object_id[particle],
         )  # fmt: skip
         return RegionEffect(scatterers=sc)
 
 
+class _Particles(NamedTuple):
+    """The particles as the ray test sees them: centres (n, 3) m (world), horizontal and vertical
+    semi-axes (n,) m, group (n,) (emitting vehicle, 0..n_groups-1), population (n,), summed drop
+    cross-section (n,) m^2 (packets) and object id (n,)."""
+
+    centres: np.ndarray
+    radius: np.ndarray
+    vertical: np.ndarray
+    group: np.ndarray
+    n_groups: int
+    population: np.ndarray
+    cross_section: np.ndarray
+    object_id: np.ndarray
+
+
+def _cross_section(p) -> np.ndarray:
+    """Summed cross-section (m^2) of the airborne drops of each particle of ``p`` (system.Particles)."""
+    return p.weight * (np.pi / 4.0) * (p.diameter * p.diameter) * p.airborne
+
+
 @numba.njit(cache=True)
-def _hit_geometry(ray, sphere, entry, half_chord, rays, idx, max_range, n_sub, population, weight, diameter, airborne,
-                  radius, vertical):  # fmt: skip
+def _hit_geometry(ray, sphere, entry, half_chord, rays, idx, max_range, n_sub, population, cross_section, radius,
+                  vertical):  # fmt: skip
     """Per hit of the candidate rays ``rays`` (indices of (beam, sub-ray) pairs) and spheres ``idx``
     (indices of particles): beam, sub-ray, particle, entry range (m), the chord (m) inside the sphere
     or ellipsoid up to the scene hit (``max_range``), its optical depth tau had the particle been a drop
-    packet (a uniform ellipsoid, semi-axes ``radius``, ``radius``, ``vertical``, holding ``weight``
-    drops of ``diameter`` of which ``airborne`` are left: cross-section per volume x chord) and
-    whether it is one (population 1)."""
+    packet (a uniform ellipsoid, semi-axes ``radius``, ``radius``, ``vertical``, holding drops of
+    summed ``cross_section`` (m^2): cross-section per volume x chord) and whether it is one
+    (population 1)."""
     n = ray.shape[0]
     beam, sub, particle = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     chord, tau, packet = np.empty(n), np.empty(n), np.empty(n, np.bool_)
@@ -192,8 +255,7 @@ def _hit_geometry(ray, sphere, entry, half_chord, rays, idx, max_range, n_sub, p
         i = idx[sphere[h]]
         particle[h] = i
         chord[h] = min(2.0 * half_chord[h], max_range[ray[h]] - entry[h])
-        cross_section = weight[i] * (np.pi / 4.0) * (diameter[i] * diameter[i]) * airborne[i]  # m^2 of drops
-        density = cross_section / (4.0 / 3.0 * np.pi * (radius[i] * radius[i]) * vertical[i])  # per m^3
+        density = cross_section[i] / (4.0 / 3.0 * np.pi * (radius[i] * radius[i]) * vertical[i])  # per m^3
         tau[h] = density * chord[h]
         packet[h] = population[i] == 1
     return beam, sub, particle, entry, chord, tau, packet

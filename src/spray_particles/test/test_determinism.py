@@ -100,7 +100,8 @@ def test_hit_returns_equal_the_optical_depth_formula_in_numpy():
     entry, half_chord, cos_incidence = rng.uniform(1, 30, n_hits), rng.uniform(0, 0.8, n_hits), rng.uniform(0, 1, n_hits)
     max_range = np.where(rng.random(400) < 0.3, rng.uniform(1, 40, 400), 1e9)
     beam, sub, particle, range_m, chord, tau, packet = _hit_geometry(
-        ray, sphere, entry, half_chord, rays, idx, max_range, 3, population, weight, diameter, airborne, radius, vertical)
+        ray, sphere, entry, half_chord, rays, idx, max_range, 3, population, weight * (np.pi / 4.0) * diameter**2 * airborne,
+        radius, vertical)  # fmt: skip
     reflectance, occlusion, range_m = _hit_returns(packet, -np.expm1(-tau), cos_incidence, range_m, chord, 0.53, 0.11)
     # the numpy expressions the region used before its kernels
     i = idx[sphere]

@@ -4,7 +4,8 @@ import sys
 
 import numpy as np
 
-from spray_particles.node import PARTICLE_DTYPE, TOPIC_PARTICLES, marker_array, particle_cloud
+from spray_particles.node import marker_array
+from spray_particles.particle_cloud import PARTICLE_DTYPE, TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 
 
 def test_particle_cloud_and_markers():
@@ -30,7 +31,39 @@ def test_node_publishes_particles(ros, processes):
                     "-p", "rate_hz:=20.0")  # fmt: skip
     assert ros.spin_until(lambda: any(m.width > 0 for m in got), 60.0), "no particles published"
     msg = next(m for m in got if m.width > 0)
-    assert [f.name for f in msg.fields] == ["x", "y", "z", "radius", "population"]
+    assert tuple(f.name for f in msg.fields) == TOPIC_FIELDS
     assert msg.header.frame_id == "map"
     cloud = msg_to_cloud(msg).points
     assert np.all(cloud["z"] > -0.5) and set(np.unique(cloud["population"])) <= {0, 1}
+
+
+def test_sim_node_sees_the_particles_spray_node_publishes(ros, processes, tmp_path):
+    """spray_node (on lidar_sim_node's /clock) publishes particles; lidar_sim_node with the spray region's
+    source 'topic' turns them into spray detections in front of the car that throws them."""
+    import yaml
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import PointCloud2
+
+    from lidar_weather_sim.paths import config_dir
+    from lidar_weather_sim.points import Label
+    from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
+
+    scenario = yaml.safe_load((config_dir() / "scenarios" / "highway_spray.yaml").read_text())
+    scenario["regions"] = ["spray"]
+    scenario["region_params"]["spray"]["source"] = "topic"
+    path = tmp_path / "highway_spray_from_topic.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    spray = processes.start(sys.executable, "-m", "spray_particles.node", "--ros-args", "-p", "scenario:=highway_spray",
+                            "-p", "use_sim_time:=true", "-p", "rate_hz:=50.0")  # fmt: skip
+    assert ros.spin_until(lambda: ros.node.count_publishers(TOPIC_PARTICLES) > 0, 60.0), processes.output(spray)
+    clouds = []
+    ros.node.create_subscription(PointCloud2, "/lidar/points", clouds.append, qos_profile_sensor_data)
+    sim = processes.start(sys.executable, "-m", "lidar_weather_sim.ros.lidar_sim_node", "--ros-args", "-p",
+                          f"scenario:={path}", "-p", "realtime_factor:=1.0", "-p", "max_frames:=60")  # fmt: skip
+    late = lambda: [m for m in clouds if stamp_to_ns(m.header.stamp) >= 1_200_000_000]  # noqa: E731 (particles flying)
+    assert ros.spin_until(lambda: len(late()) >= 10, 120.0), processes.output(sim) + processes.output(spray)
+    points = np.concatenate([msg_to_cloud(m).points for m in late()])
+    sprayed = points[points["label"] == Label.SPRAY]
+    vehicle = points[(points["label"] == Label.VEHICLE) & (points["object_id"] == 100)]
+    assert len(sprayed) >= 10 and set(np.unique(sprayed["object_id"])) == {100}
+    assert np.median(sprayed["x"]) < np.median(vehicle["x"]) + 1.0 and np.median(sprayed["y"]) > 1.5

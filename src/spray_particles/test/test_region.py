@@ -9,7 +9,9 @@ from lidar_weather_sim.regions import REGISTRY, RegionContext
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.simulator import LidarSimulator
 from lidar_weather_sim.testing import one_frame, scene_of, simple_profile, wall
+from lidar_weather_sim.topic_inputs import TopicInputs
 from lidar_weather_sim.world import World
+from spray_particles.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.raycast import sphere_hits
 from spray_particles.region import SprayRegion
 from spray_particles.system import Particles
@@ -189,3 +191,57 @@ def test_parameter_errors_name_the_key():
         REGISTRY.create("spray", {"water_film_mm": 7}, RegionContext(None))
     with pytest.raises(ConfigError, match=r"key 'actor_ids': value \[5\]"):
         REGISTRY.create("spray", {"actor_ids": [5]}, RegionContext(None, actors=[]))
+
+
+def test_topic_source_sees_the_published_particles_as_the_in_process_system_does():
+    """source 'topic': the region rebuilds its scatterers from spray_node's message fields alone."""
+    world = World.build(load_scenario("highway_spray"))
+    internal = dict(world.regions(["spray"]))["spray"]
+    inputs = TopicInputs("map")
+    topic = dict(world.regions(["spray"], {"spray": {"source": "topic"}}, inputs=inputs))["spray"]
+    assert inputs.topics == (TOPIC_PARTICLES,)
+    batches = []  # (batch, the particles it saw as published, the effect)
+    apply = internal.apply
+
+    def recorded(batch, rng):
+        effect = apply(batch, rng)
+        batches.append((batch, internal.particle_cloud(float(batch.time_s.mean())), effect))
+        return effect
+
+    internal.apply = recorded
+    sim = LidarSimulator(world.profile, world.scene, regions=[("spray", internal)], seed=0)
+    for t in np.arange(0.0, 1.6, 0.01):
+        sim.advance(float(t), world.player)
+    assert topic.apply(batches[-1][0], np.random.default_rng(0)).scatterers is None  # nothing received yet
+    compared = 0
+    for batch, published, own in batches[-10:]:
+        inputs.put(TOPIC_PARTICLES, published, float(batch.time_s.mean()), "map")
+        got = topic.apply(batch, np.random.default_rng(0)).scatterers
+        if own.scatterers is None:
+            continue
+        a, b = own.scatterers, got
+        # a hit is (beam, sub-ray, range to the mm): float32 centres may change grazing hits only
+        key_a = {(int(x), int(y), round(float(r), 3)): i for i, (x, y, r) in enumerate(zip(a.beam, a.subray, a.range_m))}
+        key_b = {(int(x), int(y), round(float(r), 3)): i for i, (x, y, r) in enumerate(zip(b.beam, b.subray, b.range_m))}
+        both = sorted(set(key_a) & set(key_b))
+        assert len(both) >= 0.98 * len(a.beam) and len(both) >= 0.98 * len(b.beam)
+        ia, ib = [key_a[k] for k in both], [key_b[k] for k in both]
+        assert np.allclose(a.reflectance[ia], b.reflectance[ib], rtol=1e-3, atol=1e-6)
+        assert np.array_equal(a.object_id[ia], b.object_id[ib]) and set(np.unique(b.object_id)) == {100}
+        compared += len(both)
+    assert compared > 20
+
+
+def test_topic_inputs_refuse_another_frame_and_missing_fields():
+    inputs = TopicInputs("map")
+    inputs.want(TOPIC_PARTICLES, TOPIC_FIELDS)
+    cloud = particle_cloud(np.zeros((2, 3)), 0.009, np.zeros(2, np.uint8))
+    with pytest.raises(ValueError, match="frame_id 'odom' is not the fixed frame 'map'"):
+        inputs.put(TOPIC_PARTICLES, cloud, 0.0, "odom")
+    with pytest.raises(ValueError, match="lack the field.*cross_section_m2"):
+        inputs.put(TOPIC_PARTICLES, cloud[["x", "y", "z", "radius", "population", "vertical", "object_id"]], 0.0, "map")
+    assert inputs.latest(TOPIC_PARTICLES) is None
+    inputs.put(TOPIC_PARTICLES, cloud, 2.0, "map")
+    assert inputs.latest(TOPIC_PARTICLES).stamp_s == 2.0
+    with pytest.raises(ConfigError, match="source 'topic' but no topic inputs"):
+        REGISTRY.create("spray", {"source": "topic"}, RegionContext(None))

@@ -18,6 +18,10 @@ In tf/odometry mode time is taken from the message stamps (bag replay,
 use_sim_time). ``regions``, ``region_params``, ``sun_irradiance_w_m2`` and
 ``seed`` may be set at run time: validated on set, used from the next frame to
 start; the log gives the time of the request and the stamp of that frame.
+Regions may read points other nodes publish (the ``spray`` region with
+``source: topic`` reads spray_node's /spray/particles): the node subscribes to
+every topic a region asks for (lidar_weather_sim.topic_inputs) and keeps the
+newest message in fixed_frame; a malformed one is logged and skipped.
 """
 
 from __future__ import annotations
@@ -45,11 +49,12 @@ from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_T
 from lidar_weather_sim.player import matrix_quaternion
 from lidar_weather_sim.pose_gate import PoseGate
 from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message, mount_transform, parse_odometry, set_static_mount
-from lidar_weather_sim.ros.conversions import cloud_to_msg
+from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
+from lidar_weather_sim.topic_inputs import TopicInputs
 from lidar_weather_sim.world import World
 
 TOPIC_CMD_SPEED = "/ego/cmd_speed"
@@ -112,7 +117,11 @@ class LidarSimNode(Node):
         self._gate = PoseGate(gap, speed)
         self.inputs = 0  # pose messages (/tf or odometry) received
         self.published = 0
-        self.session = SimSession(self.world, self._settings_with({}), backend=backend, ground_truth=ground_truth)
+        self.topic_inputs = TopicInputs(self.fixed)  # points regions read from other nodes (spray source: topic)
+        self._topic_subscriptions: dict[str, object] = {}
+        self.session = SimSession(self.world, self._settings_with({}), backend=backend, ground_truth=ground_truth,
+                                  inputs=self.topic_inputs)  # fmt: skip
+        self._subscribe_topic_inputs()
         self._in_use = self.session.settings  # the settings the last published frames were cast with
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
@@ -142,6 +151,7 @@ class LidarSimNode(Node):
         self.get_logger().info(
             f"scenario '{scenario.name}', profile '{self.world.profile.name}', pose source {mode}, "
             f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
+            + (f"; regions read {', '.join(self.topic_inputs.topics)}" if self.topic_inputs.topics else "")
             + (f"; starts once {TOPIC_POINTS} has a subscriber" if wait else "")
         )
 
@@ -190,6 +200,7 @@ class LidarSimNode(Node):
             try:
                 settings = self._settings_with(changes)
                 self._accepted = (settings, self.session.build_regions(settings))  # requested as built in _apply
+                self._subscribe_topic_inputs()
             except (ConfigError, ValueError, TypeError) as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
@@ -208,6 +219,20 @@ class LidarSimNode(Node):
         if cause not in self._logged:
             self._logged.add(cause)
             self.get_logger().warning(f"{detail} ({note}; logged once per cause)")
+
+    def _subscribe_topic_inputs(self) -> None:
+        """Subscribe to the PointCloud2 topics the regions want (TopicInputs), once each."""
+        for topic in self.topic_inputs.topics:
+            if topic not in self._topic_subscriptions:
+                self._topic_subscriptions[topic] = self.create_subscription(
+                    PointCloud2, topic, lambda msg, topic=topic: self._on_topic_input(topic, msg), 10)  # fmt: skip
+
+    def _on_topic_input(self, topic: str, msg: PointCloud2) -> None:
+        try:
+            cloud = msg_to_cloud(msg)
+            self.topic_inputs.put(topic, cloud.points, stamp_to_ns(msg.header.stamp) * 1e-9, msg.header.frame_id)
+        except ValueError as exc:  # a malformed cloud (CloudFormatError), missing fields or another frame
+            self._once(f"{topic}: {type(exc).__name__}", f"{topic}: {exc}", "skipped, the previous points kept")
 
     def _on_tf(self, msg: TFMessage) -> None:
         self.inputs += 1

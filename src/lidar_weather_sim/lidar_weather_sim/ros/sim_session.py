@@ -19,6 +19,7 @@ import yaml
 from lidar_weather_sim.config import ConfigError
 from lidar_weather_sim.regions import REGISTRY, Region
 from lidar_weather_sim.simulator import Frame, LidarSimulator, PoseSource
+from lidar_weather_sim.topic_inputs import TopicInputs
 from lidar_weather_sim.world import World
 
 
@@ -47,8 +48,10 @@ def parse_region_params(text: str) -> dict[str, dict]:
 class SimSession:
     """A :class:`LidarSimulator` over a :class:`World`, with settings applied at frame boundaries."""
 
-    def __init__(self, world: World, settings: RuntimeSettings, *, backend: str | None, ground_truth: bool) -> None:
+    def __init__(self, world: World, settings: RuntimeSettings, *, backend: str | None, ground_truth: bool,
+                 inputs: TopicInputs | None = None) -> None:  # fmt: skip
         self.world = world
+        self.inputs = TopicInputs() if inputs is None else inputs  # points the regions read from topics
         self.settings = settings
         self._options = {"backend": backend or None, "ground_truth": ground_truth}
         self._pending: tuple[RuntimeSettings, list[tuple[str, Region]]] | None = None
@@ -72,7 +75,7 @@ class SimSession:
         """The region plugins of ``settings``; raises ConfigError naming an unknown plugin or bad parameter."""
         for name in settings.region_params:
             REGISTRY.get(name)  # a typo in region_params must not pass silently
-        return self.world.regions(list(settings.regions), settings.region_params)
+        return self.world.regions(list(settings.regions), settings.region_params, inputs=self.inputs)
 
     def request(self, settings: RuntimeSettings, regions: list[tuple[str, Region]] | None = None) -> None:
         """Use ``settings`` from the next frame on (``regions``: already built from them)."""
