@@ -288,6 +288,16 @@ def test_malformed_tf_is_logged_once_and_skipped(processes, ros, world):
     assert proc.poll() is None
 
 
+def test_a_silent_region_input_topic_is_logged_once_and_the_clouds_keep_coming(processes):
+    """The spray region reads /spray/particles but no spray_node runs: one warning, every cloud published."""
+    proc = node_process(processes, scenario="highway_spray", region_params='"spray: {source: topic}"', max_frames=40,
+                        realtime_factor=0.0)  # fmt: skip
+    assert proc.wait(timeout=120) == 0, processes.output(proc)
+    out = processes.output(proc)
+    assert "regions read /spray/particles" in out and "published 40 clouds" in out, out
+    assert out.count("/spray/particles: nothing received after 25 clouds") == 1, out
+
+
 def _bad(ns, t=(0.0, 0.0, 0.0), q=(0.0, 0.0, 0.0, 1.0), parent="map", child="base_link"):
     from tf2_msgs.msg import TFMessage
 

@@ -64,6 +64,7 @@ TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # as tf2
 TF_STATIC_QOS = QoSProfile(depth=100, reliability=TF_QOS.reliability, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)  # matches best-effort and reliable readers
 LINGER_S = 1.0  # after max_frames: the writer stays this long (s) before the process ends
+SILENT_INPUT_FRAMES = 25  # warn once when a topic a region reads has sent nothing after this many clouds
 BACKWARDS_RESTART_S = 1.0  # a stamp this much older than the last one (bag loop, sim reset) restarts the scan
 
 
@@ -344,6 +345,11 @@ class LidarSimNode(Node):
             msg, _ = cloud_to_msg(frame.points, self._stamp_ns(frame.stamp_s), self.frame)
             self._points.publish(msg)
             self.published += 1
+        if self.published >= SILENT_INPUT_FRAMES:
+            for topic in self.topic_inputs.topics:
+                if self.topic_inputs.latest(topic) is None:
+                    self._once(f"{topic}: silent", f"{topic}: nothing received after {self.published} clouds (is its "
+                               "publisher running?)", "its region adds nothing until then")  # fmt: skip
 
 
 def _spin_once(executor: SingleThreadedExecutor, timeout_sec: float) -> bool:
