@@ -156,7 +156,7 @@ def main() -> None:
     args = parser.parse_args()
     tables = yaml.safe_load(Path(args.tables).read_text())
     data = yaml.safe_load(Path(args.out).read_text())
-    if "clear" in args.classes.split(","):
+    if "clear" in args.classes.split(",") and "street" in args.stages.split(","):  # a street property
         gain = fit_street_gain({**data["classes"]["clear"], "street_gain": data.get("street_gain", START["street_gain"])},
                                tables, args.frames, args.out)
         data["street_gain"] = round(gain, 4)
