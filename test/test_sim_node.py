@@ -168,6 +168,32 @@ def test_tf_mode_publishes_one_cloud_per_completed_sweep(processes, ros, world):
     assert proc.poll() is None
 
 
+def test_tf_mode_actors_and_their_spray_follow_their_tf_frames(processes, ros):
+    """actors_from_tf: vehicle 100 on /tf 15 m ahead of base_link in the ego's lane (the scenario has it
+    17.5 m ahead in the left lane): its body and the spray its wheels throw are cast there."""
+    world = World.build(load_scenario("highway_spray"))
+    proc = node_process(processes, scenario="highway_spray", pose_source="tf", use_sim_time=True, actors_from_tf=True,
+                        regions="[spray]")  # fmt: skip
+    lock = Lockstep(ros, world, proc, processes)
+    while lock.k < 160:  # 1.6 s: the spray needs ~0.5 s to fill the wake
+        t, q = ego_pose(world, lock.k)
+        lead = transform("map", "actor_100", T0 + lock.k * TICK, t + [15.0, 0.0, 0.0], q)
+        lock.publish(lock.k, extra=[lead])
+        if lock.k % 4 == 2:
+            assert ros.spin_until(lambda: len(lock.clouds) > lock.k // 4, timeout_s=20), processes.output(proc)
+        lock.k += 1
+    from lidar_weather_sim.points import Label
+
+    points = np.concatenate([decode(m)[1] for m in lock.clouds[-10:]])
+    body = points[(points["label"] == Label.VEHICLE) & (points["object_id"] == 100)]
+    spray = points[points["label"] == Label.SPRAY]
+    assert len(body) > 50 and abs(np.median(body["y"])) < 1.0 and 8.0 < np.median(body["x"]) < 14.0
+    assert len(spray) > 10 and set(np.unique(spray["object_id"])) == {100}
+    # both wheel tracks, thrown out beside the car's lane (the scenario's car would put them 1.6-5.6 m left)
+    assert np.percentile(np.abs(spray["y"]), 90) < 2.5 and np.median(spray["x"]) < np.median(body["x"]) + 1.0
+    assert proc.poll() is None
+
+
 # -- (b) scenario mode -----------------------------------------------------------------------------
 def test_scenario_mode_drives_clock_and_publishes_clouds_and_tf(processes, ros, world):
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data

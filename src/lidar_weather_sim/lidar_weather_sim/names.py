@@ -10,3 +10,8 @@ TOPIC_CLOCK = "/clock"
 FRAME_MAP = "map"
 FRAME_BASE_LINK = "base_link"
 FRAME_LIDAR = "lidar"
+
+
+def actor_frame(actor_id: int) -> str:
+    """The tf frame of a scenario actor's body (published in scenario mode, read by replays)."""
+    return f"actor_{actor_id}"

@@ -16,6 +16,7 @@ import numpy as np
 
 from lidar_weather_sim.bags import BagWriter, typestore
 from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP, TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
+from lidar_weather_sim.names import actor_frame
 from lidar_weather_sim.player import NoEgoError, matrix_quaternion
 from lidar_weather_sim.scenario import Scenario
 from lidar_weather_sim.simulator import Frame, LidarSimulator
@@ -111,7 +112,7 @@ def run_scenario(
             translation, quaternion = player.base_link_poses(np.array([t]))
             transforms = [msgs.transform(ns, FRAME_MAP, FRAME_BASE_LINK, translation[0], quaternion[0])]
             for actor_id, pose in player.actor_poses(t).items():
-                transforms.append(msgs.transform(ns, FRAME_MAP, f"actor_{actor_id}", pose[:3, 3], matrix_quaternion(pose[:3, :3])))
+                transforms.append(msgs.transform(ns, FRAME_MAP, actor_frame(actor_id), pose[:3, 3], matrix_quaternion(pose[:3, :3])))
             bag.write(TOPIC_TF, msgs.tf(transforms), ns)
             for frame in sim.advance(t, player):
                 if done == total:

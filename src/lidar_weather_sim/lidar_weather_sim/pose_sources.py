@@ -38,7 +38,9 @@ class InputProblem(NamedTuple):
 
 
 class TfPoseSource:
-    """Sensor poses looked up in a transform buffer; actors from ``actors(time_s)`` (or none).
+    """Sensor poses looked up in a transform buffer; actors from ``actors(time_s)`` (or none), or,
+    with ``actor_frames`` ({actor id: frame}), from the buffer too (fixed_frame -> that frame: the
+    body-to-fixed pose; an actor whose frame cannot be looked up at a time is absent then).
 
     ``buffer.lookup_many(fixed_frame, sensor_frame, stamps)`` maps points in the
     sensor frame into the fixed frame: it is the sensor's pose in the fixed frame.
@@ -51,12 +53,14 @@ class TfPoseSource:
         sensor_frame: str,
         actors: ActorPoses | None = None,
         time_origin_ns: int = 0,
+        actor_frames: dict[int, str] | None = None,
     ) -> None:
         self.buffer = buffer
         self.fixed_frame = fixed_frame
         self.sensor_frame = sensor_frame
         self.actors = actors
         self.time_origin_ns = int(time_origin_ns)
+        self.actor_frames = dict(actor_frames or {})
 
     # -- time -----------------------------------------------------------------
     def to_stamp_ns(self, time_s) -> np.ndarray | int:
@@ -95,7 +99,16 @@ class TfPoseSource:
         return self.buffer.lookup_many(self.fixed_frame, self.sensor_frame, stamps)
 
     def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
-        return dict(self.actors(time_s)) if self.actors is not None else {}
+        """Body-to-fixed 4x4 of the actors present at ``time_s`` (simulated s)."""
+        if not self.actor_frames:
+            return dict(self.actors(time_s)) if self.actors is not None else {}
+        stamp, poses = self.to_stamp_ns(time_s), {}
+        for actor_id, frame in self.actor_frames.items():
+            try:
+                poses[actor_id] = self.buffer.lookup(self.fixed_frame, frame, stamp).as_matrix()
+            except TransformError:
+                continue
+        return poses
 
 
 # -- /tf and /tf_static ---------------------------------------------------------

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_weather_sim.bags import POINTCLOUD2, BagError, CloudFrame, bag_info, read_clouds, read_messages
-from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
+from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC, actor_frame
 from lidar_weather_sim.pose_sources import TfPoseSource, add_odometry, add_tf_message
 from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
 
@@ -98,7 +98,7 @@ class Recording:
         out = {}
         for actor in self.actor_ids():
             try:
-                out[actor] = self.buffer.lookup(self.fixed_frame, f"actor_{actor}", stamp).as_matrix()
+                out[actor] = self.buffer.lookup(self.fixed_frame, actor_frame(actor), stamp).as_matrix()
             except TransformError:
                 continue
         return out

@@ -160,13 +160,17 @@ class SpraySystem:
                 ticks = list(range(k, max(k + 1, self._target_tick + 2)))
                 for tick, p in zip(ticks, many.actor_poses_at(np.array(ticks) * self.params.tick_s)):
                     cache[tick] = p
-            else:
-                cache[k] = self.poses(t)
+            else:  # poses that arrive over time (/tf): a tick missing a vehicle is asked again later
+                poses = self.poses(t)
+                if not all(v.actor_id in poses for v in self.vehicles):
+                    return poses
+                cache[k] = poses
         return cache[k]
 
     def _vehicle_state(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per vehicle at tick ``k``: rotation (V, 3, 3), origin (V, 3), world velocity (V, 3) (finite
-        difference to the next tick), present (V,)."""
+        difference to the next tick, or from the previous one where the next is not known yet: poses
+        from /tf end at the newest message), present (V,)."""
         dt = self.params.tick_s
         now, later = self._poses_at_tick(k), self._poses_at_tick(k + 1)
         nv = len(self.vehicles)
@@ -174,10 +178,19 @@ class SpraySystem:
         org = np.zeros((nv, 3))
         vel = np.zeros((nv, 3))
         present = np.zeros(nv, bool)
+        earlier = None
         for j, v in enumerate(self.vehicles):
-            if v.actor_id in now and v.actor_id in later:
-                a, b = np.asarray(now[v.actor_id]), np.asarray(later[v.actor_id])
-                rot[j], org[j], vel[j], present[j] = a[:3, :3], a[:3, 3], (b[:3, 3] - a[:3, 3]) / dt, True
+            if v.actor_id not in now:
+                continue
+            a = np.asarray(now[v.actor_id])
+            if v.actor_id in later:
+                velocity = (np.asarray(later[v.actor_id])[:3, 3] - a[:3, 3]) / dt
+            else:
+                earlier = self._poses_at_tick(k - 1) if earlier is None else earlier
+                if v.actor_id not in earlier:
+                    continue
+                velocity = (a[:3, 3] - np.asarray(earlier[v.actor_id])[:3, 3]) / dt
+            rot[j], org[j], vel[j], present[j] = a[:3, :3], a[:3, 3], velocity, True
         return rot, org, vel, present
 
     # -- air -----------------------------------------------------------------------------

@@ -11,7 +11,9 @@ listens, and the player, waiting for this node's subscriptions, starts after),
 and in scenario mode simulated time starts only then (a recorder keeps frame 0);
 with ``exit_when_input_ends`` the node exits once every publisher of that input
 has left and all it sent is cast (the end of a bag replay).
-The map and the actors always come from ``scenario``. Each pose update casts
+The map and the actors come from ``scenario``; with ``actors_from_tf`` (tf/odometry
+mode) the actors' bodies and spray emitters follow their /tf frames actor_<id>
+(fixed_frame -> actor_<id>, as scenario mode publishes them). Each pose update casts
 the columns swept since the last one; a frame is published on /lidar/points
 (SensorDataQoS, sensor frame, stamp = scan start) when its sweep completes.
 In tf/odometry mode time is taken from the message stamps (bag replay,
@@ -44,7 +46,7 @@ from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
 from lidar_weather_sim.config import ConfigError
-from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP
+from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP, actor_frame
 from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.player import matrix_quaternion
 from lidar_weather_sim.pose_gate import PoseGate
@@ -118,10 +120,19 @@ class LidarSimNode(Node):
         self._gate = PoseGate(gap, speed)
         self.inputs = 0  # pose messages (/tf or odometry) received
         self.published = 0
+        from_tf = p("actors_from_tf", False, "tf/odometry: actors (bodies and spray emitters) follow their /tf frames "
+                    "actor_<id> in fixed_frame instead of the scenario; absent while their frame is unknown")
+        if mode != "scenario":
+            self._statics: dict[str, TransformStamped] = {}  # newest /tf_static edge per child, for restarts
+            self._mount = mount_transform(xyz, rpy) if mode == "odometry" else None
+            frames = {a.id: actor_frame(a.id) for a in scenario.actors} if from_tf else None
+            self.source = TfPoseSource(self._new_buffer(), self.fixed, self.frame, self.world.player.actor_poses, -1,
+                                       frames)  # fmt: skip
         self.topic_inputs = TopicInputs(self.fixed)  # points regions read from other nodes (spray source: topic)
         self._topic_subscriptions: dict[str, object] = {}
+        region_poses = self.source if from_tf and mode != "scenario" else None  # spray emitters on /tf frames
         self.session = SimSession(self.world, self._settings_with({}), backend=backend, ground_truth=ground_truth,
-                                  inputs=self.topic_inputs)  # fmt: skip
+                                  inputs=self.topic_inputs, pose_source=region_poses)  # fmt: skip
         self._subscribe_topic_inputs()
         self._in_use = self.session.settings  # the settings the last published frames were cast with
         self.add_on_set_parameters_callback(self._validate)
@@ -144,9 +155,6 @@ class LidarSimNode(Node):
             self._hold = wait  # until /lidar/points has a subscriber
             self.create_timer(dt / rtf if rtf > 0 else 0.0, self._on_tick, clock=steady)
         else:
-            self._statics: dict[str, TransformStamped] = {}  # newest /tf_static edge per child, for restarts
-            self._mount = mount_transform(xyz, rpy) if mode == "odometry" else None
-            self.source = TfPoseSource(self._new_buffer(), self.fixed, self.frame, player.actor_poses, -1)
             self._wait = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if wait else None
             self._subscribe_input(odom_topic)
         self.get_logger().info(
@@ -294,7 +302,7 @@ class LidarSimNode(Node):
             transforms = [_transform(self.fixed, self.base, ns, pos[0], quat[0])]
             for actor_id, m in player.actor_poses(t).items():
                 q = matrix_quaternion(m[:3, :3])
-                transforms.append(_transform(self.fixed, f"actor_{actor_id}", ns, m[:3, 3], q))
+                transforms.append(_transform(self.fixed, actor_frame(actor_id), ns, m[:3, 3], q))
             self._tf.publish(TFMessage(transforms=transforms))
         self._publish(self.session.advance(t, self.world.player))
 

@@ -49,9 +49,10 @@ class SimSession:
     """A :class:`LidarSimulator` over a :class:`World`, with settings applied at frame boundaries."""
 
     def __init__(self, world: World, settings: RuntimeSettings, *, backend: str | None, ground_truth: bool,
-                 inputs: TopicInputs | None = None) -> None:  # fmt: skip
+                 inputs: TopicInputs | None = None, pose_source: PoseSource | None = None) -> None:  # fmt: skip
         self.world = world
         self.inputs = TopicInputs() if inputs is None else inputs  # points the regions read from topics
+        self.pose_source = pose_source  # the regions' actor poses (spray emitters); None: the scenario player
         self.settings = settings
         self._options = {"backend": backend or None, "ground_truth": ground_truth}
         self._pending: tuple[RuntimeSettings, list[tuple[str, Region]]] | None = None
@@ -75,7 +76,8 @@ class SimSession:
         """The region plugins of ``settings``; raises ConfigError naming an unknown plugin or bad parameter."""
         for name in settings.region_params:
             REGISTRY.get(name)  # a typo in region_params must not pass silently
-        return self.world.regions(list(settings.regions), settings.region_params, inputs=self.inputs)
+        return self.world.regions(list(settings.regions), settings.region_params, pose_source=self.pose_source,
+                                  inputs=self.inputs)  # fmt: skip
 
     def request(self, settings: RuntimeSettings, regions: list[tuple[str, Region]] | None = None) -> None:
         """Use ``settings`` from the next frame on (``regions``: already built from them)."""
