@@ -136,8 +136,9 @@ class SceneCaster:
         size = _padded_size(n) if self._pad else n
         if size == n:
             return part.caster.cast(o, d)
-        o_pad = self._scratch.get("pad_origins", (size, 3), np.float32)
-        d_pad = self._scratch.get("pad_directions", (size, 3), np.float32)
+        # column-major like the simulator's rays: the copies and the backend's per-coordinate arrays are contiguous
+        o_pad = self._scratch.get("pad_origins", (3, size), np.float32).T
+        d_pad = self._scratch.get("pad_directions", (3, size), np.float32).T
         o_pad[:n], d_pad[:n] = o, d
         o_pad[n:], d_pad[n:] = part.pad_origin, _PAD_DIRECTION  # misses at the root of the BVH
         dist, tri = part.caster.cast(o_pad, d_pad)
