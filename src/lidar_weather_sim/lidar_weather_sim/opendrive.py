@@ -288,9 +288,14 @@ class _Road:
     @staticmethod
     def point(f: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Map-frame points (..., 3) at lateral offset ``t`` from frame ``f``."""
+        return np.stack(_Road.coordinates(f, t), axis=-1)
+
+    @staticmethod
+    def coordinates(f: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """x, y, z (m, like ``t``) of :meth:`point`."""
         x, y, h, _, z, phi = f
         lat = t * np.cos(phi)
-        return np.stack([x - lat * np.sin(h), y + lat * np.cos(h), z + t * np.sin(phi)], axis=-1)
+        return x - lat * np.sin(h), y + lat * np.cos(h), z + t * np.sin(phi)
 
     def section_index(self, s: np.ndarray) -> np.ndarray:
         s0 = np.array([sec.s0 for sec in self.sections])
@@ -654,13 +659,13 @@ class RoadNetwork:
                 m = lanes == lane
                 t[m], dt[m], _ = self._lane_t(road, int(lane), s[m])
         f = road.frame(s)
-        p = _Road.point(f, t)
+        x, y, z = _Road.coordinates(f, t)
         heading = f[2] + np.arctan2(dt, 1.0 - f[3] * t)
         if not along_reference and lanes.ndim == 0 and flip:
             heading = heading + np.pi
         elif not along_reference and lanes.ndim and flip.any():
             heading[flip] = heading[flip] + np.pi
-        return p[..., 0], p[..., 1], p[..., 2], np.angle(np.exp(1j * heading))
+        return x, y, z, np.angle(np.exp(1j * heading))
 
     def lane_width(self, road_id: str, lane_id: int, s_m) -> np.ndarray:
         """Width of the lane at ``s_m`` (m)."""
