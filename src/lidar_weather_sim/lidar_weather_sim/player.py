@@ -146,12 +146,25 @@ class ScenarioPlayer:
 
     def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor frame in map at each time (rolling shutter: one pose per firing time)."""
-        pos, heading = self._ego().poses(times_s)
+        return self._sensor(*self._ego().poses(times_s))
+
+    def _sensor(self, pos: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor translations (N, 3) m and quaternions (N, 4) at base_link positions (N, 3) m and headings (rad)."""
         half = 0.5 * heading
         translation, q = np.empty_like(pos), np.empty((len(half), 4))
         _mount(pos, np.cos(heading), np.sin(heading), np.sin(half), np.cos(half), self.mount[:3, 3],
                self._mount_quaternion, translation, q)  # fmt: skip
         return translation, q
+
+    def poses_at(self, sensor_times_s, actor_times_s) -> tuple[np.ndarray, np.ndarray, list[dict[int, np.ndarray]]]:
+        """``sensor_poses(sensor_times_s)`` and ``actor_poses_at(actor_times_s)`` at once: an ego that
+        keeps its lane and speed joins the actors' lane-pose call on its road (the same values)."""
+        ego = self._ego()
+        if ego.mover.lane_changes or len(ego._segments) > 1:
+            return (*self.sensor_poses(sensor_times_s), self.actor_poses_at(actor_times_s))
+        times = np.atleast_1d(np.asarray(sensor_times_s, dtype=np.float64))
+        actors, (x, y, z, heading) = self._actor_poses(actor_times_s, (ego.mover.road, ego.mover.lane, ego.s(times)))
+        return (*self._sensor(np.stack([x, y, z], axis=-1), heading), actors)
 
     def _ego(self) -> MoverTrack:
         if self.ego is None:
@@ -169,6 +182,11 @@ class ScenarioPlayer:
         """``actor_poses`` at each of ``times_s``, evaluated together: the positions along the
         road of all actors that keep their lane and speed at once, then one lane-pose call per
         road (the same values, elementwise); actors changing lanes follow their track."""
+        return self._actor_poses(times_s)[0]
+
+    def _actor_poses(self, times_s, ego: tuple | None = None) -> tuple[list[dict[int, np.ndarray]], tuple | None]:
+        """``actor_poses_at(times_s)``; with ``ego`` (road, lane, positions s (N,) m) also the lane
+        pose (x, y, z, heading) at those s, from the lane-pose call of the actors on that road."""
         times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
         actors = list(self.actors.values())
         present = times[None, :] >= self._appear
@@ -179,22 +197,28 @@ class ScenarioPlayer:
             k = np.flatnonzero(who == i)
             pos[k], heading[k] = actors[i][1].poses(times[when[k]])
         k = np.flatnonzero(steady)
-        if len(k):
-            i = who[k]  # MoverTrack.s of each with its segment's scalars, the same expression
-            t0, s0, v, direction, length = self._first[:, i]
-            s = np.minimum(np.maximum(s0 + direction * v * (times[when[k]] - t0), 0.0), length)
-            roads, lanes = self._road_lane[0][i], self._road_lane[1][i]
-            for road in dict.fromkeys(roads.tolist()):
-                m = roads == road
-                x, y, z, heading[k[m]] = self.network.lane_pose(road, lanes[m], s[m])
-                pos[k[m]] = np.stack([x, y, z], axis=-1)
+        i = who[k]  # MoverTrack.s of each with its segment's scalars, the same expression
+        t0, s0, v, direction, length = self._first[:, i]
+        s = np.minimum(np.maximum(s0 + direction * v * (times[when[k]] - t0), 0.0), length)
+        roads, lanes = self._road_lane[0][i], self._road_lane[1][i]
+        ego_pose = None
+        for road in dict.fromkeys(([ego[0]] if ego else []) + roads.tolist()):
+            m = roads == road if len(k) else np.zeros(0, bool)
+            road_s, road_lanes, n = s[m], lanes[m], 0
+            if ego is not None and road == ego[0]:  # the ego first
+                n = len(ego[2])
+                road_s, road_lanes = np.concatenate([ego[2], road_s]), np.concatenate([np.full(n, ego[1]), road_lanes])
+            x, y, z, h = self.network.lane_pose(road, road_lanes, road_s)
+            ego_pose = (x[:n], y[:n], z[:n], h[:n]) if n else ego_pose
+            heading[k[m]] = h[n:]
+            pos[k[m]] = np.stack([x[n:], y[n:], z[n:]], axis=-1)
         matrices = np.zeros((len(who), 4, 4))
         _yaw_poses(np.cos(heading), np.sin(heading), pos, matrices)
         out: list[dict[int, np.ndarray]] = [{} for _ in times]
         ids = list(self.actors)
         for k, (i, t) in enumerate(zip(who.tolist(), when.tolist())):
             out[t][ids[i]] = matrices[k]
-        return out
+        return out, ego_pose
 
 
 #: cos and sin of roll and pitch 0 as numpy computes them (rpy_matrix's cr, sr, cp, sp).

@@ -53,7 +53,8 @@ class PoseSource(Protocol):
         """Body-to-world 4x4 transform of every actor present at ``time_s``.
 
         A pose source may also offer ``actor_poses_at(times_s) -> list[dict]`` (the same for
-        several times at once); the simulator then uses it once per ``advance``."""
+        several times at once), or ``poses_at(sensor_times_s, actor_times_s)`` -> (translations,
+        quaternions, list[dict]) (both at once); the simulator then uses it once per ``advance``."""
 
 
 @dataclass
@@ -200,10 +201,7 @@ class LidarSimulator:
         frames = []
         if plans:
             times = [p[0].start_s + self.pattern.column_time_s[p[1] : p[2]] for p in plans]
-            translation, rotation = self._sensor_poses(np.concatenate(times), poses)
-            actor_times = [float(t.mean()) for t in times]
-            many = getattr(poses, "actor_poses_at", None)
-            actors = many(actor_times) if many is not None else [poses.actor_poses(t) for t in actor_times]
+            translation, rotation, actors = _poses(poses, np.concatenate(times), [float(t.mean()) for t in times])
             k = 0
             for (batch_acc, first, end), batch_times, actor_poses in zip(plans, times, actors):
                 self._frame = batch_acc
@@ -283,12 +281,6 @@ class LidarSimulator:
         )
         self._points(echoes, columns, n_beams, acc, first)
         acc.rays += n * n_sub
-
-    def _sensor_poses(self, times: np.ndarray, poses: PoseSource) -> tuple[np.ndarray, np.ndarray]:
-        """Sensor translation (C, 3) and rotation matrices (C, 3, 3), float64, at each column time."""
-        translation, quaternion = poses.sensor_poses(times)
-        translation = np.ascontiguousarray(translation, dtype=np.float64)
-        return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64))
 
     def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect):
         """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers,
@@ -395,6 +387,20 @@ class LidarSimulator:
             stamp = np.round(pattern.column_time_s * 1e9).astype(np.uint32)
             self._geo = (cos_az, sin_az, np.arctan2(sin_az, cos_az), np.cos(el), np.sin(el), el, stamp)
         return self._geo
+
+
+def _poses(poses: PoseSource, times: np.ndarray, actor_times: list[float]):
+    """Sensor translations (C, 3) and rotation matrices (C, 3, 3), float64, at each column time (s)
+    and the actors' poses at each of ``actor_times`` (s), from the pose source's fewest calls."""
+    both = getattr(poses, "poses_at", None)
+    if both is not None:
+        translation, quaternion, actors = both(times, actor_times)
+    else:
+        translation, quaternion = poses.sensor_poses(times)
+        many = getattr(poses, "actor_poses_at", None)
+        actors = many(actor_times) if many is not None else [poses.actor_poses(t) for t in actor_times]
+    translation = np.ascontiguousarray(translation, dtype=np.float64)
+    return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64)), actors
 
 
 def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray,
