@@ -328,12 +328,20 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, gather: 
                               axis, half, boxes[c]),  # fmt: skip
         len(cuts) - 1,
     )
-    box = None
-    if blocks:
-        lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
-        e = hi - lo
-        box = 0.5 * (lo + hi), float(0.5 * np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]))
+    box = _bounding_sphere(boxes) if blocks else None
     return normal, material, object_id, hit_actor, box, axis, half
+
+
+@numba.njit(cache=True)
+def _bounding_sphere(boxes):
+    """Centre (3,) and radius (m) of the sphere around the union of boxes (K, 6) (min, max):
+    ``0.5 * (lo + hi)`` and ``0.5 * |hi - lo|`` as numpy's expressions."""
+    lo, hi = boxes[0, :3].copy(), boxes[0, 3:].copy()
+    for k in range(1, len(boxes)):
+        for j in range(3):
+            lo[j], hi[j] = min(lo[j], boxes[k, j]), max(hi[j], boxes[k, 3 + j])
+    e = hi - lo
+    return 0.5 * (lo + hi), 0.5 * np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
 
 
 @numba.njit(cache=True, nogil=True)
