@@ -38,8 +38,9 @@ from lidar_weather_sim.echo import (
     peak_amplitude,
 )
 from lidar_weather_sim.points import Label, empty_points, point_dtype
-from lidar_weather_sim.regions import RayBatch, Region, combine, region_rng
+from lidar_weather_sim.regions import RayBatch, Region, combine, region_entropy, region_rng
 from lidar_weather_sim.scan import ScanPattern
+from lidar_weather_sim.seeding import Reseedable
 from lidar_weather_sim.sensor_profile import SensorProfile
 
 #: Nebula return types (nebula_common ReturnType).
@@ -128,6 +129,7 @@ class LidarSimulator:
         self._last_time_s: float | None = None
         self._geo: tuple[np.ndarray, ...] | None = None  # see _point_tables
         self._scratch = workers.Scratch()  # per-batch temporaries, reused
+        self._noise = Reseedable()  # the receiver's noise streams (region_rng's), seeded per batch
         self._region_time_s: float | None = None  # simulated time the regions were last stepped to
 
     # -- receiver ----------------------------------------------------------------
@@ -339,7 +341,7 @@ class LidarSimulator:
             return candidates, segments
         if segments is not None:
             candidates = _compact_candidates(candidates, segments)
-        rng = region_rng(self.seed, frame, "noise_floor", first_column)
+        rng = self._noise.seed(region_entropy(self.seed, frame, "noise_floor", first_column))
         count = rng.poisson(rate, n_beams)
         beam = np.repeat(np.arange(n_beams), count)
         lo = max(self.profile.optics.overlap_start_m, self.profile.range.min_m)
@@ -354,7 +356,7 @@ class LidarSimulator:
         (0 = at threshold, 255 = ``intensity_dynamic_range`` times above it)."""
         profile = self.profile
         starts, counts = echoes.runs
-        rng = region_rng(self.seed, acc.index, "range_noise", first_column)
+        rng = self._noise.seed(region_entropy(self.seed, acc.index, "range_noise", first_column))
         # where the echoes are: their ranges with noise; of those kept, the indices and amplitude ratios
         ranges, kept, log_ratio = (self._scratch.get(name, len(echoes.range_m), dtype) for name, dtype in
                                    (("noisy_range", np.float64), ("kept", np.int64), ("log_ratio", np.float64)))  # fmt: skip
