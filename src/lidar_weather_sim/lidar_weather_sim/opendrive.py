@@ -280,18 +280,18 @@ class _Road:
     # (section index, lane id) -> its centre t, d t / d s, width where those do not depend on s
     constant_centres: dict = field(default_factory=dict, repr=False)
 
-    def frame(self, s: np.ndarray) -> np.ndarray:
-        """(6, ...) x, y, heading, curvature, z, superelevation of the reference line."""
+    def frame(self, s: np.ndarray) -> tuple[np.ndarray, ...]:
+        """x, y, heading, curvature, z, superelevation of the reference line (arrays like ``s``)."""
         x, y, h, k = self.plan(s)
-        return np.stack([x, y, h, k, self.elevation(s), self.superelevation(s)])
+        return x, y, h, k, self.elevation(s), self.superelevation(s)
 
     @staticmethod
-    def point(f: np.ndarray, t: np.ndarray) -> np.ndarray:
+    def point(f: tuple[np.ndarray, ...], t: np.ndarray) -> np.ndarray:
         """Map-frame points (..., 3) at lateral offset ``t`` from frame ``f``."""
         return np.stack(_Road.coordinates(f, t), axis=-1)
 
     @staticmethod
-    def coordinates(f: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def coordinates(f: tuple[np.ndarray, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """x, y, z (m, like ``t``) of :meth:`point`."""
         x, y, h, _, z, phi = f
         lat = t * np.cos(phi)
@@ -665,7 +665,7 @@ class RoadNetwork:
             t, dt, _ = self._lane_t(road, int(lane_id), s)
             flip = (lane_id > 0) == against
         else:
-            flip, ids = (lanes > 0) == against, np.unique(lanes).tolist()
+            flip, ids = (lanes > 0) == against, sorted(set(lanes.tolist()))
             fixed = [self._fixed_centre(road, lane) for lane in ids]
             if None not in fixed:  # centres independent of s: gathered per lane, no masks
                 k, table = np.searchsorted(ids, lanes), np.array(fixed)
