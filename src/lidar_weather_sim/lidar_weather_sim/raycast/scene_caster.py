@@ -208,10 +208,9 @@ class SceneCaster:
             idx, shift, start, d64 = (x[end - count : end] for x in culled)
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
             dist_b, tri_b = self._cast_part(part, (start - trans) @ rot, d64 @ rot)
-            closer = _closer(idx, shift, dist_b, best, float(max_range_m))
-            tri_b = tri_b[closer]
-            _set_hits(idx[closer], tri_b, part.normals[tri_b] @ rot.T.astype(np.float32), d, part.material,
-                      part.object_id, actor_id, tri, normal, material, object_id, hit_actor)  # fmt: skip
+            rays, tri_b, normals_b = _closer(idx, shift, dist_b, tri_b, part.normals, best, float(max_range_m))
+            _set_hits(rays, tri_b, normals_b @ rot.T.astype(np.float32), d, part.material, part.object_id, actor_id,
+                      tri, normal, material, object_id, hit_actor)  # fmt: skip
         return Hits(best, tri, normal, material, object_id, hit_actor)
 
 
@@ -270,19 +269,22 @@ def _origin_box(o, lo, hi, box):
 
 
 @numba.njit(cache=True)
-def _closer(idx, shift, dist_b, best, max_range):
-    """Where an actor's hits (distance ``shift + dist_b`` along rays ``idx``) are nearer than
-    ``best`` and within ``max_range``: their positions in ``idx``; ``best`` takes them (float32)."""
-    out = np.empty(len(idx), np.int64)
+def _closer(idx, shift, dist_b, tri_b, normals, best, max_range):
+    """The actor's hits (distance ``shift + dist_b`` along rays ``idx``, triangles ``tri_b``)
+    nearer than ``best`` and within ``max_range``: ``best`` takes them (float32); returns their
+    rays, triangles and the triangles' ``normals`` (body frame, (K, 3))."""
+    rays, tri, nrm = np.empty(len(idx), np.int64), np.empty(len(idx), np.int64), np.empty((len(idx), 3), normals.dtype)
     count = 0
     for j in range(len(idx)):
         i = idx[j]
         dist = shift[j] + np.float64(dist_b[j])
         if dist < best[i] and dist <= max_range:
             best[i] = dist
-            out[count] = j
+            t = tri_b[j]
+            rays[count], tri[count] = i, t
+            nrm[count, 0], nrm[count, 1], nrm[count, 2] = normals[t, 0], normals[t, 1], normals[t, 2]
             count += 1
-    return out[:count]
+    return rays[:count], tri[:count], nrm[:count]
 
 
 @numba.njit(cache=True)
