@@ -205,11 +205,12 @@ class ScenarioPlayer:
         for road in dict.fromkeys(([ego[0]] if ego else []) + roads.tolist()):
             m = roads == road if len(k) else np.zeros(0, bool)
             road_s, road_lanes, n = s[m], lanes[m], 0
-            if ego is not None and road == ego[0]:  # the ego first
+            with_ego = ego is not None and road == ego[0]
+            if with_ego:  # the ego first
                 n = len(ego[2])
                 road_s, road_lanes = np.concatenate([ego[2], road_s]), np.concatenate([np.full(n, ego[1]), road_lanes])
             x, y, z, h = self.network.lane_pose(road, road_lanes, road_s)
-            ego_pose = (x[:n], y[:n], z[:n], h[:n]) if n else ego_pose
+            ego_pose = (x[:n], y[:n], z[:n], h[:n]) if with_ego else ego_pose
             heading[k[m]] = h[n:]
             pos[k[m]] = np.stack([x[n:], y[n:], z[n:]], axis=-1)
         matrices = np.zeros((len(who), 4, 4))
