@@ -280,17 +280,22 @@ class _Road:
     # (section index, lane id) -> its centre t, d t / d s, width where those do not depend on s
     constant_centres: dict = field(default_factory=dict, repr=False)
 
-    def frame(self, s: np.ndarray) -> np.ndarray:
-        """(6, ...) x, y, heading, curvature, z, superelevation of the reference line."""
+    def frame(self, s: np.ndarray) -> tuple[np.ndarray, ...]:
+        """x, y, heading, curvature, z, superelevation of the reference line (arrays like ``s``)."""
         x, y, h, k = self.plan(s)
-        return np.stack([x, y, h, k, self.elevation(s), self.superelevation(s)])
+        return x, y, h, k, self.elevation(s), self.superelevation(s)
 
     @staticmethod
-    def point(f: np.ndarray, t: np.ndarray) -> np.ndarray:
+    def point(f: tuple[np.ndarray, ...], t: np.ndarray) -> np.ndarray:
         """Map-frame points (..., 3) at lateral offset ``t`` from frame ``f``."""
+        return np.stack(_Road.coordinates(f, t), axis=-1)
+
+    @staticmethod
+    def coordinates(f: tuple[np.ndarray, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """x, y, z (m, like ``t``) of :meth:`point`."""
         x, y, h, _, z, phi = f
         lat = t * np.cos(phi)
-        return np.stack([x - lat * np.sin(h), y + lat * np.cos(h), z + t * np.sin(phi)], axis=-1)
+        return x - lat * np.sin(h), y + lat * np.cos(h), z + t * np.sin(phi)
 
     def section_index(self, s: np.ndarray) -> np.ndarray:
         s0 = np.array([sec.s0 for sec in self.sections])
@@ -606,29 +611,40 @@ class RoadNetwork:
         p = _Road.point(f, np.broadcast_to(np.asarray(t, dtype=np.float64), s.shape))
         return p[..., 0], p[..., 1], p[..., 2], f[2]
 
+    @staticmethod
+    def _centre(road: _Road, sec: _Section, lane_id: int, s: np.ndarray):
+        """Centre t, d t / d s and width (m) of lane ``lane_id`` of section ``sec`` at ``s``."""
+        if lane_id == 0 or lane_id not in sec.lanes:
+            raise KeyError(f"road '{road.id}': no lane {lane_id} in the lane section at s={sec.s0} m")
+        (b, bi), (db, dbi) = road.lane_borders(sec, lane_id, s), road.lane_borders(sec, lane_id, s, deriv=True)
+        return 0.5 * (b + bi), 0.5 * (db + dbi), np.abs(b - bi)
+
+    def _fixed_centre(self, road: _Road, lane_id: int) -> list[float] | None:
+        """:meth:`_centre` of a lane whose centre does not depend on s (one lane section, constant
+        lane offset and widths): the values at any s (cached); else None."""
+        if len(road.sections) != 1:
+            return None
+        key = (0, lane_id)
+        if key not in road.constant_centres:
+            sec = road.sections[0]
+            fixed = road.offset.constant and all(sec.lanes[k].width.constant for k in sec.lanes if k * lane_id > 0)
+            if fixed:
+                fixed = [float(v[0]) for v in self._centre(road, sec, lane_id, np.zeros(1))]
+            road.constant_centres[key] = fixed or None
+        return road.constant_centres[key]
+
     def _lane_t(self, road: _Road, lane_id: int, s: np.ndarray):
         """Lane centre t, d t / d s and lane width (m) at ``s``."""
-
-        def centre(sec: _Section, s: np.ndarray):
-            if lane_id == 0 or lane_id not in sec.lanes:
-                raise KeyError(f"road '{road.id}': no lane {lane_id} in the lane section at s={sec.s0} m")
-            (b, bi), (db, dbi) = road.lane_borders(sec, lane_id, s), road.lane_borders(sec, lane_id, s, deriv=True)
-            return 0.5 * (b + bi), 0.5 * (db + dbi), np.abs(b - bi)
-
+        fixed = self._fixed_centre(road, lane_id)
+        if fixed is not None:
+            return tuple(np.full(s.shape, v) for v in fixed)
         if len(road.sections) == 1:
-            key = (0, lane_id)
-            if key not in road.constant_centres:  # constant offset and widths: the values at any s
-                sec = road.sections[0]
-                fixed = road.offset.constant and all(sec.lanes[k].width.constant for k in sec.lanes if k * lane_id > 0)
-                road.constant_centres[key] = [float(v[0]) for v in centre(sec, np.zeros(1))] if fixed else None
-            if road.constant_centres[key] is not None:
-                return tuple(np.full(s.shape, v) for v in road.constant_centres[key])
-            return centre(road.sections[0], s)
+            return self._centre(road, road.sections[0], lane_id, s)
         t, dt, width = np.empty_like(s), np.empty_like(s), np.empty_like(s)
         isec = road.section_index(s)
         for k in np.unique(isec):
             m = isec == k
-            t[m], dt[m], width[m] = centre(road.sections[k], s[m])
+            t[m], dt[m], width[m] = self._centre(road, road.sections[k], lane_id, s[m])
         return t, dt, width
 
     def lane_pose(self, road_id: str, lane_id, s_m, along_reference: bool = False):
@@ -649,18 +665,24 @@ class RoadNetwork:
             t, dt, _ = self._lane_t(road, int(lane_id), s)
             flip = (lane_id > 0) == against
         else:
-            t, dt, flip = np.empty_like(s), np.empty_like(s), (lanes > 0) == against
-            for lane in np.unique(lanes):
-                m = lanes == lane
-                t[m], dt[m], _ = self._lane_t(road, int(lane), s[m])
+            flip, ids = (lanes > 0) == against, sorted(set(lanes.tolist()))
+            fixed = [self._fixed_centre(road, lane) for lane in ids]
+            if None not in fixed:  # centres independent of s: gathered per lane, no masks
+                k, table = np.searchsorted(ids, lanes), np.array(fixed)
+                t, dt = table[k, 0], table[k, 1]
+            else:
+                t, dt = np.empty_like(s), np.empty_like(s)
+                for lane in ids:
+                    m = lanes == lane
+                    t[m], dt[m], _ = self._lane_t(road, lane, s[m])
         f = road.frame(s)
-        p = _Road.point(f, t)
+        x, y, z = _Road.coordinates(f, t)
         heading = f[2] + np.arctan2(dt, 1.0 - f[3] * t)
         if not along_reference and lanes.ndim == 0 and flip:
             heading = heading + np.pi
         elif not along_reference and lanes.ndim and flip.any():
             heading[flip] = heading[flip] + np.pi
-        return p[..., 0], p[..., 1], p[..., 2], np.angle(np.exp(1j * heading))
+        return x, y, z, np.angle(np.exp(1j * heading))
 
     def lane_width(self, road_id: str, lane_id: int, s_m) -> np.ndarray:
         """Width of the lane at ``s_m`` (m)."""

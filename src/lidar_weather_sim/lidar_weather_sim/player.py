@@ -12,6 +12,7 @@ A mesh-only scenario has no ego: its player has no actors and no ego poses
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from lidar_weather_sim.opendrive import RoadNetwork
@@ -145,23 +146,25 @@ class ScenarioPlayer:
 
     def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor frame in map at each time (rolling shutter: one pose per firing time)."""
-        pos, heading = self._ego().poses(times_s)
-        c, s = np.cos(heading), np.sin(heading)
-        mx, my, mz = self.mount[:3, 3]
-        translation = np.empty_like(pos)
-        translation[:, 0], translation[:, 1], translation[:, 2] = c * mx - s * my, s * mx + c * my, mz
-        translation += pos
-        # Hamilton product yaw_quaternions(heading) * mount quaternion (x, y, z, w), all its terms
+        return self._sensor(*self._ego().poses(times_s))
+
+    def _sensor(self, pos: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor translations (N, 3) m and quaternions (N, 4) at base_link positions (N, 3) m and headings (rad)."""
         half = 0.5 * heading
-        ax = ay = np.zeros_like(half)
-        az, aw = np.sin(half), np.cos(half)
-        bx, by, bz, bw = self._mount_quaternion
-        q = np.empty((len(half), 4))
-        q[:, 0] = aw * bx + ax * bw + ay * bz - az * by
-        q[:, 1] = aw * by - ax * bz + ay * bw + az * bx
-        q[:, 2] = aw * bz + ax * by - ay * bx + az * bw
-        q[:, 3] = aw * bw - ax * bx - ay * by - az * bz
+        translation, q = np.empty_like(pos), np.empty((len(half), 4))
+        _mount(pos, np.cos(heading), np.sin(heading), np.sin(half), np.cos(half), self.mount[:3, 3],
+               self._mount_quaternion, translation, q)  # fmt: skip
         return translation, q
+
+    def poses_at(self, sensor_times_s, actor_times_s) -> tuple[np.ndarray, np.ndarray, list[dict[int, np.ndarray]]]:
+        """``sensor_poses(sensor_times_s)`` and ``actor_poses_at(actor_times_s)`` at once: an ego that
+        keeps its lane and speed joins the actors' lane-pose call on its road (the same values)."""
+        ego = self._ego()
+        if ego.mover.lane_changes or len(ego._segments) > 1:
+            return (*self.sensor_poses(sensor_times_s), self.actor_poses_at(actor_times_s))
+        times = np.atleast_1d(np.asarray(sensor_times_s, dtype=np.float64))
+        actors, (x, y, z, heading) = self._actor_poses(actor_times_s, (ego.mover.road, ego.mover.lane, ego.s(times)))
+        return (*self._sensor(np.stack([x, y, z], axis=-1), heading), actors)
 
     def _ego(self) -> MoverTrack:
         if self.ego is None:
@@ -179,6 +182,11 @@ class ScenarioPlayer:
         """``actor_poses`` at each of ``times_s``, evaluated together: the positions along the
         road of all actors that keep their lane and speed at once, then one lane-pose call per
         road (the same values, elementwise); actors changing lanes follow their track."""
+        return self._actor_poses(times_s)[0]
+
+    def _actor_poses(self, times_s, ego: tuple | None = None) -> tuple[list[dict[int, np.ndarray]], tuple | None]:
+        """``actor_poses_at(times_s)``; with ``ego`` (road, lane, positions s (N,) m) also the lane
+        pose (x, y, z, heading) at those s, from the lane-pose call of the actors on that road."""
         times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
         actors = list(self.actors.values())
         present = times[None, :] >= self._appear
@@ -189,32 +197,63 @@ class ScenarioPlayer:
             k = np.flatnonzero(who == i)
             pos[k], heading[k] = actors[i][1].poses(times[when[k]])
         k = np.flatnonzero(steady)
-        if len(k):
-            i = who[k]  # MoverTrack.s of each with its segment's scalars, the same expression
-            t0, s0, v, direction, length = self._first[:, i]
-            s = np.minimum(np.maximum(s0 + direction * v * (times[when[k]] - t0), 0.0), length)
-            roads, lanes = self._road_lane[0][i], self._road_lane[1][i]
-            for road in dict.fromkeys(roads.tolist()):
-                m = roads == road
-                x, y, z, heading[k[m]] = self.network.lane_pose(road, lanes[m], s[m])
-                pos[k[m]] = np.stack([x, y, z], axis=-1)
+        i = who[k]  # MoverTrack.s of each with its segment's scalars, the same expression
+        t0, s0, v, direction, length = self._first[:, i]
+        s = np.minimum(np.maximum(s0 + direction * v * (times[when[k]] - t0), 0.0), length)
+        roads, lanes = self._road_lane[0][i], self._road_lane[1][i]
+        ego_pose = None
+        for road in dict.fromkeys(([ego[0]] if ego else []) + roads.tolist()):
+            m = roads == road if len(k) else np.zeros(0, bool)
+            road_s, road_lanes, n = s[m], lanes[m], 0
+            with_ego = ego is not None and road == ego[0]
+            if with_ego:  # the ego first
+                n = len(ego[2])
+                road_s, road_lanes = np.concatenate([ego[2], road_s]), np.concatenate([np.full(n, ego[1]), road_lanes])
+            x, y, z, h = self.network.lane_pose(road, road_lanes, road_s)
+            ego_pose = (x[:n], y[:n], z[:n], h[:n]) if with_ego else ego_pose
+            heading[k[m]] = h[n:]
+            pos[k[m]] = np.stack([x[n:], y[n:], z[n:]], axis=-1)
         matrices = np.zeros((len(who), 4, 4))
-        matrices[:, :3, :3] = _yaw_matrices(heading)
-        matrices[:, :3, 3] = pos
-        matrices[:, 3, 3] = 1.0
+        _yaw_poses(np.cos(heading), np.sin(heading), pos, matrices)
         out: list[dict[int, np.ndarray]] = [{} for _ in times]
         ids = list(self.actors)
         for k, (i, t) in enumerate(zip(who.tolist(), when.tolist())):
             out[t][ids[i]] = matrices[k]
-        return out
+        return out, ego_pose
 
 
-def _yaw_matrices(yaw: np.ndarray) -> np.ndarray:
-    """``rpy_matrix(0, 0, yaw)`` for each yaw: (N, 3, 3), the same expressions elementwise."""
-    cr, sr, cp, sp = np.cos(0.0), np.sin(0.0), np.cos(0.0), np.sin(0.0)
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    m = np.empty((len(yaw), 3, 3))
-    m[:, 0, 0], m[:, 0, 1], m[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
-    m[:, 1, 0], m[:, 1, 1], m[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
-    m[:, 2, 0], m[:, 2, 1], m[:, 2, 2] = -sp, cp * sr, cp * cr
-    return m
+#: cos and sin of roll and pitch 0 as numpy computes them (rpy_matrix's cr, sr, cp, sp).
+_LEVEL = (float(np.cos(0.0)), float(np.sin(0.0)), float(np.cos(0.0)), float(np.sin(0.0)))
+
+
+@numba.njit(cache=True)
+def _yaw_poses(cy, sy, pos, out):
+    """Body-to-map 4x4 poses (N, 4, 4), zeroed, of yaws with cosines ``cy`` and sines ``sy`` at
+    positions ``pos`` (N, 3) m: ``rpy_matrix(0, 0, yaw)`` and ``pos``, the same expressions."""
+    cr, sr, cp, sp = _LEVEL
+    for k in range(len(cy)):
+        c, s, m = cy[k], sy[k], out[k]
+        m[0, 0], m[0, 1], m[0, 2] = c * cp, c * sp * sr - s * cr, c * sp * cr + s * sr
+        m[1, 0], m[1, 1], m[1, 2] = s * cp, s * sp * sr + c * cr, s * sp * cr - c * sr
+        m[2, 0], m[2, 1], m[2, 2] = -sp, cp * sr, cp * cr
+        m[0, 3], m[1, 3], m[2, 3], m[3, 3] = pos[k, 0], pos[k, 1], pos[k, 2], 1.0
+
+
+@numba.njit(cache=True)
+def _mount(pos, c, s, az, aw, mount, b, translation, q):
+    """Sensor poses of base_link poses (positions ``pos`` (N, 3) m, heading cosines ``c`` and sines
+    ``s``, half-heading sines ``az`` and cosines ``aw``) with the mount (translation ``mount`` (3,)
+    m, quaternion ``b`` x, y, z, w): ``translation`` (N, 3) and the Hamilton products
+    yaw_quaternions(heading) * b, all their terms (the yaw quaternion's x and y are 0), into ``q`` (N, 4)."""
+    mx, my, mz = mount[0], mount[1], mount[2]
+    bx, by, bz, bw = b[0], b[1], b[2], b[3]
+    ax = ay = 0.0
+    for k in range(len(c)):
+        translation[k, 0] = (c[k] * mx - s[k] * my) + pos[k, 0]
+        translation[k, 1] = (s[k] * mx + c[k] * my) + pos[k, 1]
+        translation[k, 2] = mz + pos[k, 2]
+        z, w = az[k], aw[k]
+        q[k, 0] = w * bx + ax * bw + ay * bz - z * by
+        q[k, 1] = w * by - ax * bz + ay * bw + z * bx
+        q[k, 2] = w * bz + ax * by - ay * bx + z * bw
+        q[k, 3] = w * bw - ax * bx - ay * by - z * bz

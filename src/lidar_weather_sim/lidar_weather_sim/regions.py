@@ -169,7 +169,12 @@ REGISTRY = RegionRegistry()
 
 def region_rng(seed: int, frame_index: int, name: str, first_column: int) -> np.random.Generator:
     """The generator a region draws from for one batch: a pure function of its arguments."""
-    return np.random.default_rng([seed & 0xFFFFFFFF, frame_index, zlib.crc32(name.encode()), first_column])
+    return np.random.default_rng(region_entropy(seed, frame_index, name, first_column))
+
+
+def region_entropy(seed: int, frame_index: int, name: str, first_column: int) -> list[int]:
+    """The seed of :func:`region_rng` (``np.random.default_rng``'s entropy)."""
+    return [seed & 0xFFFFFFFF, frame_index, zlib.crc32(name.encode()), first_column]
 
 
 def combine(effects: list[RegionEffect], shape: tuple[int, int]) -> RegionEffect:

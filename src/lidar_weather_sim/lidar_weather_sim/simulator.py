@@ -20,6 +20,7 @@ one buffer.
 
 from __future__ import annotations
 
+import bisect
 import functools
 from dataclasses import dataclass
 from typing import Protocol
@@ -37,8 +38,9 @@ from lidar_weather_sim.echo import (
     peak_amplitude,
 )
 from lidar_weather_sim.points import Label, empty_points, point_dtype
-from lidar_weather_sim.regions import RayBatch, Region, combine, region_rng
+from lidar_weather_sim.regions import RayBatch, Region, combine, region_entropy, region_rng
 from lidar_weather_sim.scan import ScanPattern
+from lidar_weather_sim.seeding import Reseedable
 from lidar_weather_sim.sensor_profile import SensorProfile
 
 #: Nebula return types (nebula_common ReturnType).
@@ -53,7 +55,8 @@ class PoseSource(Protocol):
         """Body-to-world 4x4 transform of every actor present at ``time_s``.
 
         A pose source may also offer ``actor_poses_at(times_s) -> list[dict]`` (the same for
-        several times at once); the simulator then uses it once per ``advance``."""
+        several times at once), or ``poses_at(sensor_times_s, actor_times_s)`` -> (translations,
+        quaternions, list[dict]) (both at once); the simulator then uses it once per ``advance``."""
 
 
 @dataclass
@@ -105,6 +108,7 @@ class LidarSimulator:
 
         self.profile = profile
         self.pattern = ScanPattern(profile)
+        self._column_times = self.pattern.column_time_s.tolist()  # for bisect (s)
         self.scene = scene
         self.caster = SceneCaster(scene.static, scene.actors, backend=backend)
         self.regions = list(regions or [])
@@ -125,6 +129,7 @@ class LidarSimulator:
         self._last_time_s: float | None = None
         self._geo: tuple[np.ndarray, ...] | None = None  # see _point_tables
         self._scratch = workers.Scratch()  # per-batch temporaries, reused
+        self._noise = Reseedable()  # the receiver's noise streams (region_rng's), seeded per batch
         self._region_time_s: float | None = None  # simulated time the regions were last stepped to
 
     # -- receiver ----------------------------------------------------------------
@@ -190,7 +195,7 @@ class LidarSimulator:
         plans = []  # (accumulator, first column, end column)
         acc, next_column = self._frame, self._frame.next_column
         while True:
-            last = int(np.searchsorted(self.pattern.column_time_s, time_s - acc.start_s, side="right"))
+            last = bisect.bisect_right(self._column_times, time_s - acc.start_s)  # np.searchsorted(side="right")
             if last > next_column:
                 plans.append((acc, next_column, last))
                 next_column = last
@@ -200,10 +205,8 @@ class LidarSimulator:
         frames = []
         if plans:
             times = [p[0].start_s + self.pattern.column_time_s[p[1] : p[2]] for p in plans]
-            translation, rotation = self._sensor_poses(np.concatenate(times), poses)
-            actor_times = [float(t.mean()) for t in times]
-            many = getattr(poses, "actor_poses_at", None)
-            actors = many(actor_times) if many is not None else [poses.actor_poses(t) for t in actor_times]
+            mean = [float(np.add.reduce(t) / len(t)) for t in times]  # t.mean(), without its per-call overhead
+            translation, rotation, actors = _poses(poses, np.concatenate(times), mean)
             k = 0
             for (batch_acc, first, end), batch_times, actor_poses in zip(plans, times, actors):
                 self._frame = batch_acc
@@ -284,12 +287,6 @@ class LidarSimulator:
         self._points(echoes, columns, n_beams, acc, first)
         acc.rays += n * n_sub
 
-    def _sensor_poses(self, times: np.ndarray, poses: PoseSource) -> tuple[np.ndarray, np.ndarray]:
-        """Sensor translation (C, 3) and rotation matrices (C, 3, 3), float64, at each column time."""
-        translation, quaternion = poses.sensor_poses(times)
-        translation = np.ascontiguousarray(translation, dtype=np.float64)
-        return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64))
-
     def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect):
         """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers,
         and the runs of those arrays that hold them (see :func:`_surface_returns`; None: all).
@@ -344,7 +341,7 @@ class LidarSimulator:
             return candidates, segments
         if segments is not None:
             candidates = _compact_candidates(candidates, segments)
-        rng = region_rng(self.seed, frame, "noise_floor", first_column)
+        rng = self._noise.seed(region_entropy(self.seed, frame, "noise_floor", first_column))
         count = rng.poisson(rate, n_beams)
         beam = np.repeat(np.arange(n_beams), count)
         lo = max(self.profile.optics.overlap_start_m, self.profile.range.min_m)
@@ -359,7 +356,7 @@ class LidarSimulator:
         (0 = at threshold, 255 = ``intensity_dynamic_range`` times above it)."""
         profile = self.profile
         starts, counts = echoes.runs
-        rng = region_rng(self.seed, acc.index, "range_noise", first_column)
+        rng = self._noise.seed(region_entropy(self.seed, acc.index, "range_noise", first_column))
         # where the echoes are: their ranges with noise; of those kept, the indices and amplitude ratios
         ranges, kept, log_ratio = (self._scratch.get(name, len(echoes.range_m), dtype) for name, dtype in
                                    (("noisy_range", np.float64), ("kept", np.int64), ("log_ratio", np.float64)))  # fmt: skip
@@ -395,6 +392,20 @@ class LidarSimulator:
             stamp = np.round(pattern.column_time_s * 1e9).astype(np.uint32)
             self._geo = (cos_az, sin_az, np.arctan2(sin_az, cos_az), np.cos(el), np.sin(el), el, stamp)
         return self._geo
+
+
+def _poses(poses: PoseSource, times: np.ndarray, actor_times: list[float]):
+    """Sensor translations (C, 3) and rotation matrices (C, 3, 3), float64, at each column time (s)
+    and the actors' poses at each of ``actor_times`` (s), from the pose source's fewest calls."""
+    both = getattr(poses, "poses_at", None)
+    if both is not None:
+        translation, quaternion, actors = both(times, actor_times)
+    else:
+        translation, quaternion = poses.sensor_poses(times)
+        many = getattr(poses, "actor_poses_at", None)
+        actors = many(actor_times) if many is not None else [poses.actor_poses(t) for t in actor_times]
+    translation = np.ascontiguousarray(translation, dtype=np.float64)
+    return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64)), actors
 
 
 def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray,

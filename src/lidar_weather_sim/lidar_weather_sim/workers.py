@@ -95,15 +95,22 @@ class Scratch:
 
     def __init__(self) -> None:
         self._buffers: dict[str, np.ndarray] = {}
+        self._last: dict[str, tuple] = {}  # name -> (shape, dtype, view) of its last get: batches repeat sizes
 
     def get(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+        last = self._last.get(name)
+        if last is not None and last[1] is dtype and type(last[0]) is type(shape) and last[0] == shape:
+            return last[2]
+        key = shape, dtype
         shape = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
         size = math.prod(shape)
         dtype = np.dtype(dtype)
         buf = self._buffers.get(name)
         if buf is None or buf.size < size or buf.dtype != dtype:
             buf = self._buffers[name] = np.empty(size + size // 8, dtype)  # headroom for growing batches
-        return buf[:size].reshape(shape)
+        view = buf[:size].reshape(shape)
+        self._last[name] = (*key, view)
+        return view
 
 
 def allocator(scratch: Scratch | None) -> Callable[[str, tuple[int, ...], object], np.ndarray]:

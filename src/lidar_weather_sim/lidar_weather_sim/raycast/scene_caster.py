@@ -136,8 +136,9 @@ class SceneCaster:
         size = _padded_size(n) if self._pad else n
         if size == n:
             return part.caster.cast(o, d)
-        o_pad = self._scratch.get("pad_origins", (size, 3), np.float32)
-        d_pad = self._scratch.get("pad_directions", (size, 3), np.float32)
+        # column-major like the simulator's rays: the copies and the backend's per-coordinate arrays are contiguous
+        o_pad = self._scratch.get("pad_origins", (3, size), np.float32).T
+        d_pad = self._scratch.get("pad_directions", (3, size), np.float32).T
         o_pad[:n], d_pad[:n] = o, d
         o_pad[n:], d_pad[n:] = part.pad_origin, _PAD_DIRECTION  # misses at the root of the BVH
         dist, tri = part.caster.cast(o_pad, d_pad)
@@ -207,10 +208,9 @@ class SceneCaster:
             idx, shift, start, d64 = (x[end - count : end] for x in culled)
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
             dist_b, tri_b = self._cast_part(part, (start - trans) @ rot, d64 @ rot)
-            closer = _closer(idx, shift, dist_b, best, float(max_range_m))
-            tri_b = tri_b[closer]
-            _set_hits(idx[closer], tri_b, part.normals[tri_b] @ rot.T.astype(np.float32), d, part.material,
-                      part.object_id, actor_id, tri, normal, material, object_id, hit_actor)  # fmt: skip
+            rays, tri_b, normals_b = _closer(idx, shift, dist_b, tri_b, part.normals, best, float(max_range_m))
+            _set_hits(rays, tri_b, normals_b @ rot.T.astype(np.float32), d, part.material, part.object_id, actor_id,
+                      tri, normal, material, object_id, hit_actor)  # fmt: skip
         return Hits(best, tri, normal, material, object_id, hit_actor)
 
 
@@ -269,19 +269,22 @@ def _origin_box(o, lo, hi, box):
 
 
 @numba.njit(cache=True)
-def _closer(idx, shift, dist_b, best, max_range):
-    """Where an actor's hits (distance ``shift + dist_b`` along rays ``idx``) are nearer than
-    ``best`` and within ``max_range``: their positions in ``idx``; ``best`` takes them (float32)."""
-    out = np.empty(len(idx), np.int64)
+def _closer(idx, shift, dist_b, tri_b, normals, best, max_range):
+    """The actor's hits (distance ``shift + dist_b`` along rays ``idx``, triangles ``tri_b``)
+    nearer than ``best`` and within ``max_range``: ``best`` takes them (float32); returns their
+    rays, triangles and the triangles' ``normals`` (body frame, (K, 3))."""
+    rays, tri, nrm = np.empty(len(idx), np.int64), np.empty(len(idx), np.int64), np.empty((len(idx), 3), normals.dtype)
     count = 0
     for j in range(len(idx)):
         i = idx[j]
         dist = shift[j] + np.float64(dist_b[j])
         if dist < best[i] and dist <= max_range:
             best[i] = dist
-            out[count] = j
+            t = tri_b[j]
+            rays[count], tri[count] = i, t
+            nrm[count, 0], nrm[count, 1], nrm[count, 2] = normals[t, 0], normals[t, 1], normals[t, 2]
             count += 1
-    return out[:count]
+    return rays[:count], tri[:count], nrm[:count]
 
 
 @numba.njit(cache=True)
@@ -327,12 +330,20 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, gather: 
                               axis, half, boxes[c]),  # fmt: skip
         len(cuts) - 1,
     )
-    box = None
-    if blocks:
-        lo, hi = boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
-        e = hi - lo
-        box = 0.5 * (lo + hi), float(0.5 * np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]))
+    box = _bounding_sphere(boxes) if blocks else None
     return normal, material, object_id, hit_actor, box, axis, half
+
+
+@numba.njit(cache=True)
+def _bounding_sphere(boxes):
+    """Centre (3,) and radius (m) of the sphere around the union of boxes (K, 6) (min, max):
+    ``0.5 * (lo + hi)`` and ``0.5 * |hi - lo|`` as numpy's expressions."""
+    lo, hi = boxes[0, :3].copy(), boxes[0, 3:].copy()
+    for k in range(1, len(boxes)):
+        for j in range(3):
+            lo[j], hi[j] = min(lo[j], boxes[k, j]), max(hi[j], boxes[k, 3 + j])
+    e = hi - lo
+    return 0.5 * (lo + hi), 0.5 * np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
 
 
 @numba.njit(cache=True, nogil=True)
