@@ -13,6 +13,7 @@ the reference's time in its step + scene cast + detection; ratio in %.
 
     python benchmarks/spray_compare.py [--scenarios a,b] [--frames K] [--warmup S]
     python benchmarks/spray_compare.py --fit     # airborne_fraction for config/spray.yaml
+    python benchmarks/spray_compare.py --scenarios proving_ground_39,proving_ground_55 --water-film-mm 3
 """
 
 from __future__ import annotations
@@ -47,9 +48,10 @@ class _Timed:
             setattr(region, name, wrapped)
 
 
-def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, verbose: bool = True) -> dict:
+def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, verbose: bool = True,
+        film_mm: float | None = None) -> dict:  # fmt: skip
     world = World.build(load_scenario(name))
-    region = dict(world.regions(["spray"]))["spray"]
+    region = dict(world.regions(["spray"], {"spray": {"water_film_mm": film_mm}} if film_mm is not None else None))["spray"]
     timed = _Timed(region)
     sim = LidarSimulator(world.profile, world.scene, regions=[("spray", region)], seed=0)
     system = region.system
@@ -156,6 +158,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=50)
     ap.add_argument("--warmup", type=float, default=2.0)
     ap.add_argument("--fit", action="store_true", help="fit airborne_fraction on proving_ground_55")
+    ap.add_argument("--water-film-mm", type=float, help="override the scenarios' water film (mm)")
     ap.add_argument("--fit-steps", type=int, default=8)
     ap.add_argument("--plot", metavar="DIR", help="write bird's-eye histograms of both as DIR/SCENARIO.png")
     args = ap.parse_args()
@@ -170,7 +173,7 @@ def main() -> None:
         print(f"airborne_fraction: {np.sqrt(lo * hi):.3g}")
         return
     for name in args.scenarios.split(","):
-        out = run(name, args.frames, args.warmup)
+        out = run(name, args.frames, args.warmup, film_mm=args.water_film_mm)
         if args.plot:
             plot(out, args.plot)
 
