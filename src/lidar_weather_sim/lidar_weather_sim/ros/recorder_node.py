@@ -61,7 +61,9 @@ class RecorderNode(Node):
         if self._clock_sub is not None:
             return
         types = dict(self.get_topic_names_and_types())
-        for topic in self.wanted:
+        # clouds last: a sim that waits for a cloud subscriber (wait_for_subscriber) then starts only after
+        # /clock and /tf are subscribed too, so their first messages are recorded as well
+        for topic in sorted(self.wanted, key=lambda t: POINTCLOUD2 in types.get(t, ())):
             if topic in self._subs or not types.get(topic):
                 continue
             msgtype = types[topic][0]
