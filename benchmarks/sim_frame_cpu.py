@@ -22,20 +22,7 @@ import numpy as np
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.simulator import LidarSimulator
 from lidar_weather_sim.world import World
-from sim_frame_time import ten_vehicles
-
-
-class Timed:
-    """Wraps a MeshCaster; accumulates the CPU seconds spent in its ``cast``."""
-
-    def __init__(self, inner, clock: list[float]) -> None:
-        self.inner, self.clock = inner, clock
-
-    def cast(self, o, d):
-        t0 = time.process_time()
-        out = self.inner.cast(o, d)
-        self.clock[0] += time.process_time() - t0
-        return out
+from sim_frame_time import instrument, ten_vehicles
 
 
 def run(case: str, frames: int, sequence: int) -> np.ndarray:
@@ -44,9 +31,7 @@ def run(case: str, frames: int, sequence: int) -> np.ndarray:
     scenario = load_scenario("highway_clear")
     world = World.build(ten_vehicles(scenario) if actors == "10" else scenario, profile)
     sim = LidarSimulator(world.profile, world.scene, backend=backend, seed=world.scenario.seed)
-    clock, sc = [0.0], sim.caster
-    sc._static = type(sc._static)(**{**sc._static.__dict__, "caster": Timed(sc._static.caster, clock)})
-    sc._actors = {k: type(p)(**{**p.__dict__, "caster": Timed(p.caster, clock)}) for k, p in sc._actors.items()}
+    clock = instrument(sim, time.process_time)
     period, last = world.profile.period_s, float(sim.pattern.column_time_s[-1]) + 1e-7
     rows = []
     for k in range(-sequence, frames):  # the first sequence warms up (numba, Dr.Jit kernels)
