@@ -64,7 +64,9 @@ POSE_SOURCES = ("scenario", "tf", "odometry")
 RUNTIME = ("regions", "region_params", "sun_irradiance_w_m2", "seed")
 TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # as tf2_ros
 TF_STATIC_QOS = QoSProfile(depth=100, reliability=TF_QOS.reliability, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)  # matches best-effort and reliable readers
+# reliable matches best-effort and reliable readers; depth 100 as /tf: at depth 1 a tick whose first send was
+# lost is overwritten by the next before it can be resent, and a busy recorder missed 1 /clock in 6000 (CI)
+CLOCK_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LINGER_S = 1.0  # after max_frames: the writer stays this long (s) before the process ends
 SILENT_INPUT_FRAMES = 25  # warn once when a topic a region reads has sent nothing after this many clouds
 BACKWARDS_RESTART_S = 1.0  # a stamp this much older than the last one (bag loop, sim reset) restarts the scan
