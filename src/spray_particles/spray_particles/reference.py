@@ -24,7 +24,9 @@ FWHM) add up. Cells are taken in range order with Beer-Lambert-like shadowing (t
 cross-section share of the nearer cells blocks the light, two ways), amplitudes from
 the LIDAR equation of the simulator (``C rho / R^2 x T^2 x overlap``), and a cell is
 detected when it exceeds the receiver threshold, up to ``max_echoes`` per beam, only
-in front of the beam's scene hit.
+in front of the beam's scene hit and at least one pulse FWHM before it: nearer, its
+pulse and the (far brighter) hard target's form one echo, which the simulator's echo
+stage labels as the target (spray hugging the car's side on the proving ground).
 """
 
 from __future__ import annotations
@@ -147,7 +149,7 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     frac = np.minimum(1.0, footprint[:, None, None] / blob) * np.exp(-0.5 * (dist / sigma) ** 2)
     valid &= dist < 3.0 * sigma
     if scene_distance is not None:
-        valid &= rng_m[:, None, None] < scene_distance[cols, chs]
+        valid &= rng_m[:, None, None] < scene_distance[cols, chs] - profile.pulse.fwhm_m
     if not valid.any():
         return empty
     drop, _, _ = np.nonzero(valid)

@@ -47,7 +47,7 @@ def test_drop_sizes_follow_eq3_and_carry_eq2_water():
     assert np.corrcoef(np.log(p.diameter), np.log(p.kappa))[0, 1] < -0.99
 
 
-def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0):
+def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_m: float | None = None):
     profile = simple_profile(optics__divergence_h_mrad=1.75, optics__divergence_v_mrad=2.0)
     pattern = ScanPattern(profile)
     ref = _reference()
@@ -63,7 +63,8 @@ def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0):
     def poses(times):
         return np.zeros((len(times), 3)), np.tile(np.eye(3), (len(times), 1, 1))
 
-    return detect_frame(ref, pattern, 0, 0.0, poses, threshold=4.0)
+    scene = None if wall_m is None else np.full((len(pattern.column_azimuth), len(pattern.active_channels(0))), wall_m)
+    return detect_frame(ref, pattern, 0, 0.0, poses, scene, threshold=4.0)
 
 
 def test_backscatter_summed_over_the_beam_volume_decides_detection():
@@ -74,6 +75,14 @@ def test_backscatter_summed_over_the_beam_volume_decides_detection():
     peak = np.argmax(dense.amplitude)
     assert dense.column[peak] == 40  # the 0 deg column of the test profile: the blob's centre
     assert set(np.abs(dense.column - 40)) <= set(range(4))  # the blob (0.1 m) reaches neighbouring beams
+
+
+def test_drops_within_a_pulse_of_the_scene_hit_merge_into_its_echo():
+    """A drop cloud 0.3 m before a wall forms one echo with it (labelled wall by the echo stage), 2 m before
+    it a spray echo of its own; behind the wall nothing (pulse FWHM of the test profile: 0.6 m)."""
+    assert len(_frame_with_drops(1000, 50.0, wall_m=12.0).range_m) >= 1
+    assert len(_frame_with_drops(1000, 50.0, wall_m=10.3).range_m) == 0
+    assert len(_frame_with_drops(1000, 50.0, wall_m=9.0).range_m) == 0
 
 
 def test_metrics():
