@@ -411,6 +411,7 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
     ma = np.empty(size)
     ml = np.empty(size, np.uint8)
     mo = np.empty(size, np.uint32)
+    reach = np.empty(size)  # _reach of each merged pulse of the beam
     buf = np.empty(ESTIMATE_SAMPLES)  # waveform samples of a cluster
     isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
     n_isolated = 0
@@ -421,11 +422,14 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
         while j < hi and beam[j] == beam[i]:
             j += 1
         m = _sort_and_merge(r, a, lab, obj, i, j, resolution, idx, mr, ma, ml, mo)
+        if m > 1:
+            for q in range(m):
+                reach[q] = _reach(ma[q], thr, s)
         found = 0
         c0 = 0
         while c0 < m and found < max_echoes:
             c1 = c0 + 1
-            while c1 < m and mr[c1] - mr[c1 - 1] < _reach(ma[c1 - 1], thr, s) + _reach(ma[c1], thr, s):
+            while c1 < m and mr[c1] - mr[c1 - 1] < reach[c1 - 1] + reach[c1]:
                 c1 += 1  # pulses that may overlap above the threshold form one cluster
             if c1 - c0 > 1:
                 got = _cluster_echoes(mr, ma, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count, max_echoes - found,

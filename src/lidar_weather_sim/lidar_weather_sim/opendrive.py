@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+import numba
 import numpy as np
 import numpy.polynomial.polynomial as _P
 from scipy.special import fresnel
@@ -659,16 +660,18 @@ class RoadNetwork:
         s = self._s(road, s_m)
         lanes = np.asarray(lane_id)
         against = road.rule.upper() != "LHT"  # lanes with id > 0 drive against +s
-        if lanes.ndim and len(lanes) and (lanes == lanes[0]).all():  # one lane
-            lanes = lane_id = lanes[0]
+        if lanes.ndim:
+            ids, k = _lane_index(np.ascontiguousarray(lanes, np.int64))
+            if len(ids) == 1:  # one lane
+                lanes = lane_id = lanes[0]
         if lanes.ndim == 0:
             t, dt, _ = self._lane_t(road, int(lane_id), s)
             flip = (lane_id > 0) == against
         else:
-            flip, ids = (lanes > 0) == against, sorted(set(lanes.tolist()))
+            flip, ids = (lanes > 0) == against, ids.tolist()
             fixed = [self._fixed_centre(road, lane) for lane in ids]
             if None not in fixed:  # centres independent of s: gathered per lane, no masks
-                k, table = np.searchsorted(ids, lanes), np.array(fixed)
+                table = np.array(fixed).reshape(-1, 3)
                 t, dt = table[k, 0], table[k, 1]
             else:
                 t, dt = np.empty_like(s), np.empty_like(s)
@@ -812,3 +815,19 @@ class RoadNetwork:
         s = np.linspace(0.0, road.length, max(2, int(road.length / MAX_STEP_M) + 1))
         ref = _Road.point(road.frame(s), np.zeros_like(s))[:, :2]
         return ref[int(np.argmin(np.linalg.norm(ref - xy, axis=1)))]
+
+
+@numba.njit(cache=True)
+def _lane_index(lanes):
+    """The distinct lane ids of ``lanes`` (ascending) and each element's index into them
+    (``np.unique(lanes, return_inverse=True)`` for the few lanes, in runs, of a lane-pose call)."""
+    ids = np.empty(0, np.int64)
+    for i in range(len(lanes)):
+        if i == 0 or lanes[i] != lanes[i - 1]:
+            k = np.searchsorted(ids, lanes[i])
+            if k == len(ids) or ids[k] != lanes[i]:
+                ids = np.concatenate((ids[:k], lanes[i : i + 1], ids[k:]))
+    index = np.empty(len(lanes), np.int64)
+    for i in range(len(lanes)):
+        index[i] = np.searchsorted(ids, lanes[i]) if i == 0 or lanes[i] != lanes[i - 1] else index[i - 1]
+    return ids, index

@@ -135,7 +135,10 @@ class ScenarioPlayer:
         # per actor (scenario order): appearance time, first speed segment, direction, road length, road, lane
         self._appear = np.array([a.appear_s for a, _ in self.actors.values()]).reshape(-1, 1)
         self._first = np.array([(*t._segments[0], t.direction, t.length) for t in tracks]).reshape(-1, 5).T
-        self._road_lane = (np.array([t.mover.road for t in tracks]), np.array([t.mover.lane for t in tracks], int))
+        # the actors' roads (first appearance order), each actor's index into them, its lane
+        self._roads = list(dict.fromkeys(t.mover.road for t in tracks))
+        self._road_lane = (np.array([self._roads.index(t.mover.road) for t in tracks], int),
+                           np.array([t.mover.lane for t in tracks], int))  # fmt: skip
         self.mount = mount_matrix(scenario.sensor.mount)
         self._mount_quaternion = matrix_quaternion(self.mount[:3, :3])
 
@@ -192,27 +195,34 @@ class ScenarioPlayer:
         present = times[None, :] >= self._appear
         who, when = np.nonzero(present)  # (actor, time) pairs, actor-major like the dicts' order
         pos, heading = np.empty((len(who), 3)), np.empty(len(who))
-        steady = np.array([not a.lane_changes and len(t._segments) == 1 for a, t in actors], dtype=bool)[who]
-        for i in [] if steady.all() else np.unique(who[~steady]):
-            k = np.flatnonzero(who == i)
-            pos[k], heading[k] = actors[i][1].poses(times[when[k]])
-        k = np.flatnonzero(steady)
+        k = np.arange(len(who))  # the pairs of the actors that keep their lane and speed
+        steady = [not a.lane_changes and len(t._segments) == 1 for a, t in actors]
+        if not all(steady):
+            changing = ~np.array(steady)[who]
+            for i in np.unique(who[changing]):
+                m = np.flatnonzero(who == i)
+                pos[m], heading[m] = actors[i][1].poses(times[when[m]])
+            k = k[~changing]
         i = who[k]  # MoverTrack.s of each with its segment's scalars, the same expression
         t0, s0, v, direction, length = self._first[:, i]
         s = np.minimum(np.maximum(s0 + direction * v * (times[when[k]] - t0), 0.0), length)
         roads, lanes = self._road_lane[0][i], self._road_lane[1][i]
         ego_pose = None
-        for road in dict.fromkeys(([ego[0]] if ego else []) + roads.tolist()):
-            m = roads == road if len(k) else np.zeros(0, bool)
+        ego_road = [] if ego is None or ego[0] in self._roads else [ego[0]]
+        for r, road in enumerate(self._roads + ego_road):
+            m = roads == r
             road_s, road_lanes, n = s[m], lanes[m], 0
             with_ego = ego is not None and road == ego[0]
+            if not len(road_s) and not with_ego:
+                continue
             if with_ego:  # the ego first
                 n = len(ego[2])
                 road_s, road_lanes = np.concatenate([ego[2], road_s]), np.concatenate([np.full(n, ego[1]), road_lanes])
             x, y, z, h = self.network.lane_pose(road, road_lanes, road_s)
             ego_pose = (x[:n], y[:n], z[:n], h[:n]) if with_ego else ego_pose
-            heading[k[m]] = h[n:]
-            pos[k[m]] = np.stack([x[n:], y[n:], z[n:]], axis=-1)
+            km = k[m]
+            heading[km] = h[n:]
+            pos[km, 0], pos[km, 1], pos[km, 2] = x[n:], y[n:], z[n:]
         matrices = np.zeros((len(who), 4, 4))
         _yaw_poses(np.cos(heading), np.sin(heading), pos, matrices)
         out: list[dict[int, np.ndarray]] = [{} for _ in times]

@@ -94,22 +94,21 @@ class Scratch:
     of the same name. Not thread-safe: one per simulator (or caster)."""
 
     def __init__(self) -> None:
-        self._buffers: dict[str, np.ndarray] = {}
+        self._buffers: dict[str, tuple[np.ndarray, object]] = {}  # name -> (buffer, the dtype it was asked with)
         self._last: dict[str, tuple] = {}  # name -> (shape, dtype, view) of its last get: batches repeat sizes
 
     def get(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
         last = self._last.get(name)
         if last is not None and last[1] is dtype and type(last[0]) is type(shape) and last[0] == shape:
             return last[2]
-        key = shape, dtype
-        shape = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
-        size = math.prod(shape)
-        dtype = np.dtype(dtype)
-        buf = self._buffers.get(name)
-        if buf is None or buf.size < size or buf.dtype != dtype:
-            buf = self._buffers[name] = np.empty(size + size // 8, dtype)  # headroom for growing batches
-        view = buf[:size].reshape(shape)
-        self._last[name] = (*key, view)
+        dims = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(shape)
+        size = math.prod(dims)
+        buf, asked = self._buffers.get(name, (None, None))
+        if buf is None or buf.size < size or (asked is not dtype and buf.dtype != dtype):
+            buf = np.empty(size + size // 8, dtype)  # headroom for growing batches
+            self._buffers[name] = buf, dtype
+        view = buf[:size] if len(dims) == 1 else buf[:size].reshape(dims)
+        self._last[name] = (shape, dtype, view)
         return view
 
 

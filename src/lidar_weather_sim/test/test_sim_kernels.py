@@ -315,7 +315,7 @@ def test_padded_mitsuba_casts_equal_unpadded():
     d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
     part = caster._static
     for n in (3, 300, 1000):
-        padded = caster._cast_part(part, o[:n], d[:n])
+        padded = caster._cast_part(part, o[:n], d[:n], "static")
         plain = part.caster.cast(o[:n], d[:n])
         assert padded[0].tobytes() == plain[0].tobytes() and np.array_equal(padded[1], plain[1])
         assert np.isfinite(padded[0]).any()

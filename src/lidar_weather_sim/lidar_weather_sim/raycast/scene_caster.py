@@ -129,16 +129,17 @@ class SceneCaster:
         """Float32 face normal, material and object id per static triangle, a last row for "no hit"."""
         return self._static.normals, self._static.material, self._static.object_id
 
-    def _cast_part(self, part: _Part, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _cast_part(self, part: _Part, o: np.ndarray, d: np.ndarray, key: str) -> tuple[np.ndarray, np.ndarray]:
         """``part.caster.cast`` of the rays rounded to float32; for padding backends the batch is
-        padded to a bucketed size (in buffers reused from cast to cast)."""
+        padded to a bucketed size (in buffers reused from cast to cast, one pair per ``key``:
+        the static mesh's and each actor's casts keep their own sizes)."""
         n = len(o)
         size = _padded_size(n) if self._pad else n
         if size == n:
             return part.caster.cast(o, d)
         # column-major like the simulator's rays: the copies and the backend's per-coordinate arrays are contiguous
-        o_pad = self._scratch.get("pad_origins", (3, size), np.float32).T
-        d_pad = self._scratch.get("pad_directions", (3, size), np.float32).T
+        o_pad = self._scratch.get(f"pad_origins_{key}", (3, size), np.float32).T
+        d_pad = self._scratch.get(f"pad_directions_{key}", (3, size), np.float32).T
         o_pad[:n], d_pad[:n] = o, d
         o_pad[n:], d_pad[n:] = part.pad_origin, _PAD_DIRECTION  # misses at the root of the BVH
         dist, tri = part.caster.cast(o_pad, d_pad)
@@ -169,7 +170,7 @@ class SceneCaster:
         unknown = set(actor_poses) - set(self._actors)
         if unknown:
             raise KeyError(f"poses for actors without a mesh: {sorted(unknown)}; known actors: {self.actor_ids}")
-        best, tri = self._cast_part(self._static, o, d)
+        best, tri = self._cast_part(self._static, o, d, "static")
         best = np.ascontiguousarray(best, dtype=np.float32)
         tri = np.ascontiguousarray(tri, dtype=np.int64)
         new = workers.allocator(self._scratch if reuse else None)
@@ -181,13 +182,13 @@ class SceneCaster:
             # every actor's rays are culled against the static hits at once: rays an actor nearer
             # in the list hides are cast too, and _closer keeps the nearest hit all the same
             spheres, cones = np.empty((len(posed), 4)), np.empty((len(posed), 5))
-            box_centre, box_radius = origin_box
+            box_centre, box_radius = origin_box[0], float(origin_box[1])
             widest = float(half_angle.max()) if len(half_angle) else 0.0  # the widest block cone (rad)
             for k, (_, part, rot, trans) in enumerate(posed):
                 centre = rot @ part.centre + trans
                 spheres[k, :3], spheres[k, 3] = centre, part.radius
                 # u and angle only pre-select blocks (with margins): Python floats are enough
-                ux, uy, uz = (float(v) for v in centre - box_centre)
+                ux, uy, uz = (centre - box_centre).tolist()
                 reach = math.sqrt(ux * ux + uy * uy + uz * uz)
                 if reach > part.radius + box_radius:
                     # a ray from o hitting the sphere means the same direction from the box centre
@@ -207,7 +208,7 @@ class SceneCaster:
                 continue
             idx, shift, start, d64 = (x[end - count : end] for x in culled)
             # row vectors: x_body = R^T (x_map - t)  <=>  (x_map - t) @ R
-            dist_b, tri_b = self._cast_part(part, (start - trans) @ rot, d64 @ rot)
+            dist_b, tri_b = self._cast_part(part, (start - trans) @ rot, d64 @ rot, str(actor_id))
             rays, tri_b, normals_b = _closer(idx, shift, dist_b, tri_b, part.normals, best, float(max_range_m))
             _set_hits(rays, tri_b, normals_b @ rot.T.astype(np.float32), d, part.material, part.object_id, actor_id,
                       tri, normal, material, object_id, hit_actor)  # fmt: skip
