@@ -1,20 +1,29 @@
 """``spray_node``: steps a spray particle system with simulated time and publishes the particles.
 
-The vehicles and their poses come from a scenario (``scenario`` parameter, a name in
-config/scenarios or a path; its ``spray`` region parameters are used). Every
-``1 / rate_hz`` s of node time the system advances to the scenario time and publishes,
-in frame ``map``. Scenario time is the /clock time with ``use_sim_time`` (the clock
-lidar_sim_node publishes in scenario mode starts at the scenario's t = 0, so both
-nodes see the vehicles at the same places), else the wall-clock time since start:
+The vehicles come from a scenario (``scenario`` parameter, a name in config/scenarios
+or a path; its ``spray`` region parameters are used), and so do their poses, unless
+``actors_from_tf``. Scenario poses: every ``1 / rate_hz`` s of node time the system
+advances to the scenario time and publishes, in frame ``frame_id``. Scenario time is
+the /clock time with ``use_sim_time`` (the clock lidar_sim_node publishes in scenario
+mode starts at the scenario's t = 0, so both nodes see the vehicles at the same places),
+else the wall-clock time since start.
+
+With ``actors_from_tf`` each vehicle's wheels follow its /tf frame ``actor_<id>``
+(``frame_id`` -> actor_<id>, the body-to-fixed pose, as lidar_sim_node's scenario mode
+publishes them, or another simulator or a bag): the first /tf stamp is the system's
+t = 0, and a /tf message at least ``1 / rate_hz`` of stamp time after the last
+published step advances the system to its stamp and publishes, stamped with it. A
+vehicle whose frame is not known yet throws nothing; a stamp more than 1 s older than
+the last one (a looped bag) starts the particles afresh.
 
 - ``/spray/particles`` sensor_msgs/PointCloud2 (fields in spray_particles.particle_cloud: centre,
   semi-axes, population, drop cross-section, emitting actor id), which the ``spray`` region of
   ``lidar_sim_node`` reads with ``source: topic``;
 - ``/spray/markers`` visualization_msgs/MarkerArray, one SPHERE_LIST per population.
 
-Parameters: ``scenario`` (string), ``rate_hz`` (double), ``frame_id`` (string),
-``max_steps`` (int, 0 = forever). :func:`marker_array` and
-:func:`spray_particles.particle_cloud.particle_cloud` need no running node.
+Parameters: ``scenario`` (string), ``rate_hz`` (double), ``frame_id`` (string, the fixed
+frame), ``actors_from_tf`` (bool), ``max_steps`` (int, 0 = forever). :func:`marker_array`
+and :func:`spray_particles.particle_cloud.particle_cloud` need no running node.
 """
 
 from __future__ import annotations
@@ -24,6 +33,9 @@ import numpy as np
 from spray_particles.particle_cloud import TOPIC_PARTICLES
 
 TOPIC_MARKERS = "/spray/markers"
+#: Simulated seconds a throwaway copy of the region is stepped at start-up, before the node publishes:
+#: the first steps then run at full speed (else loading the kernels delays them by ~1 s).
+WARM_UP_S = 0.2
 
 
 def marker_array(cloud: np.ndarray, stamp, frame_id: str):
@@ -49,18 +61,26 @@ def marker_array(cloud: np.ndarray, stamp, frame_id: str):
     return markers
 
 
-def _build_region(scenario_name: str):
-    from lidar_weather_sim.regions import REGISTRY
-    from lidar_weather_sim.scenario import load_scenario
-    from lidar_weather_sim.world import World
+def _build_region(world, pose_source=None):
+    """The scenario's ``spray`` region; its vehicles follow ``pose_source`` (default: the scenario player)."""
+    from lidar_weather_sim.regions import REGISTRY, RegionContext
 
-    world = World.build(load_scenario(scenario_name))
     params = world.scenario.region_params.get("spray", {})
-    from lidar_weather_sim.regions import RegionContext
-
     context = RegionContext(world.profile, world.scenario.weather, world.scene.materials,
-                            actors=world.scenario.actors, pose_source=world.player)  # fmt: skip
+                            actors=world.scenario.actors, pose_source=pose_source or world.player)  # fmt: skip
     return REGISTRY.create("spray", params, context)
+
+
+def tf_actor_source(world, fixed_frame: str):
+    """A pose source whose actors are the scenario's vehicles looked up on their /tf frames actor_<id>
+    (fixed_frame -> actor_<id>) in a fresh buffer; time origin unset (-1) until the first stamp."""
+    from lidar_weather_sim.names import actor_frame
+    from lidar_weather_sim.pose_sources import TfPoseSource
+    from lidar_weather_sim.tf_buffer import TransformBuffer
+
+    frames = {a.id: actor_frame(a.id) for a in world.scenario.actors}
+    buffer = TransformBuffer(cache_time_s=10.0, extrapolation_tolerance_s=0.0)
+    return TfPoseSource(buffer, fixed_frame, fixed_frame, None, -1, frames)
 
 
 def main(argv=None) -> None:
@@ -68,9 +88,14 @@ def main(argv=None) -> None:
     from sensor_msgs.msg import PointCloud2
     from visualization_msgs.msg import MarkerArray
 
+    from lidar_weather_sim.cloud_codec import build_message
+    from lidar_weather_sim.names import TOPIC_TF, TOPIC_TF_STATIC
+    from lidar_weather_sim.pose_sources import add_tf_message
     from lidar_weather_sim.ros.conversions import rclpy_message_types
     from lidar_weather_sim.ros.node_main import run_node, spin_until_stopped
-    from lidar_weather_sim.cloud_codec import build_message
+    from lidar_weather_sim.ros.qos import TF_QOS, TF_STATIC_QOS
+    from lidar_weather_sim.scenario import load_scenario
+    from lidar_weather_sim.world import World
 
     class SprayNode(Node):
         def __init__(self) -> None:
@@ -78,30 +103,76 @@ def main(argv=None) -> None:
             self.declare_parameter("scenario", "highway_spray")
             self.declare_parameter("rate_hz", 25.0)
             self.declare_parameter("frame_id", "map")
+            self.declare_parameter("actors_from_tf", False)
             self.declare_parameter("max_steps", 0)
-            self.region = _build_region(self.get_parameter("scenario").value)
+            self.world = World.build(load_scenario(self.get_parameter("scenario").value))
             self.frame_id = self.get_parameter("frame_id").value
             self.max_steps = int(self.get_parameter("max_steps").value)
+            self.period_ns = round(1e9 / float(self.get_parameter("rate_hz").value))
+            self.steps = 0
+            self.logged: set[str] = set()
+            from_tf = self.get_parameter("actors_from_tf").value
+            self.source = tf_actor_source(self.world, self.frame_id) if from_tf else None
+            self.region = _build_region(self.world, self.source)
+            _build_region(self.world).step(0.0, WARM_UP_S)  # a throwaway copy: kernels compiled (or loaded) now
+            # publishers once the region is built: a subscriber that waits for them finds the node ready
             self.cloud_pub = self.create_publisher(PointCloud2, TOPIC_PARTICLES, 10)
             self.marker_pub = self.create_publisher(MarkerArray, TOPIC_MARKERS, 10)
-            sim_time = self.get_parameter("use_sim_time").value
-            self.start_ns = 0 if sim_time else self.get_clock().now().nanoseconds
-            self.steps = 0
-            self.region.step(0.0, 0.0)
-            self.timer = self.create_timer(1.0 / float(self.get_parameter("rate_hz").value), self.tick)
+            if from_tf:
+                from tf2_msgs.msg import TFMessage
+
+                self.last_ns = None  # stamp of the last published step
+                self.statics = {}  # newest /tf_static transform per child frame
+                self.create_subscription(TFMessage, TOPIC_TF, self.on_tf, TF_QOS)
+                self.create_subscription(TFMessage, TOPIC_TF_STATIC, self.on_tf_static, TF_STATIC_QOS)
+            else:
+                sim_time = self.get_parameter("use_sim_time").value
+                self.start_ns = 0 if sim_time else self.get_clock().now().nanoseconds
+                self.region.step(0.0, 0.0)
+                self.create_timer(self.period_ns * 1e-9, self.tick)
 
         def tick(self) -> None:
-            now = self.get_clock().now()
-            t = (now.nanoseconds - self.start_ns) * 1e-9
+            now = self.get_clock().now().nanoseconds
+            self.publish((now - self.start_ns) * 1e-9, now)
+
+        def on_tf(self, msg) -> None:
+            stamps, problems = add_tf_message(self.source.buffer, msg)
+            for problem in problems:
+                self.warn_once(problem.cause, f"/tf: {problem.detail} (skipped)")
+            if not stamps:
+                return
+            newest = max(stamps)
+            if self.last_ns is not None and newest < self.last_ns - 1_000_000_000:
+                self.get_logger().warning(f"/tf time jumped back {(self.last_ns - newest) * 1e-9:.3f} s: new particles")
+                self.source = tf_actor_source(self.world, self.frame_id)
+                add_tf_message(self.source.buffer, type(msg)(transforms=list(self.statics.values())), static=True)
+                self.region, self.last_ns = _build_region(self.world, self.source), None
+            if self.source.time_origin_ns < 0:
+                self.source.time_origin_ns = newest  # the particle system's t = 0
+            if self.last_ns is None or newest >= self.last_ns + self.period_ns:
+                self.last_ns = newest
+                self.publish(self.source.to_time_s(newest), newest)
+
+        def on_tf_static(self, msg) -> None:
+            self.statics.update({ts.child_frame_id: ts for ts in msg.transforms})  # kept for a restart
+            for problem in add_tf_message(self.source.buffer, msg, static=True)[1]:
+                self.warn_once(problem.cause, f"/tf_static: {problem.detail} (skipped)")
+
+        def publish(self, t: float, stamp_ns: int) -> None:
+            """Advance the particles to simulated time ``t`` (s) and publish them stamped ``stamp_ns``."""
             self.region.step(t, t)
             cloud = self.region.particle_cloud(t)
-            msg, _ = build_message(cloud, stamp_ns=now.nanoseconds, frame_id=self.frame_id,
-                                   types=rclpy_message_types())  # fmt: skip
+            msg, _ = build_message(cloud, stamp_ns=stamp_ns, frame_id=self.frame_id, types=rclpy_message_types())
             self.cloud_pub.publish(msg)
-            self.marker_pub.publish(marker_array(cloud, now.to_msg(), self.frame_id))
+            self.marker_pub.publish(marker_array(cloud, msg.header.stamp, self.frame_id))
             self.steps += 1
             if self.max_steps and self.steps >= self.max_steps:
                 raise SystemExit(0)
+
+        def warn_once(self, key: str, text: str) -> None:
+            if key not in self.logged:
+                self.logged.add(key)
+                self.get_logger().warning(text)
 
     def spin(node: SprayNode) -> None:
         try:

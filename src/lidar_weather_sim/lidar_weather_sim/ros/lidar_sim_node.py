@@ -39,7 +39,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64
@@ -53,6 +53,7 @@ from lidar_weather_sim.pose_gate import PoseGate
 from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message, mount_transform, parse_odometry, set_static_mount
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
+from lidar_weather_sim.ros.qos import CLOCK_QOS, TF_QOS, TF_STATIC_QOS
 from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
@@ -62,11 +63,6 @@ from lidar_weather_sim.world import World
 TOPIC_CMD_SPEED = "/ego/cmd_speed"
 POSE_SOURCES = ("scenario", "tf", "odometry")
 RUNTIME = ("regions", "region_params", "sun_irradiance_w_m2", "seed")
-TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # as tf2_ros
-TF_STATIC_QOS = QoSProfile(depth=100, reliability=TF_QOS.reliability, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# reliable matches best-effort and reliable readers; depth 100 as /tf: at depth 1 a tick whose first send was
-# lost is overwritten by the next before it can be resent, and a busy recorder missed 1 /clock in 6000 (CI)
-CLOCK_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LINGER_S = 1.0  # after max_frames: the writer stays this long (s) before the process ends
 SILENT_INPUT_FRAMES = 25  # warn once when a topic a region reads has sent nothing after this many clouds
 BACKWARDS_RESTART_S = 1.0  # a stamp this much older than the last one (bag loop, sim reset) restarts the scan
