@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+from lidar_weather_sim.echo import overlap_factor, peak_amplitude, surface_reflectance
 from lidar_weather_sim.points import Label
 from lidar_weather_sim.scenario import load_scenario
 from lidar_weather_sim.simulator import LidarSimulator, quaternion_matrices
@@ -52,6 +53,18 @@ class _Timed:
                 return out
 
             setattr(region, name, wrapped)
+
+
+def scene_amplitude(world, hits, directions) -> np.ndarray:
+    """Peak amplitude (noise units) of each beam's scene hit (columns, channels), the whole beam on the surface."""
+    mats = world.scene.materials
+    refl = np.append(mats.reflectivity, 0.0)[hits.material]  # the last index: no hit
+    retro = np.append(mats.retro_share, 0.0)[hits.material]
+    cos_inc = np.abs(np.einsum("nk,nk->n", hits.normal, directions.reshape(-1, 3)))
+    optics, dist = world.profile.optics, hits.distance.astype(np.float64)
+    amp = peak_amplitude(world.profile.detection.power_constant, 1.0, surface_reflectance(refl, retro, cos_inc),
+                         dist, 1.0, overlap_factor(dist, optics.overlap_start_m, optics.overlap_full_m))  # fmt: skip
+    return np.where(np.isfinite(dist), amp, 0.0).reshape(directions.shape[:2])
 
 
 def _packets_as_drops(system, time_s: float):
@@ -109,17 +122,16 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
             origins = np.repeat(tr, ch, axis=0)
             hits = sim.caster.cast(origins.astype(np.float32), world_dirs.reshape(-1, 3).astype(np.float32),
                                    player.actor_poses(mid), world.profile.range.max_m)  # fmt: skip
-            det = detect_frame(reference, pattern, f.index, f.stamp_s, sensor_poses,
-                               hits.distance.reshape(len(tr), ch).astype(np.float64), sim.threshold().level,
-                               world.profile.detection.max_echoes)  # fmt: skip
+            scene = hits.distance.reshape(len(tr), ch).astype(np.float64), scene_amplitude(world, hits, world_dirs)
+            det = detect_frame(reference, pattern, f.index, f.stamp_s, sensor_poses, scene[0], sim.threshold().level,
+                               world.profile.detection.max_echoes, scene[1])  # fmt: skip
             ref_cost.append(time.perf_counter() - t0)
             ref_counts.append(len(det.range_m))
             ref_xy.append(det.xyz[:, :2])
             if on_packets:
                 drops, reference.particles = reference.particles, _packets_as_drops(system, mid)
-                pk = detect_frame(reference, pattern, f.index, f.stamp_s, sensor_poses,
-                                  hits.distance.reshape(len(tr), ch).astype(np.float64), sim.threshold().level,
-                                  world.profile.detection.max_echoes)  # fmt: skip
+                pk = detect_frame(reference, pattern, f.index, f.stamp_s, sensor_poses, scene[0], sim.threshold().level,
+                                  world.profile.detection.max_echoes, scene[1])  # fmt: skip
                 reference.particles = drops
                 pk_counts.append(len(pk.range_m))
                 pk_xy.append(pk.xyz[:, :2])

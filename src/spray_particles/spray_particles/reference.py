@@ -24,9 +24,11 @@ FWHM) add up. Cells are taken in range order with Beer-Lambert-like shadowing (t
 cross-section share of the nearer cells blocks the light, two ways), amplitudes from
 the LIDAR equation of the simulator (``C rho / R^2 x T^2 x overlap``), and a cell is
 detected when it exceeds the receiver threshold, up to ``max_echoes`` per beam, only
-in front of the beam's scene hit and at least one pulse FWHM before it: nearer, its
-pulse and the (far brighter) hard target's form one echo, which the simulator's echo
-stage labels as the target (spray hugging the car's side on the proving ground).
+in front of the beam's scene hit and only if its pulse stays a separate echo: with the
+scene hit's peak amplitude given, the waveform of the two (Gaussian, the profile's pulse
+FWHM) must dip below the threshold between them, else they form one echo, which the
+simulator's echo stage labels as the (brighter) target; without it, the cell must lie at
+least one FWHM before the hit. Spray hugging the car's side on the proving ground merges.
 """
 
 from __future__ import annotations
@@ -88,12 +90,15 @@ class ReferenceDetections:
 
 
 def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_start_s: float, sensor_poses,
-                 scene_distance=None, threshold: float = 4.0, max_echoes: int = 3) -> ReferenceDetections:  # fmt: skip
+                 scene_distance=None, threshold: float = 4.0, max_echoes: int = 3,
+                 scene_amplitude=None) -> ReferenceDetections:  # fmt: skip
     """Spray detections of the reference's drops for one frame of ``pattern`` (a ScanPattern).
 
     ``sensor_poses(times) -> (translations (N, 3), rotations (N, 3, 3))`` gives the sensor-to-world
     pose at each column time; ``scene_distance`` (columns, channels) m is the range of each beam's
     scene hit (inf: none); the drops must have been advanced to the frame's middle.
+    ``scene_amplitude`` (columns, channels): the peak amplitude of that hit (the threshold's units;
+    None: the FWHM rule).
     """
     profile = pattern.profile
     p = reference.particles
@@ -149,7 +154,7 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     frac = np.minimum(1.0, footprint[:, None, None] / blob) * np.exp(-0.5 * (dist / sigma) ** 2)
     valid &= dist < 3.0 * sigma
     if scene_distance is not None:
-        valid &= rng_m[:, None, None] < scene_distance[cols, chs] - profile.pulse.fwhm_m
+        valid &= rng_m[:, None, None] < scene_distance[cols, chs]
     if not valid.any():
         return empty
     drop, _, _ = np.nonzero(valid)
@@ -177,6 +182,11 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     amp = profile.detection.power_constant * reflect / cell_range**2 * np.exp(-2.0 * before)
     amp *= overlap_factor(cell_range, profile.optics.overlap_start_m, profile.optics.overlap_full_m)
     det = amp > threshold
+    if scene_distance is not None:  # a separate echo from the beam's scene hit?
+        b = cell_beam[det]
+        hit_range = scene_distance.reshape(-1)[b]
+        hit_amp = None if scene_amplitude is None else scene_amplitude.reshape(-1)[b]
+        det[det] = _separate(cell_range[det], amp[det], hit_range, hit_amp, threshold, profile.pulse.fwhm_m)
     # at most max_echoes per beam, nearest first
     rank = np.cumsum(det) - 1
     rank_base = np.maximum.accumulate(np.where(first, np.arange(len(uniq)), 0))
@@ -184,3 +194,20 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     det &= rank < max_echoes
     b = cell_beam[det]
     return ReferenceDetections(b // len(channels), channels[b % len(channels)], cell_range[det], cell_xyz[det], amp[det])
+
+
+def _separate(cell_range, cell_amp, hit_range, hit_amp, threshold: float, fwhm_m: float) -> np.ndarray:
+    """Whether each spray cell's pulse (range m, peak amplitude) forms an echo of its own before the
+    scene hit's pulse: the sum of the two Gaussian pulses dips below ``threshold`` between them (with
+    ``hit_amp`` None: the cell lies at least one FWHM before the hit)."""
+    gap = hit_range - cell_range
+    if hit_amp is None:
+        return gap >= fwhm_m
+    out = ~np.isfinite(gap)  # no scene hit: nothing to merge with
+    k = ~out
+    sigma = fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    x = np.linspace(0.0, 1.0, 33)[None, :] * gap[k, None]  # from the cell towards the hit (m)
+    wave = cell_amp[k, None] * np.exp(-0.5 * (x / sigma) ** 2)
+    wave += hit_amp[k, None] * np.exp(-0.5 * ((gap[k, None] - x) / sigma) ** 2)
+    out[k] = wave.min(axis=1) < threshold
+    return out

@@ -47,7 +47,8 @@ def test_drop_sizes_follow_eq3_and_carry_eq2_water():
     assert np.corrcoef(np.log(p.diameter), np.log(p.kappa))[0, 1] < -0.99
 
 
-def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_m: float | None = None):
+def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_m: float | None = None,
+                      wall_amplitude: float | None = None):  # fmt: skip
     profile = simple_profile(optics__divergence_h_mrad=1.75, optics__divergence_v_mrad=2.0)
     pattern = ScanPattern(profile)
     ref = _reference()
@@ -63,8 +64,10 @@ def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_
     def poses(times):
         return np.zeros((len(times), 3)), np.tile(np.eye(3), (len(times), 1, 1))
 
-    scene = None if wall_m is None else np.full((len(pattern.column_azimuth), len(pattern.active_channels(0))), wall_m)
-    return detect_frame(ref, pattern, 0, 0.0, poses, scene, threshold=4.0)
+    shape = (len(pattern.column_azimuth), len(pattern.active_channels(0)))
+    scene = None if wall_m is None else np.full(shape, wall_m)
+    amplitude = None if wall_amplitude is None else np.full(shape, wall_amplitude)
+    return detect_frame(ref, pattern, 0, 0.0, poses, scene, threshold=4.0, scene_amplitude=amplitude)
 
 
 def test_backscatter_summed_over_the_beam_volume_decides_detection():
@@ -83,6 +86,13 @@ def test_drops_within_a_pulse_of_the_scene_hit_merge_into_its_echo():
     assert len(_frame_with_drops(1000, 50.0, wall_m=12.0).range_m) >= 1
     assert len(_frame_with_drops(1000, 50.0, wall_m=10.3).range_m) == 0
     assert len(_frame_with_drops(1000, 50.0, wall_m=9.0).range_m) == 0
+
+
+def test_a_bright_target_swallows_spray_its_pulse_overlaps():
+    """With the wall's amplitude: 1 m before a wall 10^4 x the threshold the drops' pulse stays above the
+    threshold into the wall's (one echo: the wall's); 1 m before a dim wall (1.5 x) it is an echo of its own."""
+    assert len(_frame_with_drops(1000, 50.0, wall_m=11.0, wall_amplitude=4e4).range_m) == 0
+    assert len(_frame_with_drops(1000, 50.0, wall_m=11.0, wall_amplitude=6.0).range_m) >= 1
 
 
 def test_metrics():
