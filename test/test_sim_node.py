@@ -324,6 +324,22 @@ def test_a_silent_region_input_topic_is_logged_once_and_the_clouds_keep_coming(p
     assert out.count("/spray/particles: nothing received after 25 clouds") == 1, out
 
 
+def test_a_topic_no_region_reads_any_more_is_unsubscribed(processes, ros):
+    """The spray region reads /spray/particles; after a parameter set to other regions the node drops the
+    subscription at the frame boundary where they take over (and never warns that it is silent)."""
+    world = World.build(load_scenario("highway_spray"))
+    proc = node_process(processes, scenario="highway_spray", pose_source="tf", regions="[spray]",
+                        region_params='"spray: {source: topic}"')  # fmt: skip
+    lock = Lockstep(ros, world, proc, processes)
+    lock.run_until(8)
+    assert ros.spin_until(lambda: ros.node.count_subscribers("/spray/particles") == 1, 20.0), processes.output(proc)
+    assert lock.set_parameter("regions", ["atmosphere"]).successful
+    lock.run_until(160)  # 40 clouds: past the boundary and past the silent-input warning's 25 clouds
+    assert ros.spin_until(lambda: ros.node.count_subscribers("/spray/particles") == 0, 20.0), processes.output(proc)
+    out = processes.output(proc)
+    assert "/spray/particles: no region reads it any more, unsubscribed" in out and "nothing received" not in out, out
+
+
 def _bad(ns, t=(0.0, 0.0, 0.0), q=(0.0, 0.0, 0.0, 1.0), parent="map", child="base_link"):
     from tf2_msgs.msg import TFMessage
 
@@ -436,6 +452,22 @@ def test_session_applies_settings_at_frame_boundaries(sun_world):
     coarse = [0.0, 0.01, 0.27]
     dark, bright = _counts(sun_world, coarse), _counts(sun_world, coarse, {0: sunny})
     assert _counts(sun_world, coarse, {2: sunny}) == dark[:1] + bright[1:]
+
+
+def test_session_drops_the_topics_of_replaced_regions(world):
+    """A region set reading /spray/particles is replaced at a frame boundary: until then both sets' topics
+    are wanted (the new set's data may arrive early), after it only the new set's."""
+    topic_spray = RuntimeSettings(("spray",), {"spray": {"source": "topic"}}, 0.0, 0)
+    session = SimSession(World.build(load_scenario("highway_spray")), topic_spray, backend=None, ground_truth=True)
+    assert session.inputs.topics == ("/spray/particles",)
+    session.request(RuntimeSettings(("spray",), {"spray": {"source": "topic", "topic": "/other"}}, 0.0, 0))
+    assert session.inputs.topics == ("/spray/particles", "/other")  # requested, not in use yet
+    player = session.world.player
+    session.advance(0.05, player)
+    assert session.inputs.topics == ("/other",)
+    session.request(RuntimeSettings((), {}, 0.0, 0))
+    session.advance(0.1, player)
+    assert session.inputs.topics == ()
 
 
 def test_session_validation_names_the_problem(world):

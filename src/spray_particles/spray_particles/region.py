@@ -76,7 +76,7 @@ class SprayRegion:
         if params.source == "topic":
             if self.inputs is None:
                 raise ConfigError("region 'spray': source 'topic' but no topic inputs in the RegionContext")
-            self.inputs.want(params.topic, TOPIC_FIELDS)
+            self.inputs.want(params.topic, TOPIC_FIELDS, owner=self)
         actors = list(getattr(context, "actors", None) or [])
         wanted = params.actor_ids
         chosen = [a for a in actors if (a.id in wanted if wanted is not None else getattr(a, "emits_spray", False))]

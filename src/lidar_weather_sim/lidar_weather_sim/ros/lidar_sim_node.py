@@ -228,11 +228,16 @@ class LidarSimNode(Node):
             self.get_logger().warning(f"{detail} ({note}; logged once per cause)")
 
     def _subscribe_topic_inputs(self) -> None:
-        """Subscribe to the PointCloud2 topics the regions want (TopicInputs), once each."""
-        for topic in self.topic_inputs.topics:
+        """Subscribe to the PointCloud2 topics the regions want (TopicInputs), once each; unsubscribe
+        from those no region in use (or requested) wants any more."""
+        wanted = self.topic_inputs.topics
+        for topic in wanted:
             if topic not in self._topic_subscriptions:
                 self._topic_subscriptions[topic] = self.create_subscription(
                     PointCloud2, topic, lambda msg, topic=topic: self._on_topic_input(topic, msg), 10)  # fmt: skip
+        for topic in [t for t in self._topic_subscriptions if t not in wanted]:
+            self.destroy_subscription(self._topic_subscriptions.pop(topic))
+            self.get_logger().info(f"{topic}: no region reads it any more, unsubscribed")
 
     def _on_topic_input(self, topic: str, msg: PointCloud2) -> None:
         try:
@@ -345,6 +350,7 @@ class LidarSimNode(Node):
             self._in_use, since = session.settings, session.settings_from_s
             first = "the first frame" if since is None else f"the frame stamped {self._stamp_text(since)} s"
             self.get_logger().info(f"in use from {first}: {session.settings}")
+            self._subscribe_topic_inputs()  # the replaced regions' topics go
         for frame in frames:
             if self.finished:
                 return

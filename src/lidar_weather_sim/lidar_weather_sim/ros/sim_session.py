@@ -68,6 +68,7 @@ class SimSession:
             self.world.profile, self.world.scene, regions=self.build_regions(s), seed=s.seed,
             sun_irradiance_w_m2=s.sun_irradiance_w_m2, **self._options,
         )  # fmt: skip
+        self.inputs.retain(region for _, region in self.sim.regions)  # topics of replaced regions go
         self.frame_start_s: float | None = None  # scan start of the frame being cast
         self.last_time_s: float | None = None
         self.settings_from_s: float | None = None  # scan start of the first frame cast with settings (None: all)
@@ -120,5 +121,6 @@ class SimSession:
         self._pending = None
         self.settings, self.settings_from_s = settings, self.frame_start_s
         self.sim.regions = list(regions)
+        self.inputs.retain(region for _, region in regions)
         self.sim.seed = int(settings.seed)
         self.sim.sun_irradiance_w_m2 = float(settings.sun_irradiance_w_m2)
