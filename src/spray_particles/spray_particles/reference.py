@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidar_weather_sim.echo import overlap_factor
+from lidar_weather_sim.echo import FWHM_TO_SIGMA, overlap_factor
 from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
 from spray_particles.forces import drag_rates
 from spray_particles.system import Particles, SpraySystem
@@ -205,7 +205,7 @@ def _separate(cell_range, cell_amp, hit_range, hit_amp, threshold: float, fwhm_m
         return gap >= fwhm_m
     out = ~np.isfinite(gap)  # no scene hit: nothing to merge with
     k = ~out
-    sigma = fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    sigma = fwhm_m * FWHM_TO_SIGMA
     x = np.linspace(0.0, 1.0, 33)[None, :] * gap[k, None]  # from the cell towards the hit (m)
     wave = cell_amp[k, None] * np.exp(-0.5 * (x / sigma) ** 2)
     wave += hit_amp[k, None] * np.exp(-0.5 * ((gap[k, None] - x) / sigma) ** 2)
