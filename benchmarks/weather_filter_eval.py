@@ -100,7 +100,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--no-train", action="store_true", help="use the shipped model, do not retrain")
     parser.add_argument("--methods", default="dror,dsor,lior,echo,learned")
+    parser.add_argument("--knn-only", action="store_true", help="only the per-frame weather KNN's accuracy (part 4)")
     args = parser.parse_args()
+    if args.knn_only:
+        knn_accuracy()
+        return 0
     methods = args.methods.split(",")
     for spec in (*TRAIN_SPECS, *HELDOUT_SPECS, TIMING_SPEC):
         simulate(spec)
