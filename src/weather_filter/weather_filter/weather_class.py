@@ -3,15 +3,20 @@
 The 12 per-frame features of paper 2 (Fig. 4) come from the shared extractor
 ``lidar_weather_sim.features.frame_features``, applied to the detections of the
 atmosphere region (horizontal distance x along the sensor's axis within
-[0, 5) m, as the paper's region; :class:`RegionFeatures`). Empty-region NaNs
-become fixed values (distances: the region's far end; EPW: 0) so that a clear
-frame without near detections is a point in feature space too. The classifier
-is a scikit-learn KNN (paper: KNN) on standardised features whose confidence is
-the share of the k neighbours voting for the chosen class. The six counts enter
-as log(1 + n) (:func:`log_counts`): between light and heavy weather they span an
+[0, 5) m, as the paper's region), and again to the region's isotropic part
+(:class:`RegionFeatures`): 24 values per frame. Empty-region NaNs become fixed
+values (distances: the region's far end; EPW: 0) so that a clear frame without
+near detections is a point in feature space too. The classifier is a
+scikit-learn KNN (paper: KNN) on standardised features whose confidence is the
+share of the k neighbours voting for the chosen class. The counts enter as
+log(1 + n) (:func:`log_counts`): between light and heavy weather they span an
 order of magnitude, and in linear units one dense frame (spray mist, heavy dirt)
-outweighs every other feature in the distance (v1 used linear counts: 0.58 of the
-frames of scenarios never trained on named right, v2 0.86).
+outweighs every other feature in the distance.
+
+Scenarios never trained on, share of frames named right: v1 (the 12 parameters,
+linear counts, three base scenarios) 0.58; v2 (log counts, heavy dirt and spray
+mist in the runs) 0.86; v3 (with the isotropic part) 0.93
+(``python benchmarks/weather_filter_eval.py --knn-only``).
 
 The shipped model ``models/weather_knn_v<N>.joblib`` is trained on labelled
 simulation runs (:mod:`weather_filter.simdata`) whose class is the scenario's
@@ -30,7 +35,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 CLASSES = ("clear", "rain", "fog", "snow")
-KNN_VERSION = 2
+KNN_VERSION = 3
 DEFAULT_KNN_MODEL = Path(__file__).resolve().parent / "models" / f"weather_knn_v{KNN_VERSION}.joblib"
 #: Training runs of the shipped KNN (scala4, 20 frames each): five base scenarios (config/scenarios/wf_knn_*.yaml:
 #: clean cover, light, medium and heavy dirt, the ego driving into spray mist) under a grid of each class'
@@ -58,33 +63,67 @@ KNN_TEST_SCENARIO_SPECS = ("highway_spray:100:40", "proving_ground_60:100:40", "
 COUNT_FEATURES = ("n_peak", "n_total", "n_dd", "n_e1", "n_e2", "n_e3")
 
 
-def log_counts(features: np.ndarray) -> np.ndarray:
-    """Feature vectors (n, 12; ``lidar_weather_sim.features.FEATURES`` order) with the counts as log(1 + n):
-    the classifier's first stage."""
+def _count_columns(width: int) -> list[int]:
+    """Columns of the count features in feature vectors of ``width`` (12 or 24 values, FEATURES order)."""
     from lidar_weather_sim.features import FEATURES
 
-    columns = [FEATURES.index(name) for name in COUNT_FEATURES]
+    return [FEATURES.index(name) + offset for offset in range(0, width, len(FEATURES)) for name in COUNT_FEATURES]
+
+
+def log_counts(features: np.ndarray) -> np.ndarray:
+    """Feature vectors (n, 12 or 24; :class:`RegionFeatures`) with the counts as log(1 + n): the classifier's
+    first stage."""
     out = np.array(features, float, copy=True)
+    columns = _count_columns(out.shape[1])
     out[:, columns] = np.log1p(out[:, columns])
     return out
 
 
 def frame_feature_extractor() -> Callable[[np.ndarray], np.ndarray]:
-    """The shared 12-parameter extractor on the atmosphere region of a cloud (:class:`RegionFeatures`)."""
+    """The shared extractor on the atmosphere region of a cloud (:class:`RegionFeatures`)."""
     return RegionFeatures()
 
 
 class RegionFeatures:
-    """points -> the 12 paper-2 parameters (``lidar_weather_sim.features.FEATURES`` order) of the detections
-    with lo_m <= x < hi_m (x: horizontal distance along the sensor axis, sensor frame), NaN-free."""
+    """points -> 24 values, NaN-free: the 12 paper-2 parameters (``lidar_weather_sim.features.FEATURES`` order)
+    of the detections with lo_m <= x < hi_m (x: horizontal distance along the sensor axis, sensor frame), then
+    the same 12 of the region's isotropic part.
 
-    def __init__(self, lo_m: float = 0.0, hi_m: float = 5.0) -> None:
-        self.lo_m, self.hi_m = float(lo_m), float(hi_m)
+    The isotropic part: weather's near-field detections are spread over the whole field of view (thesis line
+    742), whereas spray from a car ahead, a guard rail beside the ego or a dirt patch on the cover crowd a few
+    directions. The frame's azimuth span (that of all its points) is cut into ``sectors`` equal sectors; a
+    sector whose count of region detections exceeds the median sector's by more than 3 Poisson sigma (+ 3) is
+    left out, and the counts of the others are scaled up to the whole span.
+    """
+
+    def __init__(self, lo_m: float = 0.0, hi_m: float = 5.0, sectors: int = 8) -> None:
+        self.lo_m, self.hi_m, self.sectors = float(lo_m), float(hi_m), int(sectors)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
+        x = points["x"]
+        region = np.flatnonzero((x >= self.lo_m) & (x < self.hi_m))
+        isotropic, scale = self._isotropic_part(points, region)
+        iso = self._parameters(points, isotropic)
+        columns = _count_columns(len(iso))
+        iso[columns] *= scale
+        return np.concatenate([self._parameters(points, region), iso])
+
+    def _isotropic_part(self, points: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, float]:
+        """(indices of the region detections in the sectors without excess, whole span / their span)."""
+        azimuth = np.arctan2(points["y"], points["x"])
+        span = float(np.ptp(azimuth)) if len(azimuth) else 0.0
+        if len(region) == 0 or span <= 0.0:
+            return region, 1.0
+        sector = np.minimum(((azimuth[region] - azimuth.min()) / span * self.sectors).astype(int), self.sectors - 1)
+        counts = np.bincount(sector, minlength=self.sectors)
+        median = float(np.median(counts))
+        kept = counts <= median + 3.0 * np.sqrt(median) + 3.0
+        return region[kept[sector]], self.sectors / int(kept.sum())
+
+    def _parameters(self, points: np.ndarray, index: np.ndarray) -> np.ndarray:
         from lidar_weather_sim.features import FEATURES, frame_features
 
-        values = frame_features(points["x"], points["echo"], points["epw"], self.lo_m, self.hi_m)
+        values = frame_features(points["x"][index], points["echo"][index], points["epw"][index], self.lo_m, self.hi_m)
         fill = {"x_max": self.hi_m, "x_mean": self.hi_m, "x_sigma": 0.0, "x_90": self.hi_m, "n_dd": 0.0,
                 "epw_mean": 0.0, "epw_std": 0.0}  # fmt: skip
         return np.array([fill.get(k, 0.0) if not np.isfinite(values[k]) else values[k] for k in FEATURES], float)
@@ -183,8 +222,8 @@ def train_knn(specs: Iterable[str], output: str | Path, *, command: str, k: int 
     clf = FrameWeatherClassifier.fit(x, y, k=k)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    bundle = {"model": clf.model, "region": {"lo_m": region.lo_m, "hi_m": region.hi_m}, "classes": CLASSES,
-              "k": k, "sklearn_version": sklearn.__version__, "version": KNN_VERSION,
+    bundle = {"model": clf.model, "region": {"lo_m": region.lo_m, "hi_m": region.hi_m, "sectors": region.sectors},
+              "classes": CLASSES, "k": k, "sklearn_version": sklearn.__version__, "version": KNN_VERSION,
               "trained_on": ", ".join(f"sim:{s}" for s in specs), "command": command}  # fmt: skip
     joblib.dump(bundle, output, compress=3)
     labels, counts = np.unique(y, return_counts=True)
