@@ -15,6 +15,12 @@ the reference's time in its step + scene cast + detection; ratio in %.
     python benchmarks/spray_compare.py --fit     # airborne_fraction for config/spray.yaml
     python benchmarks/spray_compare.py --scenarios proving_ground_39,proving_ground_55 --water-film-mm 3
     python benchmarks/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --detector-on-packets
+    python benchmarks/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
+
+``--seeds`` runs each scenario once per spray seed (turbulence and emission) and pools the frames:
+a few seconds of proving-ground spray hold one or two turbulent episodes, so one seed's bird's-eye
+histogram is mostly chance. With two seeds or more the reference's even-numbered seeds are also
+compared with its odd-numbered ones: how far the yardstick agrees with itself at that many frames.
 
 ``--detector-on-packets`` also runs the reference's detection on the model's own drop packets
 (each as one computational drop with the packet's airborne drops, at the reference's kernel
@@ -56,7 +62,8 @@ class _Timed:
 
 
 def scene_amplitude(world, hits, directions) -> np.ndarray:
-    """Peak amplitude (noise units) of each beam's scene hit (columns, channels), the whole beam on the surface."""
+    """Peak amplitude (noise units) of each ray's scene hit (the shape of ``directions`` without its last
+    axis), the whole beam on the surface."""
     mats = world.scene.materials
     refl = np.append(mats.reflectivity, 0.0)[hits.material]  # the last index: no hit
     retro = np.append(mats.retro_share, 0.0)[hits.material]
@@ -64,7 +71,7 @@ def scene_amplitude(world, hits, directions) -> np.ndarray:
     optics, dist = world.profile.optics, hits.distance.astype(np.float64)
     amp = peak_amplitude(world.profile.detection.power_constant, 1.0, surface_reflectance(refl, retro, cos_inc),
                          dist, 1.0, overlap_factor(dist, optics.overlap_start_m, optics.overlap_full_m))  # fmt: skip
-    return np.where(np.isfinite(dist), amp, 0.0).reshape(directions.shape[:2])
+    return np.where(np.isfinite(dist), amp, 0.0).reshape(directions.shape[:-1])
 
 
 def _packets_as_drops(system, time_s: float):
@@ -75,10 +82,13 @@ def _packets_as_drops(system, time_s: float):
     return dataclasses.replace(packets, pos=system.positions_at(time_s)[keep], weight=packets.weight * packets.airborne)
 
 
-def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, verbose: bool = True,
-        film_mm: float | None = None, on_packets: bool = False) -> dict:  # fmt: skip
+def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, film_mm: float | None = None,
+        on_packets: bool = False, seed: int = 0) -> dict:  # fmt: skip
+    """Model and reference on the same ``frames`` frames of scenario ``name`` (spray seed ``seed``): the
+    detections' sensor-frame x, y and per-frame counts of both, and their costs per frame (s)."""
     world = World.build(load_scenario(name))
-    region = dict(world.regions(["spray"], {"spray": {"water_film_mm": film_mm}} if film_mm is not None else None))["spray"]
+    spray = {"seed": seed} if film_mm is None else {"seed": seed, "water_film_mm": film_mm}
+    region = dict(world.regions(["spray"], {"spray": spray}))["spray"]
     timed = _Timed(region)
     sim = LidarSimulator(world.profile, world.scene, regions=[("spray", region)], seed=0)
     system = region.system
@@ -94,7 +104,7 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
         return np.asarray(tr, dtype=np.float64), quaternion_matrices(np.asarray(q, dtype=np.float64))
 
     period = world.profile.period_s
-    t, done = 0.0, []
+    t = 0.0
     sim_counts, ref_counts, sim_xy, ref_xy, pk_counts, pk_xy = [], [], [], [], [], []
     sim_cost, ref_cost = [], []
     reference.advance_to(0.0)
@@ -116,13 +126,15 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
             reference.advance_to(mid)
             tab = pattern.direction_table(f.index)
             ch = tab.shape[1]
-            dirs = tab[:, :, tab.shape[2] // 2]
             tr, rot = sensor_poses(f.stamp_s + pattern.column_time_s)
-            world_dirs = np.einsum("cij,cbj->cbi", rot, dirs)
-            origins = np.repeat(tr, ch, axis=0)
-            hits = sim.caster.cast(origins.astype(np.float32), world_dirs.reshape(-1, 3).astype(np.float32),
-                                   player.actor_poses(mid), world.profile.range.max_m)  # fmt: skip
-            scene = hits.distance.reshape(len(tr), ch).astype(np.float64), scene_amplitude(world, hits, world_dirs)
+            # every sub-ray's scene hit: the reference sees a drop only in front of the hit of the beam's
+            # sub-ray nearest to it; the central sub-ray's hit gives the amplitude for the echo rule
+            world_dirs = np.einsum("cij,cbsj->cbsi", rot, tab)
+            hits = sim.caster.cast(np.repeat(tr, ch * tab.shape[2], axis=0).astype(np.float32),
+                                   world_dirs.reshape(-1, 3).astype(np.float32), player.actor_poses(mid),
+                                   world.profile.range.max_m)  # fmt: skip
+            scene = (hits.distance.reshape(world_dirs.shape[:3]).astype(np.float64),
+                     scene_amplitude(world, hits, world_dirs)[:, :, tab.shape[2] // 2])  # fmt: skip
             det = detect_frame(reference, pattern, f.index, f.stamp_s, sensor_poses, scene[0], sim.threshold().level,
                                world.profile.detection.max_echoes, scene[1])  # fmt: skip
             ref_cost.append(time.perf_counter() - t0)
@@ -137,37 +149,53 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
                 pk_xy.append(pk.xyz[:, :2])
         if len(sim_counts) == 0 and t < warmup_s:
             reference.advance_to(t)  # keep the reference in step during warm-up (timed below only per frame)
-    a, b = bev(np.concatenate(sim_xy)), bev(np.concatenate(ref_xy))
-    m = metrics(a, b)
-    frame_cost_sim = float(np.sum(sim_cost)) / (t / period)
-    out = {
-        "scenario": name, **m, "overlap_per_frame_hist": per_frame_overlap(sim_counts, ref_counts),
-        "model_mean": float(np.mean(sim_counts)), "model_std": float(np.std(sim_counts)),
-        "reference_mean": float(np.mean(ref_counts)), "reference_std": float(np.std(ref_counts)),
-        "model_ms": 1e3 * frame_cost_sim, "reference_ms": 1e3 * float(np.median(ref_cost)),
-        "reference_drops": len(reference.particles), "model_particles": len(system.particles),
-    }  # fmt: skip
+    return {"scenario": name, "model_xy": np.concatenate(sim_xy), "reference_xy": np.concatenate(ref_xy),
+            "model_counts": sim_counts, "reference_counts": ref_counts, "packets_xy": np.concatenate(pk_xy or [np.zeros((0, 2))]),
+            "packets_counts": pk_counts, "model_s": float(np.sum(sim_cost)) / (t / period),
+            "reference_s": float(np.median(ref_cost)), "reference_drops": len(reference.particles),
+            "model_particles": len(system.particles)}  # fmt: skip
+
+
+def summarise(runs: list[dict]) -> dict:
+    """The thesis' metrics of model against reference over the frames of all ``runs`` (one scenario, one run
+    per seed) pooled; with two runs or more also the reference's own reproducibility: the Pearson of the
+    pooled bird's-eye histograms of its even-numbered runs against its odd-numbered ones."""
+    pool = {k: np.concatenate([r[k] for r in runs]) for k in ("model_xy", "reference_xy", "packets_xy")}
+    counts = {k: np.concatenate([r[k] for r in runs]) for k in ("model_counts", "reference_counts", "packets_counts")}
+    out = {"scenario": runs[0]["scenario"], "seeds": len(runs), **metrics(bev(pool["model_xy"]), bev(pool["reference_xy"])),
+           "overlap_per_frame_hist": per_frame_overlap(counts["model_counts"], counts["reference_counts"]),
+           "model_ms": 1e3 * float(np.median([r["model_s"] for r in runs])),
+           "reference_ms": 1e3 * float(np.median([r["reference_s"] for r in runs])),
+           "reference_drops": runs[-1]["reference_drops"], "model_particles": runs[-1]["model_particles"], **pool}  # fmt: skip
+    for who in ("model", "reference", "packets"):
+        c = counts[f"{who}_counts"]
+        out[f"{who}_mean"] = float(np.mean(c)) if len(c) else float("nan")
+        out[f"{who}_std"] = float(np.std(c)) if len(c) else float("nan")
+        xy = pool[f"{who}_xy"]
+        out[f"{who}_xy_median"] = np.median(xy, axis=0).round(2).tolist() if len(xy) else None
     out["cost_pct"] = 100.0 * out["model_ms"] / out["reference_ms"]
-    sxy, rxy = np.concatenate(sim_xy), np.concatenate(ref_xy)
-    out["model_xy"], out["reference_xy"] = sxy, rxy
-    out["model_xy_median"] = np.median(sxy, axis=0).round(2).tolist() if len(sxy) else None
-    out["reference_xy_median"] = np.median(rxy, axis=0).round(2).tolist() if len(rxy) else None
-    if on_packets:
-        pxy = np.concatenate(pk_xy)
-        out["detector_on_packets_mean"] = float(np.mean(pk_counts))
-        out["detector_on_packets_xy_median"] = np.median(pxy, axis=0).round(2).tolist() if len(pxy) else None
-    if verbose:
-        print(f"{name:18s} pearson {out['pearson']:.3f}  jaccard {out['jaccard_pct']:.0f} %  hamming "
-              f"{out['hamming_pct']:.1f} %  detections/frame model {out['model_mean']:.1f}+-{out['model_std']:.1f} "
-              f"reference {out['reference_mean']:.1f}+-{out['reference_std']:.1f} (hist overlap "
-              f"{out['overlap_per_frame_hist']:.2f})  cost model {out['model_ms']:.2f} ms / reference "
-              f"{out['reference_ms']:.0f} ms = {out['cost_pct']:.2f} %  ({out['model_particles']} particles, "
-              f"{out['reference_drops']} drops); median x, y model {out['model_xy_median']} reference "
-              f"{out['reference_xy_median']}", flush=True)  # fmt: skip
-        if on_packets:
-            print(f"{'':18s} the reference's detector on the model's packets: {out['detector_on_packets_mean']:.1f} "
-                  f"detections/frame, median x, y {out['detector_on_packets_xy_median']}", flush=True)  # fmt: skip
+    out["packets_pearson"] = metrics(bev(pool["packets_xy"]), bev(pool["reference_xy"]))["pearson"]
+    if len(runs) > 1:
+        halves = [bev(np.concatenate([r["reference_xy"] for r in runs[i::2]])) for i in (0, 1)]
+        out["reference_split_half_pearson"] = metrics(*halves)["pearson"]
     return out
+
+
+def report(out: dict, on_packets: bool = False) -> None:
+    print(f"{out['scenario']:18s} pearson {out['pearson']:.3f}  jaccard {out['jaccard_pct']:.0f} %  hamming "
+          f"{out['hamming_pct']:.1f} %  detections/frame model {out['model_mean']:.1f}+-{out['model_std']:.1f} "
+          f"reference {out['reference_mean']:.1f}+-{out['reference_std']:.1f} (hist overlap "
+          f"{out['overlap_per_frame_hist']:.2f})  cost model {out['model_ms']:.2f} ms / reference "
+          f"{out['reference_ms']:.0f} ms = {out['cost_pct']:.2f} %  ({out['model_particles']} particles, "
+          f"{out['reference_drops']} drops); median x, y model {out['model_xy_median']} reference "
+          f"{out['reference_xy_median']}", flush=True)  # fmt: skip
+    if "reference_split_half_pearson" in out:
+        print(f"{'':18s} {out['seeds']} seeds pooled; the reference's even seeds against its odd ones: pearson "
+              f"{out['reference_split_half_pearson']:.3f}", flush=True)  # fmt: skip
+    if on_packets:
+        print(f"{'':18s} the reference's detector on the model's packets: {out['packets_mean']:.1f} "
+              f"detections/frame, median x, y {out['packets_xy_median']}, pearson against the reference "
+              f"{out['packets_pearson']:.3f}", flush=True)  # fmt: skip
 
 
 def plot(out: dict, directory: str) -> None:
@@ -203,20 +231,24 @@ def main() -> None:
     ap.add_argument("--fit-steps", type=int, default=8)
     ap.add_argument("--detector-on-packets", action="store_true",
                     help="also the reference's detection on the model's drop packets (where a gap lies)")
+    ap.add_argument("--seeds", default="0", help="spray seeds (comma-separated): frames of all pooled")
     ap.add_argument("--plot", metavar="DIR", help="write bird's-eye histograms of both as DIR/SCENARIO.png")
     args = ap.parse_args()
     if args.fit:
         lo, hi = 1e-4, 0.1  # log-bisection: detections grow steeply once drops cross the threshold
         for _ in range(args.fit_steps):
             f = float(np.sqrt(lo * hi))
-            r = run("proving_ground_55", args.frames, args.warmup, f, verbose=False)
+            r = summarise([run("proving_ground_55", args.frames, args.warmup, f)])
             print(f"airborne_fraction {f:.4g}: model {r['model_mean']:.2f}, reference {r['reference_mean']:.2f}",
                   flush=True)  # fmt: skip
             lo, hi = (f, hi) if r["reference_mean"] < r["model_mean"] else (lo, f)
         print(f"airborne_fraction: {np.sqrt(lo * hi):.3g}")
         return
+    seeds = [int(k) for k in args.seeds.split(",")]
     for name in args.scenarios.split(","):
-        out = run(name, args.frames, args.warmup, film_mm=args.water_film_mm, on_packets=args.detector_on_packets)
+        out = summarise([run(name, args.frames, args.warmup, film_mm=args.water_film_mm,
+                             on_packets=args.detector_on_packets, seed=k) for k in seeds])  # fmt: skip
+        report(out, args.detector_on_packets)
         if args.plot:
             plot(out, args.plot)
 

@@ -18,7 +18,10 @@ def test_recorder_keeps_every_cloud_for_60_s(tmp_path):
     assert summary["sim_exit"] == 0 and summary["recorder_exit"] == 0, summary
     assert summary["clouds_published"] == 60 * 25 == summary["clouds_recorded"], summary
     assert summary["stamp_gaps"] == 0, summary  # one cloud per 40 ms, none repeated
-    assert summary["tf_recorded"] >= 60 * 100 - 10 and summary["clock_recorded"] == summary["tf_recorded"], summary
+    # /tf and /clock at 100 Hz: either can miss a message or two on its own (DDS matches each topic separately and
+    # the sim waits only for the cloud's subscriber; a loaded machine can overrun the depth-100 history), so each
+    # gets the same allowance. CI once recorded 5999 /tf and 5998 /clock messages.
+    assert min(summary["tf_recorded"], summary["clock_recorded"]) >= 60 * 100 - 10, summary
     assert run.returncode == 0
 
 

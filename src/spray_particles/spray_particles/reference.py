@@ -16,7 +16,9 @@ Detection
 Per frame, every drop is seen from the sensor at its column's firing time (rolling
 shutter). A computational drop stands for ``weight`` real drops spread as a Gaussian
 blob of radius ``kernel_radius_m``: it feeds each beam (footprint ``divergence_h`` x
-``divergence_v`` around the beam axis) with the share of the blob inside the footprint.
+``divergence_v`` around the beam axis) with the share of the blob inside the footprint
+(:func:`blob_share`), if the beam's sub-ray nearest to it reaches that far (scene hits per
+sub-ray: a drop in a wheel arch is hidden by the tyre even where the beam's centre passes).
 Its effective reflectance is the drops' cross-section share of the beam footprint at
 that range times the albedo
 and the disk-averaged phase factor; drops of one beam within one range cell (the pulse
@@ -36,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import erf
 
 from lidar_weather_sim.echo import FWHM_TO_SIGMA, overlap_factor
 from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
@@ -96,7 +99,10 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
 
     ``sensor_poses(times) -> (translations (N, 3), rotations (N, 3, 3))`` gives the sensor-to-world
     pose at each column time; ``scene_distance`` (columns, channels) m is the range of each beam's
-    scene hit (inf: none); the drops must have been advanced to the frame's middle.
+    scene hit (inf: none), or (columns, channels, sub-rays) that of each sub-ray of the pattern: a
+    drop then counts in a beam only in front of the hit of the sub-ray nearest to it, and the
+    central sub-ray's hit stands for the beam's in the echo rule; the drops must have been advanced
+    to the frame's middle.
     ``scene_amplitude`` (columns, channels): the peak amplitude of that hit (the threshold's units;
     None: the FWHM rule).
     """
@@ -145,16 +151,23 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     chs = ch_near[:, None, None] + offs_e[None, None, :] + 0 * offs_c[None, :, None]
     valid = (cols >= 0) & (cols < len(az_cols)) & (chs >= 0) & (chs < len(channels))
     cols, chs = np.clip(cols, 0, len(az_cols) - 1), np.clip(chs, 0, len(channels) - 1)
-    # angular distance of the drop from the beam's footprint (rad), then metres at its range
-    d_az = np.maximum(np.abs(az[:, None, None] - az_cols[cols]) - 0.5 * div_h, 0.0) * np.cos(el)[:, None, None]
-    d_el = np.maximum(np.abs(el[:, None, None] - elev[chs]) - 0.5 * div_v, 0.0)
-    dist = np.hypot(d_az, d_el) * rng_m[:, None, None]
+    # the drop's offset from each beam's axis (rad), its distance from the footprint (m), the blob's share in it
+    da = (az[:, None, None] - az_cols[cols]) * np.cos(el)[:, None, None]
+    de = el[:, None, None] - elev[chs]
+    r3 = rng_m[:, None, None]
+    dist = np.hypot(np.maximum(np.abs(da) - 0.5 * div_h, 0.0), np.maximum(np.abs(de) - 0.5 * div_v, 0.0)) * r3
     footprint = div_h * div_v * rng_m * rng_m
-    blob = 2.0 * np.pi * sigma * sigma
-    frac = np.minimum(1.0, footprint[:, None, None] / blob) * np.exp(-0.5 * (dist / sigma) ** 2)
+    frac = blob_share(da * r3, de * r3, div_h * r3, div_v * r3, sigma)
     valid &= dist < 3.0 * sigma
-    if scene_distance is not None:
-        valid &= rng_m[:, None, None] < scene_distance[cols, chs]
+    hit_distance = scene_distance
+    if scene_distance is not None and np.ndim(scene_distance) == 3:
+        # per sub-ray scene hits: the drop is seen by the sub-ray nearest to it in angle, so a drop behind
+        # a tyre is not seen by a beam whose upper sub-rays pass over the bonnet
+        sub = np.argmin((da[..., None] - pattern.subray_dh) ** 2 + (de[..., None] - pattern.subray_dv) ** 2, axis=-1)
+        valid &= r3 < scene_distance[cols, chs, sub]
+        hit_distance = scene_distance[:, :, pattern.n_subrays // 2]  # the central sub-ray's hit: echo merging
+    elif scene_distance is not None:
+        valid &= r3 < scene_distance[cols, chs]
     if not valid.any():
         return empty
     drop, _, _ = np.nonzero(valid)
@@ -184,7 +197,7 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     det = amp > threshold
     if scene_distance is not None:  # a separate echo from the beam's scene hit?
         b = cell_beam[det]
-        hit_range = scene_distance.reshape(-1)[b]
+        hit_range = hit_distance.reshape(-1)[b]
         hit_amp = None if scene_amplitude is None else scene_amplitude.reshape(-1)[b]
         det[det] = _separate(cell_range[det], amp[det], hit_range, hit_amp, threshold, profile.pulse.fwhm_m)
     # at most max_echoes per beam, nearest first
@@ -194,6 +207,15 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     det &= rank < max_echoes
     b = cell_beam[det]
     return ReferenceDetections(b // len(channels), channels[b % len(channels)], cell_range[det], cell_xyz[det], amp[det])
+
+
+def blob_share(dx, dy, width, height, sigma: float):
+    """Share of a round Gaussian blob (std ``sigma`` m) inside a ``width`` x ``height`` m rectangle whose centre
+    lies ``dx``, ``dy`` m from the blob's centre: the product of the Gaussian's integrals over the two sides
+    (shares over rectangles that tile the plane sum to 1)."""
+    s = np.sqrt(2.0) * sigma
+    return 0.25 * (erf((dx + 0.5 * width) / s) - erf((dx - 0.5 * width) / s)) * \
+        (erf((dy + 0.5 * height) / s) - erf((dy - 0.5 * height) / s))
 
 
 def _separate(cell_range, cell_amp, hit_range, hit_amp, threshold: float, fwhm_m: float) -> np.ndarray:

@@ -8,7 +8,7 @@ from lidar_weather_sim.testing import simple_profile
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.metrics import bev_histogram, compare_histograms, per_frame_overlap
-from spray_particles.reference import DropletReference, detect_frame
+from spray_particles.reference import DropletReference, blob_share, detect_frame
 from spray_particles.system import EmittingVehicle, Particles, SprayParams
 from spray_particles.water import mean_drop_diameter_m, tread_pickup_m3_s, tyre_dimensions
 
@@ -47,14 +47,16 @@ def test_drop_sizes_follow_eq3_and_carry_eq2_water():
     assert np.corrcoef(np.log(p.diameter), np.log(p.kappa))[0, 1] < -0.99
 
 
-def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_m: float | None = None,
-                      wall_amplitude: float | None = None):  # fmt: skip
-    profile = simple_profile(optics__divergence_h_mrad=1.75, optics__divergence_v_mrad=2.0)
+def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_m=None,
+                      wall_amplitude: float | None = None, height_m: float = 0.0, subrays_v: int = 1):  # fmt: skip
+    """Detections of a drop cloud on the x axis before a wall: ``wall_m`` a number (every beam) or a
+    function of the pattern giving the wall's range per column, channel and sub-ray."""
+    profile = simple_profile(optics__divergence_h_mrad=1.75, optics__divergence_v_mrad=2.0, optics__subrays_v=subrays_v)
     pattern = ScanPattern(profile)
     ref = _reference()
     rng = np.random.default_rng(0)
     pos = np.stack([distance + rng.uniform(-0.1, 0.1, n_drops), rng.uniform(-1e-4, 1e-4, n_drops),
-                    rng.uniform(-1e-4, 1e-4, n_drops)], 1)  # fmt: skip
+                    height_m + rng.uniform(-1e-4, 1e-4, n_drops)], 1)  # fmt: skip
     n = n_drops
     ref.particles = Particles(pos, np.zeros((n, 3)), np.zeros(n), np.full(n, 9.0), np.zeros(n), np.zeros(n),
                               np.zeros(n, np.int64), np.ones(n), np.full(n, 2, np.uint8), np.zeros(n, np.int64),
@@ -65,7 +67,7 @@ def _frame_with_drops(n_drops: int, weight: float, distance: float = 10.0, wall_
         return np.zeros((len(times), 3)), np.tile(np.eye(3), (len(times), 1, 1))
 
     shape = (len(pattern.column_azimuth), len(pattern.active_channels(0)))
-    scene = None if wall_m is None else np.full(shape, wall_m)
+    scene = wall_m(pattern) if callable(wall_m) else None if wall_m is None else np.full(shape, wall_m)
     amplitude = None if wall_amplitude is None else np.full(shape, wall_amplitude)
     return detect_frame(ref, pattern, 0, 0.0, poses, scene, threshold=4.0, scene_amplitude=amplitude)
 
@@ -93,6 +95,35 @@ def test_a_bright_target_swallows_spray_its_pulse_overlaps():
     threshold into the wall's (one echo: the wall's); 1 m before a dim wall (1.5 x) it is an echo of its own."""
     assert len(_frame_with_drops(1000, 50.0, wall_m=11.0, wall_amplitude=4e4).range_m) == 0
     assert len(_frame_with_drops(1000, 50.0, wall_m=11.0, wall_amplitude=6.0).range_m) >= 1
+
+
+def test_blob_share_conserves_the_blob():
+    """Footprints that tile the plane share a blob out exactly; one much larger than the blob holds all of it,
+    one much smaller its area times the peak density (the old rule gave peak density to a whole footprint
+    next to the blob: ~1 + 0.056 R times the drops' cross-section in a beam at R m)."""
+    sigma, w, h = 0.1, 0.03, 0.05
+    dx, dy = np.meshgrid(np.arange(-40, 41) * w + 0.013, np.arange(-25, 26) * h - 0.007)
+    assert blob_share(dx, dy, w, h, sigma).sum() == pytest.approx(1.0, abs=1e-9)
+    assert blob_share(0.05, 0.0, 2.0, 2.0, sigma) == pytest.approx(1.0, abs=1e-9)
+    tiny = blob_share(0.1, 0.0, 1e-3, 1e-3, sigma)
+    assert tiny == pytest.approx(1e-6 / (2 * np.pi * sigma**2) * np.exp(-0.5), rel=1e-3)
+
+
+def test_a_drop_is_seen_only_if_its_nearest_sub_ray_reaches_it():
+    """Beams of three sub-rays (divergence 2 mrad: offsets -1.33, 0, +1.33 mrad): a wall at 5 m in front of the
+    lower sub-ray only (a tyre below the bonnet's edge) hides drops at 10 m on that sub-ray's line, not drops
+    on the central one; with the beam's central hit at 5 m neither is seen."""
+
+    def lower_blocked(pattern):
+        shape = (len(pattern.column_azimuth), len(pattern.active_channels(0)), pattern.n_subrays)
+        scene = np.full(shape, np.inf)
+        scene[:, :, np.argmin(pattern.subray_dv)] = 5.0
+        return scene
+
+    low = 10.0 * np.tan(-1.33e-3)
+    assert len(_frame_with_drops(1000, 50.0, wall_m=lower_blocked, height_m=low, subrays_v=3).range_m) == 0
+    assert len(_frame_with_drops(1000, 50.0, wall_m=lower_blocked, subrays_v=3).range_m) >= 1
+    assert len(_frame_with_drops(1000, 50.0, wall_m=5.0, subrays_v=3).range_m) == 0
 
 
 def test_metrics():
