@@ -23,33 +23,37 @@ _collisions = collisions.serial
 
 
 @numba.njit(cache=True)
-def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, length, width, height, v_lat,
-         ambient, wind_over_speed, wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t, gravity, dt,
+def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, rot1, org1, length, width, height,
+         v_lat, ambient, wind_over_speed, wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t, gravity, dt,
          stiff_limit, r0):  # fmt: skip
     """Air at tick time ``t`` (s; vehicle state ``rot``, ``org``, ``vcar`` of that tick), one step of
-    ``dt`` and ageing; returns new (pos, vel, age) and each particle's vertical packet semi-axis (m,
-    see ``system._packet_axes``) at its new age. The inputs are not modified."""
+    ``dt`` and ageing; returns new (pos, vel, age), each particle's height (m) above its vehicle's
+    ground plane at the next tick (``rot1``, ``org1``) and its vertical packet semi-axis (m, see
+    ``system._packet_axes``) at its new age and height. The inputs are not modified."""
     air = _air(pos, vehicle, side, rot, org, vcar, length, width, height, v_lat, ambient, wind_over_speed,
                wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t)  # fmt: skip
     new_pos, new_vel = pos.copy(), vel.copy()
     _integrate(new_pos, new_vel, air, kappa, lam, gravity, dt, stiff_limit)
     n = pos.shape[0]
     new_age = np.empty(n)
-    vertical = np.empty(n)
+    above, vertical = np.empty(n), np.empty(n)
     for i in range(n):
         new_age[i] = age[i] + dt
+        k = vehicle[i]
+        d0, d1, d2 = new_pos[i, 0] - org1[k, 0], new_pos[i, 1] - org1[k, 1], new_pos[i, 2] - org1[k, 2]
+        above[i] = rot1[k, 0, 2] * d0 + rot1[k, 1, 2] * d1 + rot1[k, 2, 2] * d2
         horizontal = math.sqrt(r0 * r0 + 2.0 * diffusivity[i] * new_age[i])
         held = diffusivity[i] * (lam[i] + math.sqrt(lam[i] * lam[i] + 4.0 * kappa[i] * gravity)) / (2.0 * gravity)
-        vertical[i] = min(horizontal, max(held, r0))
-    return new_pos, new_vel, new_age, vertical
+        vertical[i] = min(horizontal, max(held, r0, above[i]))
+    return new_pos, new_vel, new_age, above, vertical
 
 
 @numba.njit(cache=True)
 def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, wheel, diameter, weight, diffusivity,
-            airborne, vertical, vertical_cubed, rot, org, length, width, height, clearance, wheel_xz, wheel_y,
+            airborne, above, vertical, vertical_cubed, rot, org, length, width, height, clearance, wheel_xz, wheel_y,
             n_wheels, arch_r, arch_half_w, min_share, extra):  # fmt: skip
     """Deposition of drop packets (population 1: ``airborne`` = min(airborne, share of the ball of
-    radius ``vertical`` above the vehicle's ground plane)), then the survivors (younger than their
+    radius ``vertical`` centred ``above`` m above the vehicle's ground plane)), then the survivors (younger than their
     lifetime, outside body and ground, packets above ``min_share``) compacted into new arrays with
     ``extra`` free rows at the end (for the particles emitted this tick), in the field order of
     ``system.Particles``."""
@@ -61,11 +65,8 @@ def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, whee
     m = 0
     for i in range(n):
         if population[i] == 1:
-            k = vehicle[i]
-            d0, d1, d2 = pos[i, 0] - org[k, 0], pos[i, 1] - org[k, 1], pos[i, 2] - org[k, 2]
-            above = rot[k, 0, 2] * d0 + rot[k, 1, 2] * d1 + rot[k, 2, 2] * d2
             r = vertical[i]
-            h = min(max(r - above, 0.0), 2.0 * r)
+            h = min(max(r - above[i], 0.0), 2.0 * r)
             share[i] = min(airborne[i], 1.0 - h * h * (3.0 * r - h) / (4.0 * vertical_cubed[i]))
         keep[i] = age[i] < lifetime[i] and not dead[i] and not (population[i] == 1 and share[i] <= min_share)
         m += keep[i]
@@ -141,9 +142,10 @@ def quantiles(pmf, u):
 
 
 @numba.njit(cache=True)
-def packet_radii(age, later, diffusivity, kappa, lam, population, r0, gravity, sphere_radius):
-    """Horizontal and vertical semi-axes (m) of every particle ``later`` s after its ``age``: those of
-    ``system._packet_axes`` for drop packets (population 1), ``sphere_radius`` for the others."""
+def packet_radii(age, later, diffusivity, kappa, lam, population, above, r0, gravity, sphere_radius):
+    """Horizontal and vertical semi-axes (m) of every particle ``later`` s after its ``age``, ``above`` m
+    above its vehicle's ground plane: those of ``system._packet_axes`` for drop packets (population 1),
+    ``sphere_radius`` for the others."""
     n = age.shape[0]
     horizontal, vertical = np.empty(n), np.empty(n)
     for i in range(n):
@@ -152,5 +154,5 @@ def packet_radii(age, later, diffusivity, kappa, lam, population, r0, gravity, s
             continue
         h = math.sqrt(r0 * r0 + 2.0 * diffusivity[i] * (age[i] + later))
         held = diffusivity[i] * (lam[i] + math.sqrt(lam[i] * lam[i] + 4.0 * kappa[i] * gravity)) / (2.0 * gravity)
-        horizontal[i], vertical[i] = h, min(h, max(held, r0))
+        horizontal[i], vertical[i] = h, min(h, max(held, r0, above[i]))
     return horizontal, vertical

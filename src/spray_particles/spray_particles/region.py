@@ -136,8 +136,9 @@ class SprayRegion:
         inertial particle, the ellipsoid a drop packet has spread to."""
         s, c = self.system, self.constants
         p = s.particles
+        above = s.heights_above_ground(s.positions_at(time_s))
         return packet_radii(p.age, max(0.0, time_s - (s.time_s or 0.0)), p.diffusivity, p.kappa, p.lam, p.population,
-                            c.mist.initial_radius_m, c.physics.gravity_m_s2, self.radius_m)  # fmt: skip
+                            above, c.mist.initial_radius_m, c.physics.gravity_m_s2, self.radius_m)  # fmt: skip
 
     def particle_cloud(self, time_s: float) -> np.ndarray:
         """The particles of the in-process system at ``time_s`` as spray_node publishes them

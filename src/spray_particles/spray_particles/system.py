@@ -127,6 +127,7 @@ class SpraySystem:
         self.emitted = 0
         self._pose_cache: dict[int, dict] = {}
         self._target_tick = 0
+        self._state_cache: tuple[int, tuple] | None = None  # (tick, its _vehicle_state): the next tick's s0
         vs = self.vehicles
         nv, wmax = len(vs), max([v.emitter.n_wheels for v in vs] or [1])
         self._length = np.array([v.length_m for v in vs], dtype=np.float64)
@@ -266,14 +267,32 @@ class SpraySystem:
         out[:, 2] -= 0.5 * self.constants.physics.gravity_m_s2 * h * h * (h > 0)
         return out
 
+    def heights_above_ground(self, pos: np.ndarray) -> np.ndarray:
+        """Height (m) of each particle's position ``pos`` (n, 3; world frame) above the ground plane of
+        its vehicle at the newest tick (z of the vehicle's body frame; world z for a vehicle index the
+        system does not know, as for particles placed by hand)."""
+        v = self.particles.vehicle
+        if not len(v):
+            return np.zeros(0)
+        k = self.tick_index or 0
+        cached = self._state_cache
+        rot, org = (cached[1] if cached is not None and cached[0] == k else self._vehicle_state(k))[:2]
+        unknown = int(v.max()) + 1 - len(rot)
+        if unknown > 0:
+            rot = np.concatenate([rot, np.tile(np.eye(3), (unknown, 1, 1))])
+            org = np.concatenate([org, np.zeros((unknown, 3))])
+        return np.einsum("ni,ni->n", rot[v][:, :, 2], pos - org[v])
+
     def mist_radii(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Horizontal and vertical semi-axes (m) at ``time_s`` of every particle seen as a drop packet
         (an ellipsoid, z up): horizontally sqrt(r0^2 + 2 K age), K its diffusivity (m^2/s; only packets,
-        population 1, have one); vertically no more than the height K / w_s over which turbulence holds
-        drops settling at w_s (their terminal speed), but at least r0."""
+        population 1, have one). Vertically the same in free flight; near the ground no more than the
+        height K / w_s over which turbulence holds drops settling at w_s (their terminal speed), or the
+        packet centre's height above the ground where that is more, but at least r0."""
         p = self.particles
         age = p.age + max(0.0, time_s - (self.time_s or 0.0))
-        return _packet_axes(self.constants.mist.initial_radius_m, p.diffusivity, age, p.kappa, p.lam,
+        above = self.heights_above_ground(self.positions_at(time_s))
+        return _packet_axes(self.constants.mist.initial_radius_m, p.diffusivity, age, p.kappa, p.lam, above,
                             self.constants.physics.gravity_m_s2)  # fmt: skip
 
     def _tick(self, k: int) -> None:
@@ -281,7 +300,7 @@ class SpraySystem:
         dt = prm.tick_s
         t = k * dt
         rng = self._generators.get([prm.seed & 0xFFFFFFFF, k & 0xFFFFFFFF, 0x5B2A])
-        cached = getattr(self, "_state_cache", None)
+        cached = self._state_cache
         s0 = cached[1] if cached is not None and cached[0] == k else self._vehicle_state(k)
         s1 = self._vehicle_state(k + 1)
         self._state_cache = (k + 1, s1)
@@ -317,14 +336,14 @@ class SpraySystem:
                                                             lat.threshold_speed_m_s)  # fmt: skip
         lo, hi = c.particles.lateral_field_range_m
         nz, g = self.noise, c.physics.gravity_m_s2
-        pos, vel_p, age, vertical = fused.move(
-            p.pos, p.vel, p.age, p.kappa, p.lam, p.diffusivity, p.vehicle, p.side, rot, org, vel, self._length,
-            self._width, self._height, np.asarray(v_lat, dtype=np.float64), self._ambient, float(prm.wind_over_speed),
+        pos, vel_p, age, above, vertical = fused.move(
+            p.pos, p.vel, p.age, p.kappa, p.lam, p.diffusivity, p.vehicle, p.side, rot, org, vel, s1[0], s1[1],
+            self._length, self._width, self._height, np.asarray(v_lat, dtype=np.float64), self._ambient, float(prm.wind_over_speed),
             float(prm.wake_length_m), float(lo), float(hi), float(prm.turbulence_intensity), nz.k, nz.omega, nz.phase,
             nz.curl, float(t), float(g), float(prm.tick_s), 0.5, float(c.mist.initial_radius_m))  # fmt: skip
         arrays = fused.survive(
             pos, vel_p, age, p.lifetime, p.kappa, p.lam, p.vehicle, p.side, p.population, p.wheel, p.diameter, p.weight,
-            p.diffusivity, p.airborne, vertical, vertical**3, s1[0], s1[1], self._length, self._width, self._height,
+            p.diffusivity, p.airborne, above, vertical, vertical**3, s1[0], s1[1], self._length, self._width, self._height,
             self._clearance, self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w,
             MIN_MIST_SHARE, extra)  # fmt: skip
         return Particles(*arrays)
@@ -339,7 +358,7 @@ class SpraySystem:
         k = p.vehicle[mist]
         height = np.einsum("ni,ni->n", rot[k][:, :, 2], p.pos[mist] - org[k])
         _, vertical = _packet_axes(self.constants.mist.initial_radius_m, p.diffusivity[mist], p.age[mist],
-                                   p.kappa[mist], p.lam[mist], self.constants.physics.gravity_m_s2)  # fmt: skip
+                                   p.kappa[mist], p.lam[mist], height, self.constants.physics.gravity_m_s2)  # fmt: skip
         p.airborne[mist] = np.minimum(p.airborne[mist], ball_share_above(height, vertical))
 
     def _alive(self, p: Particles, rot, org) -> np.ndarray:
@@ -434,12 +453,15 @@ def _fill(p: Particles, start: int, blocks: list[tuple[int, dict]]) -> None:
             j += m
 
 
-def _packet_axes(r0: float, diffusivity, age, kappa, lam, gravity: float) -> tuple[np.ndarray, np.ndarray]:
-    """Semi-axes of drop packets (see :meth:`SpraySystem.mist_radii`). The settling speed w_s solves
+def _packet_axes(r0: float, diffusivity, age, kappa, lam, above, gravity: float) -> tuple[np.ndarray, np.ndarray]:
+    """Semi-axes (m) of drop packets ``age`` s old whose centres lie ``above`` m over the ground (see
+    :meth:`SpraySystem.mist_radii`). K / w_s is the thickness of the layer in which turbulence holds a
+    suspension settling at w_s against the ground (concentration ~ exp(-w_s z / K)); a packet above that
+    layer falls as a whole and spreads alike in every direction. The settling speed w_s solves
     g = kappa w^2 + lam w (quadratic and Stokes drag rates), so K / w_s = K (lam + sqrt(lam^2 + 4 kappa g)) / 2g."""
     horizontal = np.sqrt(r0 * r0 + 2.0 * diffusivity * age)
     held = diffusivity * (lam + np.sqrt(lam * lam + 4.0 * kappa * gravity)) / (2.0 * gravity)
-    return horizontal, np.minimum(horizontal, np.maximum(held, r0))
+    return horizontal, np.minimum(horizontal, np.maximum(np.maximum(held, r0), above))
 
 
 def ball_share_above(height: np.ndarray, radius: np.ndarray) -> np.ndarray:

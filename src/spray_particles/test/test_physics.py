@@ -302,6 +302,28 @@ def test_drop_packets_deposit_what_reaches_the_ground_and_lose_it_for_good():
     assert np.all(p.airborne[~packets] == 1.0)
 
 
+def test_drop_packets_are_flattened_only_near_the_ground():
+    """In free flight a packet spreads alike in every direction; near the ground its height is capped at the
+    settling layer K / w_s, or at its centre's height where that is more."""
+    from spray_particles.system import _packet_axes
+
+    g, r0, k = 9.81, 0.05, 0.2  # K = 0.2 m^2/s at 0.5 s: horizontal sqrt(r0^2 + 2 K t) = 0.45 m
+    kappa = g / 2.0**2  # settling at w_s = 2 m/s (no Stokes drag): K / w_s = 0.1 m
+    above = np.array([1.0, 0.3, 0.05, -0.2])
+    n = len(above)
+    horizontal, vertical = _packet_axes(r0, np.full(n, k), np.full(n, 0.5), np.full(n, kappa), np.zeros(n), above, g)
+    assert horizontal == pytest.approx(np.full(n, 0.45), abs=1e-12)
+    assert vertical == pytest.approx([0.45, 0.3, 0.1, 0.1], abs=1e-12)
+
+    s = _run(duration=1.5)  # the system's packets: their own heights above the ground plane
+    packets = s.particles.population == 1
+    h, v = s.mist_radii(s.time_s)
+    above = s.heights_above_ground(s.particles.pos)
+    free, flat = packets & (above >= h), packets & (v < h)
+    assert free.sum() > 20 and flat.sum() > 20 and np.all(v[packets] <= h[packets])
+    assert np.array_equal(v[free], h[free]) and np.all(v[flat] >= np.maximum(above[flat], 0.05))
+
+
 def test_air_velocity_kernel_equals_the_numpy_reference():
     s = _run(duration=1.0, speed=24.7)
     rot, org, vel, _ = s._vehicle_state(s.tick_index)

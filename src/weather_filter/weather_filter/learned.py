@@ -34,10 +34,13 @@ MODEL_VERSION = 4
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 DEFAULT_MODEL = MODELS_DIR / f"weather_point_mlp_v{MODEL_VERSION}.joblib"
 #: Threshold selection at training: the weather probability threshold is the highest-F1 one among those
-#: keeping at least this share of the (reweighted) solid training points. v4: 0.9997 (v3: 0.999, with which the
-#: v4 features' model kept 99.46 % of the held-out scala4 solid points, short of the issue's 99.5 %, and removed
-#: 10-20 % of the vehicle seen through spray ahead in the 128-channel held-out runs).
-TRAIN_OBJECT_RECALL = 0.9997
+#: keeping at least this share of the (reweighted) solid training points. v4: 0.99985. At 0.9997 the rule
+#: stopped binding once the spray's drop packets were capped in height only near the ground: the best training
+#: F1 sat at threshold 0.69, which kept 99.48 % of the held-out os1_128_2048 solid points (F1 0.947), short of
+#: issue 6's 99.5 %; 0.99985 gives 0.82 there. (v3: 0.999, with which the v4 features' model kept 99.46 % of the
+#: held-out scala4 solid points and removed 10-20 % of the vehicle seen through spray ahead in the 128-channel
+#: held-out runs.)
+TRAIN_OBJECT_RECALL = 0.99985
 
 
 class FastMLP:
