@@ -82,7 +82,12 @@ def test_closed_loop_brakes_for_the_box_and_not_for_filtered_weather(tmp_path):
     seen = boxed.label[boxed.stamp_s >= start]
     seen = seen[np.isfinite(seen)]  # clouds with a confirmed obstacle (none while the box is hidden by spray)
     assert len(seen) >= 10 and np.mean(seen == OBSTACLE) > 0.8, seen
-    assert boxed.speed_m_s[-1] < 15.0
+    # seen through the crosswind's spray within 1.5 s of appearing (1.93 s at 8387df7), then braked for at the
+    # controller's full deceleration: the box is too close to stop 5 m before it (a late sighting, not a timid one)
+    assert start <= BOX_AT_S + 1.5
+    before = int(np.searchsorted(boxed.stamp_s, start)) - 1
+    lost = boxed.speed_m_s[before] - boxed.speed_m_s[-1]
+    assert lost >= 0.9 * cfg.max_brake_m_s2 * (boxed.stamp_s[-1] - boxed.stamp_s[before]), (lost, start)
     # without the filter: phantom braking; the confirmed obstacle it brakes for is the spray
     assert raw.brakes
     labels = raw.label[np.isfinite(raw.label)]
