@@ -16,6 +16,7 @@ the reference's time in its step + scene cast + detection; ratio in %.
     python benchmarks/spray_compare.py --scenarios proving_ground_39,proving_ground_55 --water-film-mm 3
     python benchmarks/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --detector-on-packets
     python benchmarks/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
+    python benchmarks/spray_compare.py --scenarios highway_spray --spray mist_packets_per_wheel_per_tick=32
 
 ``--seeds`` runs each scenario once per spray seed (turbulence and emission) and pools the frames:
 a few seconds of proving-ground spray hold one or two turbulent episodes, so one seed's bird's-eye
@@ -35,6 +36,8 @@ import dataclasses
 import time
 
 import numpy as np
+import yaml
+from pydantic import ValidationError
 
 from lidar_weather_sim.echo import overlap_factor, peak_amplitude, surface_reflectance
 from lidar_weather_sim.points import Label
@@ -82,13 +85,13 @@ def _packets_as_drops(system, time_s: float):
     return dataclasses.replace(packets, pos=system.positions_at(time_s)[keep], weight=packets.weight * packets.airborne)
 
 
-def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, film_mm: float | None = None,
+def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, spray: dict | None = None,
         on_packets: bool = False, seed: int = 0) -> dict:  # fmt: skip
-    """Model and reference on the same ``frames`` frames of scenario ``name`` (spray seed ``seed``): the
+    """Model and reference on the same ``frames`` frames of scenario ``name`` (spray seed ``seed``; ``spray``:
+    parameters of the ``spray`` region over the scenario's, the particle system's shared by the reference): the
     detections' sensor-frame x, y and per-frame counts of both, and their costs per frame (s)."""
     world = World.build(load_scenario(name))
-    spray = {"seed": seed} if film_mm is None else {"seed": seed, "water_film_mm": film_mm}
-    region = dict(world.regions(["spray"], {"spray": spray}))["spray"]
+    region = dict(world.regions(["spray"], {"spray": {**(spray or {}), "seed": seed}}))["spray"]
     timed = _Timed(region)
     sim = LidarSimulator(world.profile, world.scene, regions=[("spray", region)], seed=0)
     system = region.system
@@ -221,6 +224,26 @@ def plot(out: dict, directory: str) -> None:
     plt.close(fig)
 
 
+def _spray_params(items: list[str], parser: argparse.ArgumentParser) -> dict:
+    """``KEY=VALUE`` strings as spray region parameters (values parsed as YAML), checked against the region's
+    parameter model; a bad one ends the program with a one-line reason."""
+    from spray_particles.region import SprayRegion
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in SprayRegion.Params.model_fields:
+            parser.error(f"--spray {item!r}: expected KEY=VALUE with KEY a spray region parameter "
+                         f"({', '.join(sorted(SprayRegion.Params.model_fields))})")  # fmt: skip
+        out[key] = yaml.safe_load(value)
+    try:
+        SprayRegion.Params(**out)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        parser.error(f"--spray {err['loc'][0]}={err['input']!r}: {err['msg']}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenarios", default="proving_ground_39,proving_ground_55,proving_ground_60,highway_spray")
@@ -233,12 +256,18 @@ def main() -> None:
                     help="also the reference's detection on the model's drop packets (where a gap lies)")
     ap.add_argument("--seeds", default="0", help="spray seeds (comma-separated): frames of all pooled")
     ap.add_argument("--plot", metavar="DIR", help="write bird's-eye histograms of both as DIR/SCENARIO.png")
+    ap.add_argument("--spray", action="append", default=[], metavar="KEY=VALUE",
+                    help="a spray region parameter (repeatable), e.g. mist_packets_per_wheel_per_tick=32; the "
+                         "particle system's parameters (forces, turbulence) apply to the reference too")  # fmt: skip
     args = ap.parse_args()
+    spray = _spray_params(args.spray, ap)
+    if args.water_film_mm is not None:
+        spray["water_film_mm"] = args.water_film_mm
     if args.fit:
         lo, hi = 1e-4, 0.1  # log-bisection: detections grow steeply once drops cross the threshold
         for _ in range(args.fit_steps):
             f = float(np.sqrt(lo * hi))
-            r = summarise([run("proving_ground_55", args.frames, args.warmup, f)])
+            r = summarise([run("proving_ground_55", args.frames, args.warmup, f, spray)])
             print(f"airborne_fraction {f:.4g}: model {r['model_mean']:.2f}, reference {r['reference_mean']:.2f}",
                   flush=True)  # fmt: skip
             lo, hi = (f, hi) if r["reference_mean"] < r["model_mean"] else (lo, f)
@@ -246,8 +275,8 @@ def main() -> None:
         return
     seeds = [int(k) for k in args.seeds.split(",")]
     for name in args.scenarios.split(","):
-        out = summarise([run(name, args.frames, args.warmup, film_mm=args.water_film_mm,
-                             on_packets=args.detector_on_packets, seed=k) for k in seeds])  # fmt: skip
+        out = summarise([run(name, args.frames, args.warmup, spray=spray, on_packets=args.detector_on_packets,
+                             seed=k) for k in seeds])  # fmt: skip
         report(out, args.detector_on_packets)
         if args.plot:
             plot(out, args.plot)
