@@ -36,7 +36,8 @@ def _empty() -> SphereHits:
 def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarray, centres: np.ndarray,
                 radius: float | np.ndarray, vertical: np.ndarray | None = None) -> SphereHits:  # fmt: skip
     """Every (ray, sphere) pair where ray i (origin (R, 3), unit direction (R, 3)) enters sphere j
-    (centre (P, 3), ``radius`` m, one for all or one per sphere (P,)) at a range in (0, max_range[i]).
+    (centre (P, 3), ``radius`` m, one for all or one per sphere (P,)) at a range in (0, max_range[i]), or
+    starts inside it (entry 0, the chord to the exit: a sensor inside a drop packet sees its optical depth).
     With ``vertical`` (P,) m <= radius the spheres are ellipsoids of that semi-axis along z."""
     if not len(centres) or not len(directions):
         return _empty()
@@ -197,7 +198,8 @@ def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, r
     ``order[first:last]``, whose elevations are ``el_sorted[first:last]``): the rays within its
     elevation span that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
     ellipsoids become spheres; rays are solved along their own unit length) with the entry in
-    (0, max_range). Fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
+    (0, max_range); a ray that starts inside enters at 0 with the chord from its origin to the exit.
+    Fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
     n = 0
     for j in range(len(first)):
         p = rp[j]
@@ -218,7 +220,11 @@ def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, r
                 continue
             half_chord = math.sqrt((r * r - perp2) / a)
             entry = t - half_chord
-            if entry <= 0.0 or entry >= max_range[i]:
+            if entry <= 0.0:  # starts inside (the chord from the origin to the exit) or behind the origin
+                if t + half_chord <= 0.0:
+                    continue
+                entry, half_chord = 0.0, 0.5 * (t + half_chord)
+            if entry >= max_range[i]:
                 continue
             out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
             n += 1

@@ -68,6 +68,7 @@ def test_sphere_hits_of_flat_ellipsoids_equal_the_quadratic_solution():
     o = np.zeros((n_rays, 3))
     c = np.stack([rng.uniform(3, 20, 200), rng.uniform(-8, 8, 200), rng.uniform(-1, 1, 200)], 1)
     r, h = rng.uniform(0.2, 0.6, 200), rng.uniform(0.05, 0.2, 200)
+    c[:3] = [[0.1, 0.05, 0.01], [-0.1, 0.0, -0.02], [0.0, 0.1, 0.0]]  # around the origin: rays start inside
     hits = sphere_hits(o, d, np.full(n_rays, 1e9), c, r, h)
     # (x - c)^2 / r^2 + (y - c)^2 / r^2 + (z - c)^2 / h^2 = 1 along x = t d: a t^2 - 2 b t + q = 0
     w = np.array([1.0, 1.0, 0.0])[None, None, :] / r[None, :, None] ** 2 + np.array([0, 0, 1.0]) / h[None, :, None] ** 2
@@ -76,11 +77,14 @@ def test_sphere_hits_of_flat_ellipsoids_equal_the_quadratic_solution():
     q = np.einsum("pk,rpk->rp", c * c, w) - 1.0
     disc = b * b - a * q
     entry = (b - np.sqrt(np.maximum(disc, 0))) / a
-    brute = np.argwhere((disc > 0) & (entry > 0))
-    assert len(brute) > 100
+    leave = (b + np.sqrt(np.maximum(disc, 0))) / a
+    brute = np.argwhere((disc > 0) & (leave > 0))
+    inside = entry <= 0  # the chord from the ray's origin to where it leaves
+    assert len(brute) > 100 and inside[brute[:, 0], brute[:, 1]].sum() > 1000
     assert {tuple(x) for x in np.stack([hits.ray, hits.sphere], 1)} == {tuple(x) for x in brute}
-    assert hits.range_m == pytest.approx(entry[hits.ray, hits.sphere], abs=1e-9)
-    assert hits.half_chord_m == pytest.approx(np.sqrt(disc[hits.ray, hits.sphere]) / a[hits.ray, hits.sphere], abs=1e-9)
+    assert hits.range_m == pytest.approx(np.where(inside, 0.0, entry)[hits.ray, hits.sphere], abs=1e-9)
+    half_chord = np.where(inside, 0.5 * leave, np.sqrt(np.maximum(disc, 0)) / a)
+    assert hits.half_chord_m == pytest.approx(half_chord[hits.ray, hits.sphere], abs=1e-9)
 
 
 def test_a_particle_on_the_ray_gives_the_first_echo_and_hides_the_vehicle_behind_it():
@@ -141,6 +145,19 @@ def test_a_drop_packet_is_seen_by_its_optical_depth_near_but_not_far():
     clear = centre_of(one_frame(LidarSimulator(profile, scene, regions=[])).points)
     assert dense["label"][0] == Label.SPRAY
     assert list(clear["label"]) == [Label.VEHICLE] and Label.VEHICLE not in list(dense["label"])
+
+
+def test_a_sensor_inside_a_dense_drop_packet_loses_what_lies_behind_it():
+    """A packet around the sensor (semi-axes 0.5 m, 5 cm high on the ground plane): the optical depth of the
+    chord from the sensor to where the beam leaves it dims the wall behind (tau 19 hides it); a dilute one
+    (tau 0.01) keeps it, behind the packet's own echo from the chord's middle."""
+    profile = simple_profile()
+    scene = scene_of(wall(40.0, "car_paint", 100))
+    centre_of = lambda frame: frame[np.abs(frame["azimuth"]) < 1e-6]  # noqa: E731
+    dense = centre_of(one_frame(LidarSimulator(profile, scene, regions=[("spray", _packet_region(0.0, 2.0, 0.5, profile))])).points)
+    dilute = centre_of(one_frame(LidarSimulator(profile, scene, regions=[("spray", _packet_region(0.0, 1e-3, 0.5, profile))])).points)
+    assert list(dense["label"]) == [Label.SPRAY] and dense["distance"][0] == pytest.approx(0.25, abs=0.01)
+    assert list(dilute["label"]) == [Label.SPRAY, Label.VEHICLE] and dilute["distance"][1] == pytest.approx(40.0, abs=0.05)
 
 
 def _run(name, seconds=2.0, **spray):
