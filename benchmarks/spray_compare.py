@@ -48,6 +48,7 @@ from spray_particles.metrics import bev_histogram as bev
 from spray_particles.metrics import compare_histograms as metrics
 from spray_particles.metrics import per_frame_overlap
 from spray_particles.reference import DropletReference, detect_frame
+from spray_particles.region import SprayRegion
 
 class _Timed:
     def __init__(self, region):
@@ -227,8 +228,6 @@ def plot(out: dict, directory: str) -> None:
 def _spray_params(items: list[str], parser: argparse.ArgumentParser) -> dict:
     """``KEY=VALUE`` strings as spray region parameters (values parsed as YAML), checked against the region's
     parameter model; a bad one ends the program with a one-line reason."""
-    from spray_particles.region import SprayRegion
-
     out = {}
     for item in items:
         key, sep, value = item.partition("=")

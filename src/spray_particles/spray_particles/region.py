@@ -131,12 +131,13 @@ class SprayRegion:
             self.system.advance_to(t0_s)
         self.system.advance_to(t1_s)
 
-    def radii(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Horizontal and vertical semi-axes (m) of every particle at ``time_s``: the render sphere of an
-        inertial particle, the ellipsoid a drop packet has spread to."""
+    def radii(self, time_s: float, centres: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal and vertical semi-axes (m) of every particle at ``time_s`` (``centres``: their
+        positions then, if the caller has them): the render sphere of an inertial particle, the ellipsoid
+        a drop packet has spread to."""
         s, c = self.system, self.constants
         p = s.particles
-        above = s.heights_above_ground(s.positions_at(time_s))
+        above = s.heights_above_ground(s.positions_at(time_s) if centres is None else centres)
         return packet_radii(p.age, max(0.0, time_s - (s.time_s or 0.0)), p.diffusivity, p.kappa, p.lam, p.population,
                             above, c.mist.initial_radius_m, c.physics.gravity_m_s2, self.radius_m)  # fmt: skip
 
@@ -144,8 +145,9 @@ class SprayRegion:
         """The particles of the in-process system at ``time_s`` as spray_node publishes them
         (:data:`~spray_particles.particle_cloud.PARTICLE_DTYPE`, world frame)."""
         p = self.system.particles
-        radii, vertical = self.radii(time_s)
-        return particle_cloud(self.system.positions_at(time_s), radii, p.population, vertical, _cross_section(p),
+        centres = self.system.positions_at(time_s)
+        radii, vertical = self.radii(time_s, centres)
+        return particle_cloud(centres, radii, p.population, vertical, _cross_section(p),
                               self._actor_ids[p.vehicle])  # fmt: skip
 
     def _particles(self, time_s: float) -> "_Particles | None":
@@ -165,7 +167,7 @@ class SprayRegion:
         if not len(centres):
             return None
         p = self.system.particles
-        radii, vertical = self.radii(time_s)
+        radii, vertical = self.radii(time_s, centres)
         groups = max(len(self.system.vehicles), int(p.vehicle.max()) + 1)  # particles may be placed by hand
         return _Particles(centres, radii, vertical, p.vehicle, groups, p.population, _cross_section(p),
                           self._actor_ids[p.vehicle])  # fmt: skip
