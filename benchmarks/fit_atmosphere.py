@@ -32,7 +32,9 @@ is an assumption: the paper reports the classes, not the intensities (rain mostl
 5 mm/h, Fig. A2). Output: config/atmosphere_fit.yaml (with the fit's residuals).
 
 Usage: python benchmarks/fit_atmosphere.py [--frames 6] [--iters 60] [--classes clear,rain] [--stages street]
-(fit clear first, or together with the others: it sets street_gain for all classes)
+       [--profile NAME|PATH] [--out FILE]
+(fit clear first, or together with the others: it sets street_gain for all classes). Check a fit
+with ``lidar-weather-sim reproduce rooftop --fit-file FILE [--profile NAME|PATH]``.
 """
 
 from __future__ import annotations
@@ -97,11 +99,15 @@ def decode(x: float, kind: str) -> float:
     return float(1 / (1 + np.exp(-x))) if kind == "logit" else float(np.exp(x))
 
 
+#: sensor profile of the fit (name or YAML path; None: the rooftop scenario's scala4), set by --profile
+PROFILE: str | None = None
+
+
 def residuals(params: dict, weather: str, stage: str, tables: dict, frames: int, fit_file: str) -> np.ndarray:
     targets = TARGETS[stage]
     z = []
     for sun in (False, True):
-        cond = simulate(weather, sun, frames, seed=12345, fit_file=fit_file, overrides=params)
+        cond = simulate(weather, sun, frames, seed=12345, fit_file=fit_file, overrides=params, profile=PROFILE)
         for row in rows_of(cond, tables):
             if row["parameter"] in targets.get(row["region"], ()) and row["paper_mean"] is not None:
                 sim = row["sim_mean"] if row["sim_mean"] is not None else 0.0
@@ -132,7 +138,8 @@ def fit_street_gain(c: dict, tables: dict, frames: int, fit_file: str) -> float:
     from scipy.optimize import minimize_scalar
 
     def z(log_gain: float) -> float:
-        cond = simulate("clear", False, frames, seed=12345, fit_file=fit_file, overrides={**c, "street_gain": np.exp(log_gain)})
+        cond = simulate("clear", False, frames, seed=12345, fit_file=fit_file,
+                        overrides={**c, "street_gain": np.exp(log_gain)}, profile=PROFILE)  # fmt: skip
         row = next(r for r in rows_of(cond, tables) if r["region"] == "street" and r["parameter"] == "epw_mean")
         return abs((row["sim_mean"] or 0.0) - row["paper_mean"]) / row["paper_std"]
 
@@ -152,8 +159,12 @@ def main() -> None:
                                                      "values for the fitted classes (out of a flat basin)")
     parser.add_argument("--stages", default="near,street", help="stages to fit (the others keep their values); "
                                                                   "street alone after a change of the scene geometry")
-    parser.add_argument("--out", default=str(OUT))
+    parser.add_argument("--out", default=str(OUT), help="fit file to start from and write (default %(default)s)")
+    parser.add_argument("--profile", help="sensor profile (name or YAML path) instead of the scenario's scala4, e.g. "
+                                          "one with another detection.sun_noise_per_w_m2")
     args = parser.parse_args()
+    global PROFILE
+    PROFILE = args.profile
     tables = yaml.safe_load(Path(args.tables).read_text())
     data = yaml.safe_load(Path(args.out).read_text())
     if "clear" in args.classes.split(",") and "street" in args.stages.split(","):  # a street property

@@ -253,6 +253,9 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--seed", type=int, default=0, help="random seed")
     reproduce.add_argument("--out", default="rooftop_reproduction", help="output directory")
     reproduce.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data beside the workspace)")
+    reproduce.add_argument("--profile", help="sensor profile (name in config/sensors or YAML path) instead of scala4")
+    reproduce.add_argument("--fit-file", help="atmosphere parameters, e.g. from benchmarks/fit_atmosphere.py --out "
+                                              "(default config/atmosphere_fit.yaml)")
     reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.reproduce", fromlist=["main"]).main(a))
 
     measured = commands.add_parser("make-measured", help="render 'measured' data with hidden effects and nuisance")

@@ -91,13 +91,15 @@ class Condition:
 
 
 def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file: str | None = None,
-             scenario: str = "rooftop_static", overrides: dict | None = None) -> Condition:  # fmt: skip
+             scenario: str = "rooftop_static", overrides: dict | None = None,
+             profile: str | None = None) -> Condition:  # fmt: skip
     """Per-frame features of one condition; ``overrides`` replace atmosphere class parameters and
-    ``street_gain`` (fitting)."""
+    ``street_gain`` (fitting); ``profile`` (a name in config/sensors or a YAML path) replaces the
+    scenario's sensor, e.g. to see how its noise model acts on the 'with sun' rows."""
     overrides = dict(overrides or {})
     street_gain = overrides.pop("street_gain", None)
     sc = load_scenario(scenario)
-    profile = load_profile(sc.sensor.profile)
+    profile = load_profile(profile or sc.sensor.profile)
     fit = load_yaml(fit_file or fit_path(), FitFile)
     scene = lot_scene(MaterialTable.default(), fit.street_gain if street_gain is None else street_gain)
     context = RegionContext(profile, reference_weather(weather_class, fit), scene.materials)
@@ -114,7 +116,7 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
         regions.append((name, region))
     sim = LidarSimulator(profile, scene, regions=regions, seed=seed,
                          sun_irradiance_w_m2=fit.day_irradiance_w_m2 if sun else 0.0)  # fmt: skip
-    pose = RooftopPose()
+    pose = RooftopPose.for_profile(profile)
     out, t = [], 0.0
     while len(out) < frames:
         out += sim.advance(t, pose)
@@ -238,12 +240,15 @@ def plot(conditions: list[Condition], out_dir: Path) -> list[Path]:
 
 
 def reproduce_rooftop(out_dir: str | Path, frames: int = 30, seed: int = 0, tables_path: str | Path | None = None,
-                      fit_file: str | None = None, plots: bool = True) -> list[dict]:  # fmt: skip
-    """Run all 8 conditions; write rooftop.json, rooftop.md and the PNGs into ``out_dir``; return the rows."""
+                      fit_file: str | None = None, plots: bool = True, profile: str | None = None) -> list[dict]:  # fmt: skip
+    """Run all 8 conditions; write rooftop.json, rooftop.md and the PNGs into ``out_dir``; return the rows.
+    ``fit_file``: atmosphere parameters (default config/atmosphere_fit.yaml); ``profile``: sensor
+    profile name or YAML path (default the scenario's scala4)."""
     tables = yaml.safe_load(Path(tables_path or default_tables_path()).read_text())
-    out = Path(out_dir)
+    conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile)
+                  for w in WEATHER_CLASSES for sun in (False, True)]  # fmt: skip
+    out = Path(out_dir)  # created once the inputs have loaded: a bad --profile or --fit-file leaves nothing behind
     out.mkdir(parents=True, exist_ok=True)
-    conditions = [simulate(w, sun, frames, seed, fit_file) for w in WEATHER_CLASSES for sun in (False, True)]
     rows = [r for c in conditions for r in rows_of(c, tables)]
     (out / "rooftop.json").write_text(json.dumps(rows, indent=1))
     (out / "rooftop.md").write_text(markdown(rows))
@@ -257,7 +262,8 @@ def main(args) -> int:
     import time
 
     start = time.perf_counter()
-    rows = reproduce_rooftop(args.out, frames=args.frames, seed=args.seed, tables_path=args.tables)
+    rows = reproduce_rooftop(args.out, frames=args.frames, seed=args.seed, tables_path=args.tables,
+                             fit_file=args.fit_file, profile=args.profile)  # fmt: skip
     print(markdown(rows))
     print(f"wrote {args.out}/rooftop.json, rooftop.md, rooftop_atmosphere.png, rooftop_street.png "
           f"in {time.perf_counter() - start:.1f} s")  # fmt: skip

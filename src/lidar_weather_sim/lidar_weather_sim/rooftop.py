@@ -53,12 +53,16 @@ def geometry() -> RooftopGeometry:
     return load_yaml(config_dir() / "rooftop.yaml", RooftopGeometry)
 
 
-def _street_layer_elevation_deg(profile_name: str = "scala4") -> float:
+def _street_layer_elevation_deg(profile=None) -> float:
+    """Elevation (deg) of the street layer of ``profile`` (a SensorProfile; None: scala4)."""
     from lidar_weather_sim.sensor_profile import load_profile
 
-    profile = load_profile(profile_name)
-    channels = np.argsort([b.elevation_deg for b in profile.beams], kind="stable")  # channel 0 = lowest
-    return float(profile.beams[int(channels[geometry().street_layer])].elevation_deg)
+    profile = profile or load_profile("scala4")
+    layer = geometry().street_layer
+    if layer >= len(profile.beams):
+        raise ValueError(f"config/rooftop.yaml street_layer {layer}: sensor profile '{profile.name}' has "
+                         f"{len(profile.beams)} channels")
+    return float(profile.beams[int(profile.channel_order[layer])].elevation_deg)
 
 
 def sensor_height_m() -> float:
@@ -91,6 +95,11 @@ class RooftopPose:
 
     height_m: float = field(default_factory=sensor_height_m)
     pitch_deg: float = field(default_factory=lambda: geometry().pitch_deg(_street_layer_elevation_deg()))
+
+    @classmethod
+    def for_profile(cls, profile) -> "RooftopPose":
+        """The pose that puts ``profile``'s street layer (a SensorProfile) on the lot at the incidence."""
+        return cls(pitch_deg=geometry().pitch_deg(_street_layer_elevation_deg(profile)))
 
     def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = len(np.atleast_1d(times_s))

@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 from importlib.metadata import entry_points
 
 import numpy as np
@@ -104,6 +105,34 @@ def test_reproduce_rooftop_writes_a_valid_json(tmp_path, cli):
     assert len({r["parameter"] for r in atm}) == 12
     assert sum(r["paper_mean"] is not None for r in rows) == 8 * 10 + 2 * 3  # Tables 3, 4 and Table 2 (clear)
     assert (out / "rooftop.md").exists() and (out / "rooftop_atmosphere.png").stat().st_size > 1000
+
+
+def test_reproduce_rooftop_takes_another_sensor_profile_and_fit_file(tmp_path, cli):
+    from lidar_weather_sim.paths import config_dir
+
+    profile = yaml.safe_load((config_dir() / "sensors" / "scala4.yaml").read_text())
+    profile["detection"]["sun_noise_per_w_m2"] *= 2.0  # a receiver that sunlight blinds more
+    profile_path = tmp_path / "scala4_sunblind.yaml"
+    profile_path.write_text(yaml.safe_dump(profile))
+    fit = yaml.safe_load(fit_path().read_text())
+    fit["classes"]["clear"]["rate_per_beam"] *= 2.0  # twice the near-field detections per beam
+    fit_file = tmp_path / "fit.yaml"
+    fit_file.write_text(yaml.safe_dump(fit))
+
+    def near_field(sun, **kw):
+        return _mean(simulate("clear", sun, 3, seed=5, **kw), "atmosphere", "n_total")
+
+    night, day = near_field(False), near_field(True)
+    assert near_field(False, profile=str(profile_path)) == night  # the noise model acts only in sunlight
+    assert near_field(True, profile=str(profile_path)) < 0.8 * day
+    assert near_field(False, fit_file=str(fit_file)) > 1.6 * night
+
+    out = tmp_path / "rt"
+    for bad, name in (("--profile", "no_such_sensor"), ("--fit-file", str(tmp_path / "missing_fit.yaml"))):
+        proc = subprocess.run([*cli, "reproduce", "rooftop", "--frames", "1", "--out", str(out), bad, name],
+                              capture_output=True, text=True, timeout=600)  # fmt: skip
+        assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+        assert Path(name).name in proc.stderr and not out.exists()
 
 
 #: matched paper means (Tables 2-4, 86 in all) of `reproduce rooftop` at 10 frames, seed 0, with the
