@@ -159,13 +159,15 @@ def main() -> None:
                                                      "values for the fitted classes (out of a flat basin)")
     parser.add_argument("--stages", default="near,street", help="stages to fit (the others keep their values); "
                                                                   "street alone after a change of the scene geometry")
-    parser.add_argument("--out", default=str(OUT), help="fit file to start from and write (default %(default)s)")
+    parser.add_argument("--out", default=str(OUT), help="fit file to write, and to start from if it exists (else from %(default)s)")
     parser.add_argument("--profile", help="sensor profile (name or YAML path) instead of the scenario's scala4, e.g. "
                                           "one with another detection.sun_noise_per_w_m2")
     args = parser.parse_args()
     global PROFILE
     PROFILE = args.profile
     tables = yaml.safe_load(Path(args.tables).read_text())
+    if not Path(args.out).exists():  # a new --out starts as a copy of the shipped fit (the runs read it)
+        Path(args.out).write_text(OUT.read_text())
     data = yaml.safe_load(Path(args.out).read_text())
     if "clear" in args.classes.split(",") and "street" in args.stages.split(","):  # a street property
         gain = fit_street_gain({**data["classes"]["clear"], "street_gain": data.get("street_gain", START["street_gain"])},

@@ -53,3 +53,61 @@ def test_same_seed_gives_a_bit_identical_bag(tmp_path, cli):
     assert set(bags[0]) == {"run.mcap", "metadata.yaml"}
     assert bags[0] == bags[1]
     assert bags[0]["run.mcap"] != bags[2]["run.mcap"]  # another seed, another recording
+
+
+def _one_line_error(result, *needles):
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2, result.stderr
+    assert all(n in lines[-1] for n in needles), lines[-1]
+
+
+def test_counts_and_rates_below_their_range_are_refused_naming_the_option(tmp_path, cli):
+    """0 or -3 frames used to write an empty bag (rc 0); gap with 0 held-out frames reported 'no effect'."""
+    out = tmp_path / "o"
+    for argv, option, reason in (
+        (["run", "highway_clear", "--frames", "0", "--out", str(out)], "--frames", "at least 1, got 0"),
+        (["run", "highway_clear", "--frames", "-3", "--out", str(out)], "--frames", "at least 1, got -3"),
+        (["run", "highway_clear", "--seed", "-1", "--out", str(out)], "--seed", "0 or more, got -1"),
+        (["make-measured", "highway_clear", "--frames", "0", "--out", str(out)], "--frames", "at least 1"),
+        (["reproduce", "rooftop", "--frames", "0", "--out", str(out)], "--frames", "at least 1"),
+        (["gap", "bag", "--scenario", "highway_clear", "--heldout-frames", "0", "--out", str(out)], "--heldout-frames",
+         "at least 1"),
+        (["gap", "bag", "--scenario", "highway_clear", "--fit-frames", "0", "--out", str(out)], "--fit-frames",
+         "at least 1"),
+        (["play", "bag", "--rate", "0"], "--rate", "above 0, got 0"),
+        (["closed-loop", "--seconds", "nan", "--out", str(out)], "--seconds", "above 0, got nan"),
+    ):
+        result = subprocess.run([*cli, *argv], capture_output=True, text=True, timeout=120)
+        _one_line_error(result, option, reason)
+        assert not out.exists()
+
+
+def test_make_measured_on_a_recording_refuses_options_it_cannot_honour(tmp_path, cli):
+    """--on uses every frame of its recording at the scenario's seed: --frames/--seed were silently ignored."""
+    out = tmp_path / "o"
+    for extra, reason in ((["--frames", "1"], "--frames and --seed apply only without --on"),
+                          (["--seed", "5"], "--frames and --seed apply only without --on"),
+                          ([], "needs at least one --hide")):  # fmt: skip
+        hide = [] if not extra else ["--hide", "atmosphere.fog:visual_range=60"]
+        result = subprocess.run([*cli, "make-measured", "highway_clear", "--on", str(tmp_path), *hide, *extra,
+                                 "--out", str(out)], capture_output=True, text=True, timeout=120)  # fmt: skip
+        _one_line_error(result, reason)
+        assert not out.exists()
+
+
+def test_a_bag_output_named_like_a_file_is_refused(tmp_path, cli):
+    """rosbags would write OUT.mcap/OUT.mcap.mcap."""
+    result = subprocess.run([*cli, "run", "highway_clear", "--frames", "1", "--out", str(tmp_path / "run.mcap")],
+                            capture_output=True, text=True, timeout=300)  # fmt: skip
+    _one_line_error(result, "run.mcap", "a rosbag2 output is a directory")
+    assert not (tmp_path / "run.mcap").exists()
+
+
+def test_recover_says_when_a_bag_is_intact(tmp_path, cli):
+    out = tmp_path / "run"
+    assert subprocess.run([*cli, "run", "highway_clear", "--frames", "2", "--out", str(out)],
+                          capture_output=True, timeout=300).returncode == 0  # fmt: skip
+    before = {f.name: f.read_bytes() for f in out.iterdir()}
+    result = subprocess.run([*cli, "recover", str(out)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and "is intact" in result.stdout and "nothing to do" in result.stdout, result.stdout
+    assert {f.name: f.read_bytes() for f in out.iterdir()} == before

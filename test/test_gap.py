@@ -75,6 +75,8 @@ def test_measured_bag_looks_like_a_real_recording(highway, tmp_path, cli):
     assert {"x", "y", "z", "intensity", "channel", "distance", "echo", "epw"} <= fields
     clouds = next(t for t in info.topics if t.name == "/lidar/points").count
     assert 15 <= clouds <= 20  # a few frames may be dropped (nuisance)
+    dropped = f", {20 - clouds} dropped by the nuisance model" if clouds < 20 else ""
+    assert f"wrote {clouds} of 20 frames (" in done.stdout and f"points{dropped}) to" in done.stdout, done.stdout
 
 
 def test_each_hidden_effect_changes_only_itself(highway):
@@ -95,7 +97,11 @@ def test_each_hidden_effect_changes_only_itself(highway):
     [("atmosphere.hail:intensity=3", "unknown effect 'atmosphere.hail'"),
      ("atmosphere.fog:visibility=30", "has no parameter 'visibility'"),
      ("sensor.sun:irradiance=bright", "needs a number"),
-     ("spray:actor=100", "needs its main parameter 'water_film'")],
+     ("spray:actor=100", "needs its main parameter 'water_film'"),
+     ("atmosphere.rain:intensity=inf", "'intensity' must be a finite number above 0 (mm/h), got inf"),
+     ("sensor.sun:irradiance=-400", "must be a finite number above 0 (W/m^2), got -400"),
+     ("cover.water:transmission=1.5", "at most 1, got 1.5"),
+     ("atmosphere.fog:visual_range=80,visual_range=90", "parameter 'visual_range' given twice")],
 )  # fmt: skip
 def test_bad_hide_specs_exit_2_with_one_line(cli, tmp_path, hide, reason):
     done = subprocess.run([*cli, "make-measured", "highway_clear", "--hide", hide, "--out", str(tmp_path / "x")],

@@ -335,9 +335,12 @@ class BagWriter:
         if storage not in _STORAGES:
             raise ValueError(f"storage must be one of {sorted(_STORAGES)}, not {storage!r}")
         self.path = Path(path)
+        if self.path.suffix in (".mcap", ".db3"):  # rosbags would write OUT.mcap/OUT.mcap.mcap
+            raise BagError(f"{self.path}: a rosbag2 output is a directory (its {self.path.suffix} file goes inside); "
+                           f"give it a name without {self.path.suffix}")
         if self.path.exists():
             if not overwrite:
-                raise BagError(f"{self.path} already exists (pass overwrite=True to replace it)")
+                raise BagError(f"{self.path} already exists (--overwrite / overwrite=True replaces it)")
             _remove_bag(self.path)
         try:
             self._writer: Writer | None = Writer(self.path, version=9, storage_plugin=_STORAGES[storage])

@@ -7,10 +7,31 @@ returns an exit code; errors print one line naming the problem and exit 2.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
 from lidar_weather_sim.names import TOPIC_POINTS
+
+
+def _number_in(kind: type, least: float, open_low: bool, reason: str):
+    """argparse type: ``kind`` >= least (> least if ``open_low``), finite; else "must be <reason>, got <text>"."""
+
+    def parse(text: str):
+        value = kind(text)
+        if not math.isfinite(value) or not (value > least if open_low else value >= least):
+            raise argparse.ArgumentTypeError(f"must be {reason}, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in "invalid int value: 'x'"
+    return parse
+
+
+positive_int = _number_in(int, 1, False, "at least 1")  # frame counts: 0 or fewer would write or compare nothing
+count_int = _number_in(int, 0, False, "0 (no limit) or more")
+seed_int = _number_in(int, 0, False, "0 or more")  # numpy's seed sequences take no negatives
+non_negative_float = _number_in(float, 0.0, False, "a finite number of 0 or more")  # times, timeouts
+positive_float = _number_in(float, 0.0, True, "a finite number above 0")  # rates, durations
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -24,7 +45,11 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     from lidar_weather_sim.bags import recover
 
     report = recover(args.bag)
-    print(f"recovered {report.messages_recovered} messages on {len(report.topics)} topics into {report.output}")
+    if report.damaged_copy is None:
+        print(f"{report.output} is intact ({report.messages_recovered} messages on {len(report.topics)} topics): nothing to do")
+        return 0
+    print(f"recovered {report.messages_recovered} messages on {len(report.topics)} topics into {report.output} "
+          f"(the damaged original is kept as {report.damaged_copy})")  # fmt: skip
     return 0
 
 
@@ -160,6 +185,12 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     if args.on:
         from lidar_weather_sim.augment import augment_recording
 
+        if args.frames is not None or args.seed is not None:
+            raise ValueError("--on puts the effects on every frame of its recording, at the scenario's seed: "
+                             "--frames and --seed apply only without --on")
+        if not effects:
+            raise ValueError("--on needs at least one --hide effect to put on top of the recording")
+
         frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
                                    topic=args.topic, overwrite=args.overwrite)  # fmt: skip
         print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)} on top to {args.out}")
@@ -167,7 +198,9 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
                            profile=args.profile, overwrite=args.overwrite)  # fmt: skip
     hidden = ", ".join(e.label() for e in effects) or "nothing"
-    print(f"wrote {report.frames} frames ({report.points} points) to {report.output} with {hidden} hidden")
+    lost = f", {report.dropped} dropped by the nuisance model" if report.dropped else ""
+    print(f"wrote {report.frames - report.dropped} of {report.frames} frames ({report.points} points{lost}) to "
+          f"{report.output} with {hidden} hidden")  # fmt: skip
     return 0
 
 
@@ -225,8 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = commands.add_parser("run", help="simulate a scenario offline, as fast as possible, into an MCAP bag")
     run.add_argument("scenario", metavar="SCENARIO", help="name in config/scenarios or a YAML path")
-    run.add_argument("--frames", type=int, help="frames to simulate (default: the scenario's duration)")
-    run.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    run.add_argument("--frames", type=positive_int, help="frames to simulate (default: the scenario's duration)")
+    run.add_argument("--seed", type=seed_int, help="random seed (default: the scenario's)")
     run.add_argument("--profile", help="sensor profile overriding the scenario's (name or YAML path)")
     run.add_argument("--out", help="output rosbag2 directory (default: <scenario>_run)")
     run.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
@@ -236,21 +269,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     listen = commands.add_parser("listen", help="print a summary line per PointCloud2 received (like ros2 topic echo)")
     listen.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
-    listen.add_argument("--count", type=int, default=0, help="exit after this many clouds (0 = run until Ctrl-C)")
-    listen.add_argument("--timeout", type=float, default=0.0, help="fail if --count clouds do not arrive in this many seconds")
+    listen.add_argument("--count", type=count_int, default=0, help="exit after this many clouds (0 = run until Ctrl-C)")
+    listen.add_argument("--timeout", type=non_negative_float, default=0.0, help="fail if --count clouds do not arrive in this many seconds")
     listen.set_defaults(func=_cmd_listen)
 
     pattern = commands.add_parser("pattern", help="publish a synthetic sweep with every point field (wiring check)")
     pattern.add_argument("--topic", default=TOPIC_POINTS, help=f"output topic (default {TOPIC_POINTS})")
-    pattern.add_argument("--rate", type=float, default=10.0, help="frames per second (Hz)")
-    pattern.add_argument("--count", type=int, default=0, help="stop after this many frames (0 = forever)")
+    pattern.add_argument("--rate", type=positive_float, default=10.0, help="frames per second (Hz)")
+    pattern.add_argument("--count", type=count_int, default=0, help="stop after this many frames (0 = forever)")
     pattern.add_argument("--frame-id", default="lidar", help="header frame_id")
     pattern.set_defaults(func=_cmd_pattern)
 
     reproduce = commands.add_parser("reproduce", help="reproduce a thesis experiment in simulation (rooftop: paper 2)")
     reproduce.add_argument("experiment", choices=["rooftop"], help="rooftop: weather statistics, Tables 2-4, Figs. 5-6")
-    reproduce.add_argument("--frames", type=int, default=30, help="frames per weather and sun condition")
-    reproduce.add_argument("--seed", type=int, default=0, help="random seed")
+    reproduce.add_argument("--frames", type=positive_int, default=30, help="frames per weather and sun condition")
+    reproduce.add_argument("--seed", type=seed_int, default=0, help="random seed")
     reproduce.add_argument("--out", default="rooftop_reproduction", help="output directory")
     reproduce.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data beside the workspace)")
     reproduce.add_argument("--profile", help="sensor profile (name in config/sensors or YAML path) instead of scala4")
@@ -262,8 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("scenario", metavar="SCENARIO", help="name in config/scenarios or a YAML path")
     measured.add_argument("--hide", action="append", default=[], metavar="NAME:key=value[,key=value]",
                           help="effect to hide, e.g. atmosphere.fog:visual_range=60 (repeatable; see effects.py)")
-    measured.add_argument("--frames", type=int, help="frames (default: the scenario's duration)")
-    measured.add_argument("--seed", type=int, help="seed of the measurement (default: the scenario's + 1000)")
+    measured.add_argument("--frames", type=positive_int, help="frames (default: the scenario's duration)")
+    measured.add_argument("--seed", type=seed_int, help="seed of the measurement (default: the scenario's + 1000)")
     measured.add_argument("--profile", help="sensor profile overriding the scenario's")
     measured.add_argument("--on", metavar="BAG", help="put the effects on top of this (real) recording's frames "
                                                         "instead of simulating the scenario (see augment.py)")
@@ -285,8 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--scenario", required=True, help="scenario to re-simulate with (name or YAML path)")
     gap.add_argument("--profile", help="sensor profile overriding the scenario's")
     gap.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
-    gap.add_argument("--fit-frames", type=int, default=24, help="calibration frames used for fitting")
-    gap.add_argument("--heldout-frames", type=int, default=30, help="held-out frames used for every decision")
+    gap.add_argument("--fit-frames", type=positive_int, default=24, help="calibration frames used for fitting")
+    gap.add_argument("--heldout-frames", type=positive_int, default=30, help="held-out frames used for every decision")
     gap.add_argument("--out", default="gap_report", help="output directory")
     gap.set_defaults(func=_cmd_gap)
 
@@ -300,24 +333,24 @@ def build_parser() -> argparse.ArgumentParser:
     play = commands.add_parser("play", help="publish a bag's topics with their original timing and /clock")
     play.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
     play.add_argument("--topics", nargs="+", help="topics to play (default: all)")
-    play.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
+    play.add_argument("--rate", type=positive_float, default=1.0, help="playback speed factor")
     play.add_argument("--no-clock", action="store_true", help="do not publish /clock (replay the bag's own /clock)")
     play.set_defaults(func=_cmd_play)
 
     record = commands.add_parser("record", help="record topics to an MCAP bag until Ctrl-C")
     record.add_argument("out", metavar="BAG", help="output rosbag2 directory")
     record.add_argument("--topics", nargs="+", default=[TOPIC_POINTS], help=f"topics (default {TOPIC_POINTS})")
-    record.add_argument("--count", type=int, default=0, help="stop after this many messages (0 = until Ctrl-C)")
+    record.add_argument("--count", type=count_int, default=0, help="stop after this many messages (0 = until Ctrl-C)")
     record.add_argument("--overwrite", action="store_true", help="replace an existing bag")
     record.add_argument("--use-sim-time", action="store_true", help="log times from /clock")
     record.set_defaults(func=_cmd_record)
 
     closed = commands.add_parser("closed-loop", help="adaptive cruise demo over DDS: speed traces with/without filter, report")
     closed.add_argument("--scenario", default="highway_spray_crosswind", help="scenario name or YAML path")
-    closed.add_argument("--seconds", type=float, default=6.0, help="simulated seconds per run")
-    closed.add_argument("--box-at", type=float, default=3.0, help="box variant: the box appears at this time (s)")
+    closed.add_argument("--seconds", type=positive_float, default=6.0, help="simulated seconds per run")
+    closed.add_argument("--box-at", type=non_negative_float, default=3.0, help="box variant: the box appears at this time (s)")
     closed.add_argument("--out", default="closed_loop_report", help="report directory (report.md, speed.png, traces)")
-    closed.add_argument("--realtime-factor", type=float, default=1.0, help="sim / wall-clock speed")
+    closed.add_argument("--realtime-factor", type=positive_float, default=1.0, help="sim / wall-clock speed")
     closed.set_defaults(func=_cmd_closed_loop)
 
     ouster = commands.add_parser("import-ouster", help="real OS1-128 street recording (ouster-sdk sdist) as bag + mesh")

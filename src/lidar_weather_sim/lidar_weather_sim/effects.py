@@ -98,6 +98,8 @@ def parse_effect(text: str) -> Effect:
         if key not in (spec.main, *spec.extras):
             raise ValueError(f"--hide {text!r}: effect '{name}' has no parameter '{key}' "
                              f"(parameters: {', '.join((spec.main, *spec.extras))})")  # fmt: skip
+        if key in params:
+            raise ValueError(f"--hide {text!r}: parameter '{key}' given twice")
         if key == "sample":
             params[key] = value
             continue
@@ -105,6 +107,10 @@ def parse_effect(text: str) -> Effect:
             params[key] = int(value) if key == "actor" else float(value)
         except ValueError:
             raise ValueError(f"--hide {text!r}: parameter '{key}' needs a number, got '{value}'") from None
+        if key == spec.main and not 0.0 < params[key] < float("inf"):
+            raise ValueError(f"--hide {text!r}: '{key}' must be a finite number above 0 ({spec.unit}), got {value}")
+        if key == spec.main and spec.unit == "1" and params[key] > 1.0:
+            raise ValueError(f"--hide {text!r}: '{key}' is a transmission, at most 1, got {value}")
     if spec.main not in params:
         if name == "cover.dirt" and "sample" in params:
             from lidar_weather_sim.cover_textures import load_samples

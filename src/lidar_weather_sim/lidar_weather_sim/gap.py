@@ -77,6 +77,9 @@ def split_frames(n: int, fit_frames: int, heldout_frames: int) -> tuple[list[int
 
     if n < 2:
         raise ValueError(f"gap needs at least 2 frames with poses (one to fit, one held out), the recording has {n}")
+    for name, budget in (("fit_frames", fit_frames), ("heldout_frames", heldout_frames)):
+        if budget < 1:
+            raise ValueError(f"gap: {name} must be at least 1, got {budget}")
     return thin(list(range(0, n, 2)), fit_frames), thin(list(range(1, n, 2)), heldout_frames)
 
 

@@ -28,9 +28,10 @@ POSE_STEP_S = 0.01  # poses advance at 100 Hz of simulated time
 @dataclass(frozen=True)
 class RunReport:
     output: Path
-    frames: int
+    frames: int  # frames simulated, the dropped ones included
     points: int
     simulated_s: float
+    dropped: int = 0  # frames the postprocess dropped (not in the bag)
 
 
 class _Messages:
@@ -102,7 +103,7 @@ def run_scenario(
     msgs = _Messages()
     player = world.player
     mount_q = matrix_quaternion(player.mount[:3, :3])
-    done = points = 0
+    done = points = dropped = 0
     t = 0.0
     with BagWriter(output, overwrite=overwrite) as bag:
         bag.write(TOPIC_TF_STATIC, msgs.tf([msgs.transform(0, FRAME_BASE_LINK, FRAME_LIDAR, player.mount[:3, 3], mount_q)]), 0)
@@ -123,7 +124,9 @@ def run_scenario(
                 if cloud is not None:
                     bag.write_cloud(TOPIC_POINTS, cloud, stamp_ns, FRAME_LIDAR, log_time_ns=ns)
                     points += len(cloud)
+                else:
+                    dropped += 1
                 if progress:
                     progress(done, total)
             t = round(t + POSE_STEP_S, 9)
-    return RunReport(Path(output), done, points, t)
+    return RunReport(Path(output), done, points, t, dropped)

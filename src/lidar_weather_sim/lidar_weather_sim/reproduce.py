@@ -44,6 +44,20 @@ PAPER_KEYS = {
 }
 
 
+#: thesis_tables.yaml sections the comparison reads (paper 2 Tables 2, 3 and 4)
+TABLE_SECTIONS = ("background_radiation_clear", "atmosphere_region", "street_region")
+
+
+def load_tables(path: str | Path | None = None) -> dict:
+    """The thesis' measured values (``thesis_tables.yaml``), checked for the sections the comparison reads."""
+    path = Path(path or default_tables_path())
+    tables = yaml.safe_load(path.read_text())
+    missing = [k for k in TABLE_SECTIONS if not isinstance(tables, dict) or k not in tables]
+    if missing:
+        raise ValueError(f"{path}: not the thesis tables (no section {', '.join(missing)})")
+    return tables
+
+
 def default_tables_path() -> Path:
     from lidar_weather_sim.paths import config_dir
 
@@ -244,12 +258,12 @@ def reproduce_rooftop(out_dir: str | Path, frames: int = 30, seed: int = 0, tabl
     """Run all 8 conditions; write rooftop.json, rooftop.md and the PNGs into ``out_dir``; return the rows.
     ``fit_file``: atmosphere parameters (default config/atmosphere_fit.yaml); ``profile``: sensor
     profile name or YAML path (default the scenario's scala4)."""
-    tables = yaml.safe_load(Path(tables_path or default_tables_path()).read_text())
+    tables = load_tables(tables_path)
     conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile)
                   for w in WEATHER_CLASSES for sun in (False, True)]  # fmt: skip
-    out = Path(out_dir)  # created once the inputs have loaded: a bad --profile or --fit-file leaves nothing behind
-    out.mkdir(parents=True, exist_ok=True)
     rows = [r for c in conditions for r in rows_of(c, tables)]
+    out = Path(out_dir)  # created once the inputs have loaded: bad inputs leave nothing behind
+    out.mkdir(parents=True, exist_ok=True)
     (out / "rooftop.json").write_text(json.dumps(rows, indent=1))
     (out / "rooftop.md").write_text(markdown(rows))
     if plots:

@@ -113,3 +113,68 @@ def test_eval_cli_on_a_labelled_bag(tmp_path):
     assert result["object_recall"] == 1.0 and result["weather_precision"] == 1.0
     bad = subprocess.run([sys.executable, "-m", "weather_filter.cli", "eval", str(tmp_path / "nope")], capture_output=True, text=True)
     assert bad.returncode == 2 and "bag not found" in bad.stderr
+
+
+@pytest.mark.parametrize(
+    "method, param, reason",
+    [("dror", "multiplier=abc", "filter 'dror': multiplier must be a number, got 'abc'"),
+     ("dror", "max_range_m=none", "max_range_m must be a number or null, got 'none'"),
+     ("dror", "min_neighbours=-1", "min_neighbours must be at least 0, got -1"),
+     ("dror", "min_neighbours=2.5", "min_neighbours must be an integer, got 2.5"),
+     ("dror", "radius=1", "has no parameter(s) radius (its parameters: angular_resolution_deg, multiplier,"),
+     ("dsor", "neighbours=0", "neighbours must be at least 1, got 0"),
+     ("echo", 'lior={"epw_threshold_m": "x"}', "filter 'echo' lior: epw_threshold_m must be a number, got 'x'"),
+     ("learned", "foo=1", "filter 'learned' has no parameter(s) foo (its parameters: model_path, threshold)"),
+     ("learned", "threshold=2", "threshold must be a probability between 0 and 1, got 2")],
+)  # fmt: skip
+def test_filter_parameters_are_checked_with_a_reason_naming_them(method, param, reason):
+    """These crashed with numpy/pickle tracebacks (rc 1) or ran with nonsense values (rc 0)."""
+    from weather_filter.cli import _parse_params
+
+    with pytest.raises(ValueError) as err:
+        make_filter(method, **_parse_params([param]))
+    assert reason in str(err.value)
+    assert make_filter("dror", max_range_m=None, multiplier=2).params.multiplier == 2  # valid values still pass
+
+
+def test_a_file_that_is_not_a_model_is_named(tmp_path):
+    not_a_model = tmp_path / "model.joblib"
+    not_a_model.write_text("hello")
+    with pytest.raises(ValueError, match=f"{not_a_model}: not a weather-filter model"):
+        LearnedFilter.load(not_a_model)
+
+
+def test_training_refuses_to_overwrite_the_packaged_model_and_impossible_settings(tmp_path):
+    import subprocess
+
+    before = DEFAULT_MODEL.read_bytes()
+    for argv, reason in ((["train", "--synthetic-frames", "4"], "give --out FILE.joblib"),
+                         (["train", "--preset", "shipped", "--synthetic-frames", "4"], "give --out FILE.joblib"),
+                         (["train-weather", "--sim", "wf_train_snow:9:3"], "give --out FILE.joblib"),
+                         (["train", "--threshold", "5", "--out", "m.joblib"], "--threshold: must lie in (0, 1), got 5"),
+                         (["train", "--object-recall", "2", "--out", "m.joblib"], "must lie in (0, 1], got 2"),
+                         (["train-weather", "--k", "0", "--out", "m.joblib"], "--k: must be at least 1, got 0")):  # fmt: skip
+        proc = subprocess.run([sys.executable, "-m", "weather_filter.cli", *argv], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=120)  # fmt: skip
+        assert proc.returncode == 2 and reason in proc.stderr.strip().splitlines()[-1], proc.stderr
+    assert DEFAULT_MODEL.read_bytes() == before and not list(tmp_path.iterdir())
+
+
+def test_loading_the_filter_compiles_every_kernel_of_a_frame():
+    """The first cloud used to compile _median_gap and the network (3 s with a cold numba cache): a node's
+    first frame and `eval`'s timing paid for it. After loading, every kernel a frame runs has a signature."""
+    import subprocess
+
+    code = """
+from numba.core.registry import CPUDispatcher
+import weather_filter.azimuth, weather_filter.features, weather_filter.learned, weather_filter.log10f
+from weather_filter.learned import LearnedFilter
+LearnedFilter.load()
+mods = (weather_filter.azimuth, weather_filter.features, weather_filter.learned, weather_filter.log10f)
+kernels = [(m.__name__, n, len(o.signatures)) for m in mods for n, o in vars(m).items()
+           if isinstance(o, CPUDispatcher) and o.__module__ == m.__name__ and o.targetoptions.get("inline") != "always"]
+print(kernels)
+assert len(kernels) >= 7 and all(count >= 1 for _, _, count in kernels), kernels
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)  # a fresh process
+    assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -22,6 +22,23 @@ from lidar_weather_sim.names import TOPIC_POINTS
 from weather_filter.filters import GEOMETRY_METHODS, METHODS
 
 
+def _bounded(kind: type, least: float, most: float | None = None, open_low: bool = False, open_high: bool = False):
+    """argparse type: ``kind`` within [least, most] (ends open where asked), finite; a one-line reason otherwise."""
+
+    def parse(text: str):
+        value = kind(text)
+        low_ok = value > least if open_low else value >= least
+        high_ok = most is None or (value < most if open_high else value <= most)
+        if not (low_ok and high_ok and abs(value) != float("inf") and value == value):
+            if most is None:
+                raise argparse.ArgumentTypeError(f"must be {'above' if open_low else 'at least'} {least}, got {text}")
+            span = f"{'(' if open_low else '['}{least}, {most}{')' if open_high else ']'}"
+            raise argparse.ArgumentTypeError(f"must lie in {span}, got {text}")
+        return value
+
+    return parse
+
+
 def _parse_params(items: list[str]) -> dict:
     params = {}
     for item in items:
@@ -36,7 +53,12 @@ def _parse_params(items: list[str]) -> dict:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from weather_filter.evaluate import evaluate_bag
+
+    if args.out and not Path(args.out).resolve().parent.is_dir():  # before the evaluation, not after it
+        raise ValueError(f"--out {args.out}: directory {Path(args.out).resolve().parent} does not exist")
 
     import warnings
 
@@ -117,6 +139,15 @@ def _stored_command(args: argparse.Namespace) -> str:
     return "weather-filter " + " ".join(shlex.quote(a) for a in argv)
 
 
+def _refuse_packaged_overwrite(args: argparse.Namespace) -> None:
+    """Without --out the packaged model is rewritten: allowed only to rebuild it from its own runs (``--preset
+    shipped``, or its stored command with the runs written out), never from an experiment's data."""
+    own_runs = tuple(args.sim) == tuple(_preset_specs(args.command))
+    if args.out is None and (not own_runs or getattr(args, "bags", []) or getattr(args, "synthetic_frames", 0)):
+        raise ValueError("without --out only the shipped model's own runs (--preset shipped) may rewrite the "
+                         "packaged model; give --out FILE.joblib")
+
+
 def _apply_preset(args: argparse.Namespace) -> None:
     if args.preset:
         args.sim = [*_preset_specs(args.command), *args.sim]
@@ -128,6 +159,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from weather_filter.learned import DEFAULT_MODEL, train
 
     _apply_preset(args)
+    _refuse_packaged_overwrite(args)
     sources, described = _training_sources(args)
     hidden = tuple(int(h) for h in args.hidden.split(",") if h)
     report = train(sources, args.out or DEFAULT_MODEL, trained_on=", ".join(described), command=_stored_command(args),
@@ -145,6 +177,7 @@ def _cmd_train_weather(args: argparse.Namespace) -> int:
     from weather_filter.weather_class import DEFAULT_KNN_MODEL, train_knn
 
     _apply_preset(args)
+    _refuse_packaged_overwrite(args)
     report = train_knn(args.sim, args.out or DEFAULT_KNN_MODEL, command=_stored_command(args), k=args.k,
                        cache_dir=args.cache, topic=args.topic)  # fmt: skip
     print(f"trained KNN (k={args.k}) on {report.frames} frames {report.per_class}; wrote {report.output}")
@@ -174,15 +207,15 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (simdata.TRAIN_SPECS)")
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
-    tr.add_argument("--synthetic-frames", type=int, default=0, help="add N constructed frames (weather_filter.synthetic)")
+    tr.add_argument("--synthetic-frames", type=_bounded(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")
     tr.add_argument("--hidden", default="16", help="hidden layer sizes, comma-separated (default 16; paper 4: 10)")
-    tr.add_argument("--spray-weight", type=float, default=20.0, help="weight of spray points in the fit (default 20)")
-    tr.add_argument("--solid-weight", type=float, default=3.0, help="weight of solid points in the fit (default 3)")
-    tr.add_argument("--threshold", type=float, help="weather probability threshold (default: chosen on the training "
+    tr.add_argument("--spray-weight", type=_bounded(float, 0, open_low=True), default=20.0, help="weight of spray points in the fit (default 20)")
+    tr.add_argument("--solid-weight", type=_bounded(float, 0, open_low=True), default=3.0, help="weight of solid points in the fit (default 3)")
+    tr.add_argument("--threshold", type=_bounded(float, 0, 1, open_low=True, open_high=True), help="weather probability threshold (default: chosen on the training "
                     "points for the best F1 at >= --object-recall)")
-    tr.add_argument("--object-recall", type=float, default=TRAIN_OBJECT_RECALL,
+    tr.add_argument("--object-recall", type=_bounded(float, 0, 1, open_low=True), default=TRAIN_OBJECT_RECALL,
                     help=f"least share of the training solid points the chosen threshold keeps (default {TRAIN_OBJECT_RECALL})")  # fmt: skip
-    tr.add_argument("--seed", type=int, default=0, help="random seed of sampling, synthetic frames and the MLP")
+    tr.add_argument("--seed", type=_bounded(int, 0), default=0, help="random seed of sampling, synthetic frames and the MLP")
     tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib)")
     tr.set_defaults(func=_cmd_train)
 
@@ -192,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (weather_class.KNN_TRAIN_SPECS)")
     tw.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tw.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
-    tw.add_argument("--k", type=int, default=5, help="neighbours (default 5)")
+    tw.add_argument("--k", type=_bounded(int, 1), default=5, help="neighbours (default 5)")
     tw.add_argument("--out", help="model file (default: the packaged models/weather_knn_v<N>.joblib)")
     tw.set_defaults(func=_cmd_train_weather)
     return parser

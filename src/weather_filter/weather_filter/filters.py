@@ -366,13 +366,48 @@ def make_filter(method: str, **overrides) -> PointFilter:
               "echo": (EchoAwareFilter, EchoParams)}  # fmt: skip
     if method in simple:
         cls, params_cls = simple[method]
-        known = {f.name for f in dc_fields(params_cls)}
-        unknown = set(overrides) - known
-        if unknown:
-            raise ValueError(f"filter '{method}' has no parameter(s) {', '.join(sorted(unknown))}")
-        return cls(params_cls(**overrides))
+        return cls(checked_params(params_cls, overrides, f"filter '{method}'"))
     if method == "learned":
         from weather_filter.learned import LearnedFilter
 
+        unknown = set(overrides) - {"model_path", "threshold"}
+        if unknown:
+            raise ValueError(f"filter 'learned' has no parameter(s) {', '.join(sorted(unknown))} "
+                             "(its parameters: model_path, threshold)")  # fmt: skip
         return LearnedFilter.load(**overrides)
     raise ValueError(f"unknown filter method '{method}' (choose from {', '.join(METHODS)})")
+
+
+#: least value of integer parameters that count neighbours to average over (0 would average nothing)
+MIN_INT_PARAMS = {"neighbours": 1}
+
+
+def checked_params(params_cls, overrides: dict, where: str):
+    """``params_cls(**overrides)`` with every override checked against the field's default: numbers must be
+    finite and >= 0 (integers for integer fields, >= MIN_INT_PARAMS where listed), None only where the
+    default is None, a nested parameter set a mapping of its own fields. Errors name the parameter."""
+    known = {f.name: f.default for f in dc_fields(params_cls)}
+    unknown = set(overrides) - set(known)
+    if unknown:
+        raise ValueError(f"{where} has no parameter(s) {', '.join(sorted(unknown))} (its parameters: {', '.join(known)})")
+    values = {}
+    for name, value in overrides.items():
+        default = known[name]
+        if hasattr(default, "__dataclass_fields__"):
+            if not isinstance(value, dict):
+                raise ValueError(f"{where}: {name} must be a mapping of its own parameters, got {value!r}")
+            values[name] = checked_params(type(default), value, f"{where} {name}")
+            continue
+        if value is None and default is None:
+            values[name] = None
+            continue
+        integer = isinstance(default, int)
+        ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
+        if isinstance(value, bool) or not ok_type or not np.isfinite(value):
+            kind = "an integer" if integer else "a number" + (" or null" if default is None else "")
+            raise ValueError(f"{where}: {name} must be {kind}, got {value!r}")
+        least = MIN_INT_PARAMS.get(name, 0) if integer else 0
+        if value < least:
+            raise ValueError(f"{where}: {name} must be at least {least}, got {value!r}")
+        values[name] = value
+    return params_cls(**values)

@@ -120,12 +120,19 @@ class LearnedFilter(PointFilter):
         self._warm_up()
 
     def _warm_up(self) -> None:
-        """Compile the numba feature pass now, not on the first frame."""
+        """Compile the numba feature passes and the network now, not on the first frame: a two-channel scan with
+        second echoes takes every branch that compiles (the azimuth step needs >= 10 first echoes a channel)."""
         from lidar_weather_sim.points import empty_points
 
-        pts = empty_points(4)
-        pts["x"] = [1.0, 2.0, -3.0, 40.0]
+        n = 64
+        pts = empty_points(n)
+        azimuth = np.radians(0.5 * (np.arange(n) // 2))
+        pts["x"], pts["y"] = 10.0 * np.cos(azimuth), 10.0 * np.sin(azimuth)
+        pts["channel"] = np.arange(n) % 2
+        pts["echo"] = np.where(np.arange(n) % 8 == 7, 2, 1)
+        pts["epw"] = 1.0
         self.features(pts)
+        self._fast.logit(self.features(pts))  # the pass that carries the previous frame's radial histogram
         self.features.reset()
 
     @classmethod
@@ -135,7 +142,16 @@ class LearnedFilter(PointFilter):
         path = Path(model_path) if model_path else DEFAULT_MODEL
         if not path.exists():
             raise FileNotFoundError(f"model file not found: {path} (train one with 'weather-filter train')")
-        return cls(joblib.load(path), threshold)
+        if threshold is not None and (isinstance(threshold, bool) or not isinstance(threshold, (int, float))
+                                      or not 0.0 < threshold < 1.0):  # fmt: skip
+            raise ValueError(f"filter 'learned': threshold must be a probability between 0 and 1, got {threshold!r}")
+        try:
+            bundle = joblib.load(path)
+        except Exception as exc:  # joblib/pickle raise many types for a file that is not a model
+            raise ValueError(f"{path}: not a weather-filter model ({type(exc).__name__}: {exc})") from None
+        if not isinstance(bundle, dict) or not {"model", "feature_names"} <= set(bundle):
+            raise ValueError(f"{path}: not a weather-filter model (no 'model' and 'feature_names' entries)")
+        return cls(bundle, threshold)
 
     def reset(self) -> None:
         self.features.reset()
