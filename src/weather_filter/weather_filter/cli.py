@@ -1,7 +1,7 @@
 """``weather-filter``: evaluate the weather filters on a bag and train the learned filter.
 
     weather-filter eval BAG [--method M] [--fallback dror|dsor] [--topic T] [--out FILE.json] [--param NAME=VALUE ...]
-    weather-filter train [BAG ...] [--sim SCENARIO:SEED:FRAMES[:PROFILE] ...] [--synthetic-frames N] [--out MODEL.joblib]
+    weather-filter train [BAG ...] [--sim SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]] ...] [--synthetic-frames N] [--out MODEL.joblib]
     weather-filter train-weather --sim SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]] ... [--k K] [--out MODEL.joblib]
 
 ``--preset shipped`` trains on the runs of the shipped model; a model stores its command with the
@@ -202,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = commands.add_parser("train", help="train the learned per-point filter on labelled simulation runs / bags")
     tr.add_argument("bags", nargs="*", metavar="BAG", help="labelled rosbag2 directories or .mcap files")
-    tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE]",
+    tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]",
                     help="simulate this labelled run (cached under --cache) and train on it; repeatable")  # fmt: skip
     tr.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (simdata.TRAIN_SPECS)")
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
@@ -220,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.set_defaults(func=_cmd_train)
 
     tw = commands.add_parser("train-weather", help="train the per-frame weather classifier (KNN) on simulation runs")
-    tw.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE]",
+    tw.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]",
                     help="simulate this run; its weather class comes from the scenario's weather block; repeatable")  # fmt: skip
     tw.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (weather_class.KNN_TRAIN_SPECS)")
     tw.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
