@@ -47,3 +47,26 @@ def test_recorder_stops_on_sigint_while_recording(processes, cli, tmp_path):
         info = bag_info(out)
         assert not info.damaged, processes.output(rec)
     assert pattern.poll() is None
+
+
+def test_a_recorder_started_first_gets_the_whole_bag_with_play_wait_for(processes, cli, tmp_path):
+    """`play` used to start as soon as /tf_static was acknowledged, before a recorder had seen the topics' types
+    and subscribed: 16-17 of 20 clouds recorded. `play --wait-for` holds the start until each topic is read."""
+    import signal
+    import time
+
+    from lidar_weather_sim.bags import bag_info
+
+    source, out = tmp_path / "source", tmp_path / "recorded"
+    assert subprocess.run([*cli, "run", "highway_clear", "--frames", "20", "--out", str(source)],
+                          capture_output=True, timeout=300).returncode == 0  # fmt: skip
+    rec = processes.start(*cli, "record", str(out), "--topics", "/lidar/points", "/tf")
+    play = subprocess.run([*cli, "play", str(source), "--wait-for", "/lidar/points", "/tf", "--wait-timeout", "60"],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert play.returncode == 0, play.stderr
+    time.sleep(1.0)  # the last messages in flight
+    rec.send_signal(signal.SIGINT)
+    assert rec.wait(timeout=15) == 0, processes.output(rec)
+    counts = {t.name: t.count for t in bag_info(out).topics}
+    expected = {t.name: t.count for t in bag_info(source).topics if t.name in ("/lidar/points", "/tf")}
+    assert counts == expected == {"/lidar/points": 20, "/tf": 79}, (counts, expected)

@@ -252,6 +252,8 @@ def test_runtime_parameter_sets_are_validated_and_apply_from_the_next_frame(proc
 
     result = lock.set_parameter("regions", ["no_such_region"])
     assert not result.successful and "unknown region 'no_such_region'" in result.reason
+    result = lock.set_parameter("regions", ["cover", "cover"])  # would apply the cover twice
+    assert not result.successful and "cover listed more than once" in result.reason
     result = lock.set_parameter("region_params", "no_such_plugin: {x: 1}")
     assert not result.successful and "no_such_plugin" in result.reason
     result = lock.set_parameter("region_params", "[1, 2")
@@ -294,6 +296,24 @@ def _static_msg(world):
 
     m = world.player.mount
     return TFMessage(transforms=[transform("base_link", "lidar", T0, m[:3, 3], matrix_quaternion(m[:3, :3]))])
+
+
+@pytest.mark.parametrize(
+    "module, params, reason",
+    [("lidar_weather_sim.ros.lidar_sim_node", ["max_frames:=-5"], "Parameter max_frames out of range"),
+     ("lidar_weather_sim.ros.lidar_sim_node", ["sun_irradiance_w_m2:=300"], "of type 'INTEGER', expecting type 'DOUBLE'"),
+     ("lidar_weather_sim.ros.lidar_sim_node", ["scenario:=highway_spray", "regions:=[spray,spray]"],
+      "spray listed more than once"),
+     ("weather_filter.ros.weather_filter_node", ["method:=foo"], "unknown filter method 'foo'")],
+)  # fmt: skip
+def test_a_bad_start_parameter_exits_2_with_one_line(module, params, reason):
+    """rclpy's range and type checks at declaration used to end in a traceback with status 1."""
+    import subprocess
+
+    args = [a for p in params for a in ("-p", p)]
+    proc = subprocess.run([sys.executable, "-m", module, "--ros-args", *args], capture_output=True, text=True, timeout=120)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and reason in lines[0], proc.stderr
 
 
 # -- (d) malformed input -----------------------------------------------------------------------------

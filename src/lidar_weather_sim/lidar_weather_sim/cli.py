@@ -145,8 +145,9 @@ def _cmd_play(args: argparse.Namespace) -> int:
     from lidar_weather_sim.ros.bag_player_node import main as player_main
 
     topics = f"[{', '.join(args.topics)}]" if args.topics else "['']"
+    wait = f"[{', '.join(args.wait_for)}]" if args.wait_for else "['']"
     player_main(_node_args([("bag", args.bag), ("rate", float(args.rate)), ("publish_clock", not args.no_clock),
-                            ("topics", topics)]))  # fmt: skip
+                            ("topics", topics), ("wait_for_topics", wait), ("wait_timeout_s", float(args.wait_timeout))]))  # fmt: skip
     return 0
 
 
@@ -335,6 +336,10 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--topics", nargs="+", help="topics to play (default: all)")
     play.add_argument("--rate", type=positive_float, default=1.0, help="playback speed factor")
     play.add_argument("--no-clock", action="store_true", help="do not publish /clock (replay the bag's own /clock)")
+    play.add_argument("--wait-for", nargs="+", metavar="TOPIC", default=[],
+                      help="start only once each of these topics has a subscriber, e.g. a recorder's (/clock stands "
+                           "at the bag's start meanwhile)")  # fmt: skip
+    play.add_argument("--wait-timeout", type=positive_float, default=30.0, help="start anyway after this many seconds")
     play.set_defaults(func=_cmd_play)
 
     record = commands.add_parser("record", help="record topics to an MCAP bag until Ctrl-C")

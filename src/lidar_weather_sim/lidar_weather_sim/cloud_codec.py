@@ -113,6 +113,10 @@ def dtype_from_fields(fields: Sequence[Any], point_step: int) -> np.dtype:
         names.append(name)
         formats.append(base if count == 1 else np.dtype((base, (count,))))
         offsets.append(int(field.offset))
+    spans = sorted((offset, offset + np.dtype(fmt).itemsize, name) for offset, fmt, name in zip(offsets, formats, names))
+    for (_, end, first), (start, _, second) in zip(spans, spans[1:]):
+        if start < end:  # numpy would read one field's bytes as part of another
+            raise CloudFormatError(f"fields '{first}' and '{second}' overlap (bytes {start}-{end})")
     try:
         return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
     except (ValueError, TypeError) as exc:  # names numpy refuses, sizes past a C int

@@ -126,6 +126,8 @@ class Scenario(ConfigModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> "Scenario":
+        if len(set(self.regions)) != len(self.regions):
+            raise ValueError(f"'regions' {self.regions}: a region listed twice would apply its effect twice")
         ids = [a.id for a in self.actors]
         if len(ids) != len(set(ids)):
             raise ValueError(f"actor ids must be unique, got {ids}")

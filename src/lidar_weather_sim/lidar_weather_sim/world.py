@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from lidar_weather_sim.config import ConfigError
 from lidar_weather_sim.mesh import box_mesh
 from lidar_weather_sim.materials import MaterialTable
 from lidar_weather_sim.opendrive import RoadNetwork
@@ -61,6 +62,9 @@ class World:
                                 actors=self.scenario.actors, pose_source=pose_source or self.player,
                                 inputs=TopicInputs() if inputs is None else inputs)  # fmt: skip
         names = self.scenario.regions if names is None else names
+        repeated = sorted({n for n in names if list(names).count(n) > 1})
+        if repeated:  # a region listed twice would apply its effect twice (twice the spray)
+            raise ConfigError(f"regions {list(names)}: {', '.join(repeated)} listed more than once")
         merged = {**self.scenario.region_params}
         for name, values in (params or {}).items():
             merged[name] = {**merged.get(name, {}), **values}

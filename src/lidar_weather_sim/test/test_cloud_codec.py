@@ -113,6 +113,8 @@ XYZ = [_field("x", 0), _field("y", 4), _field("z", 8)]
         (XYZ + [_field("rgb", 12, datatype=9)], 16, {}, "field 'rgb': unknown PointField datatype 9"),
         (XYZ + [_field("t", 12, datatype=7, count=2)], 16, {}, "field 't' spans bytes 12-20, beyond point_step 16"),
         (XYZ + [_field("x", 12)], 16, {}, "field 'x' appears twice"),
+        ([_field("x", 0), _field("y", 2), _field("z", 8)], 12, {}, "fields 'x' and 'y' overlap (bytes 2-4)"),
+        (XYZ + [_field("t", 10, datatype=7)], 16, {}, "fields 'z' and 't' overlap (bytes 10-12)"),
         (XYZ, 12, {"is_bigendian": True}, "big-endian"),
         (XYZ, 12, {"data": bytes(12 * 4 - 1)}, "data length 47 != row_step 48"),
         (XYZ, 12, {"row_step": 40}, "row_step 40 is smaller than width 4 * point_step 12"),

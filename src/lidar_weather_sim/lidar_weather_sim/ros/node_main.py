@@ -24,6 +24,7 @@ from collections.abc import Callable
 from typing import TypeVar
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.signals import SignalHandlerOptions
 
@@ -73,8 +74,11 @@ def _on_signal(signum: int, _frame) -> None:
 
 
 def _build(name: str, build: Callable[[], N], config_errors: tuple[type[BaseException], ...]) -> N:
+    """``build()``; a configuration error, or a parameter value rclpy refuses at declaration (out of its
+    range, wrong type: ``-p max_frames:=-5``), prints one line and exits with status 2."""
     try:
         return build()
-    except config_errors as exc:
-        print(f"{name}: {exc}", file=sys.stderr)
+    except (*config_errors, ParameterException) as exc:
+        reason = " ".join(str(exc).split())  # rclpy's messages span lines
+        print(f"{name}: {reason}", file=sys.stderr)
         sys.exit(2)

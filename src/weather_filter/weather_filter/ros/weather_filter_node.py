@@ -136,7 +136,7 @@ class WeatherFilterNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node("weather_filter_node", WeatherFilterNode, args=args)
+    run_node("weather_filter_node", WeatherFilterNode, config_errors=(ValueError, OSError), args=args)
 
 
 if __name__ == "__main__":
