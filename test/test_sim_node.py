@@ -341,7 +341,7 @@ def test_a_silent_region_input_topic_is_logged_once_and_the_clouds_keep_coming(p
     assert proc.wait(timeout=120) == 0, processes.output(proc)
     out = processes.output(proc)
     assert "regions read /spray/particles" in out and "published 40 clouds" in out, out
-    assert out.count("/spray/particles: nothing received after 25 clouds") == 1, out
+    assert out.count("/spray/particles: nothing received in the 25 clouds since it was subscribed") == 1, out
 
 
 def test_a_topic_no_region_reads_any_more_is_unsubscribed(processes, ros):
@@ -358,6 +358,23 @@ def test_a_topic_no_region_reads_any_more_is_unsubscribed(processes, ros):
     assert ros.spin_until(lambda: ros.node.count_subscribers("/spray/particles") == 0, 20.0), processes.output(proc)
     out = processes.output(proc)
     assert "/spray/particles: no region reads it any more, unsubscribed" in out and "nothing received" not in out, out
+
+
+def test_a_region_input_switched_on_at_runtime_is_given_its_own_25_clouds(processes, ros):
+    """The silent-input warning counted every cloud since start-up: right after a switch to a region that reads
+    /spray/particles it warned at once. It waits 25 clouds from the subscription."""
+    world = World.build(load_scenario("highway_spray"))
+    proc = node_process(processes, scenario="highway_spray", pose_source="tf", regions="[atmosphere]")
+    lock = Lockstep(ros, world, proc, processes)
+    lock.run_until(120)  # 30 clouds
+    assert lock.set_parameter("region_params", "spray: {source: topic}").successful
+    assert lock.set_parameter("regions", ["spray"]).successful
+    lock.run_until(200)  # 20 more clouds with the spray region reading the topic: not yet silent for long
+    assert ros.spin_until(lambda: ros.node.count_subscribers("/spray/particles") == 1, 20.0), processes.output(proc)
+    assert "nothing received" not in processes.output(proc)
+    lock.run_until(240)  # 10 more
+    assert ros.spin_until(lambda: "nothing received in the 25 clouds since" in processes.output(proc), 20.0), \
+        processes.output(proc)  # fmt: skip
 
 
 def _bad(ns, t=(0.0, 0.0, 0.0), q=(0.0, 0.0, 0.0, 1.0), parent="map", child="base_link"):

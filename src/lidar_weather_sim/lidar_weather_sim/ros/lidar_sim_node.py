@@ -128,6 +128,7 @@ class LidarSimNode(Node):
                                        frames)  # fmt: skip
         self.topic_inputs = TopicInputs(self.fixed)  # points regions read from other nodes (spray source: topic)
         self._topic_subscriptions: dict[str, object] = {}
+        self._subscribed_at: dict[str, int] = {}  # topic -> clouds published when it was subscribed
         region_poses = self.source if from_tf and mode != "scenario" else None  # spray emitters on /tf frames
         self.session = SimSession(self.world, self._settings_with({}), backend=backend, ground_truth=ground_truth,
                                   inputs=self.topic_inputs, pose_source=region_poses)  # fmt: skip
@@ -235,8 +236,10 @@ class LidarSimNode(Node):
             if topic not in self._topic_subscriptions:
                 self._topic_subscriptions[topic] = self.create_subscription(
                     PointCloud2, topic, lambda msg, topic=topic: self._on_topic_input(topic, msg), 10)  # fmt: skip
+                self._subscribed_at[topic] = self.published
         for topic in [t for t in self._topic_subscriptions if t not in wanted]:
             self.destroy_subscription(self._topic_subscriptions.pop(topic))
+            self._subscribed_at.pop(topic, None)
             self.get_logger().info(f"{topic}: no region reads it any more, unsubscribed")
 
     def _on_topic_input(self, topic: str, msg: PointCloud2) -> None:
@@ -357,11 +360,11 @@ class LidarSimNode(Node):
             msg, _ = cloud_to_msg(frame.points, self._stamp_ns(frame.stamp_s), self.frame)
             self._points.publish(msg)
             self.published += 1
-        if self.published >= SILENT_INPUT_FRAMES:
-            for topic in self.topic_inputs.topics:
-                if self.topic_inputs.latest(topic) is None:
-                    self._once(f"{topic}: silent", f"{topic}: nothing received after {self.published} clouds (is its "
-                               "publisher running?)", "its region adds nothing until then")  # fmt: skip
+        for topic in self.topic_inputs.topics:
+            waited = self.published - self._subscribed_at.get(topic, self.published)  # clouds since it was wanted
+            if waited >= SILENT_INPUT_FRAMES and self.topic_inputs.latest(topic) is None:
+                self._once(f"{topic}: silent", f"{topic}: nothing received in the {waited} clouds since it was "
+                           "subscribed (is its publisher running?)", "its region adds nothing until then")  # fmt: skip
 
 
 def _spin_once(executor: SingleThreadedExecutor, timeout_sec: float) -> bool:
