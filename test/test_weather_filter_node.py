@@ -3,7 +3,7 @@
 import sys
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
@@ -12,6 +12,7 @@ from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud
 from weather_filter.synthetic import highway_frame
 
 NODE = [sys.executable, "-m", "weather_filter.ros.weather_filter_node"]
+OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR
 
 
 def _wire(ros):
@@ -63,10 +64,15 @@ def test_node_skips_malformed_clouds_and_falls_back_without_echo_fields(processe
     for axis in "xyz":
         xyz_only[axis] = plain[axis]
     good, _ = cloud_to_msg(xyz_only, stamp_ns=2, frame_id="lidar")
-    assert _publish_until(ros, pub, [bad, bad, good], lambda: bool(got["diag"])), processes.output(node)
+    statuses = lambda level: [d.status[0] for d in got["diag"] if d.status[0].level == level]  # noqa: E731
+    assert _publish_until(ros, pub, [bad, bad, good], lambda: statuses(OK) and statuses(ERROR)), processes.output(node)
     assert node.poll() is None, "node must keep running after a malformed cloud"
-    values = {kv.key: kv.value for kv in got["diag"][-1].status[0].values}
-    assert values["method"] == "dror"
+    skipped = statuses(ERROR)[-1]  # every skipped cloud is on /diagnostics, not only the first of its cause
+    assert skipped.message.startswith("skipped malformed cloud: data length") and skipped.hardware_id == "lidar"
+    counts = [int({kv.key: kv.value for kv in s.values}["clouds_skipped"]) for s in statuses(ERROR)]
+    assert counts == list(range(1, len(counts) + 1)) and len(counts) >= 2, counts
+    values = {kv.key: kv.value for kv in statuses(OK)[-1].values}
+    assert values["method"] == "dror" and int(values["clouds_skipped"]) >= 2
     out = processes.output(node)
     assert out.count("skipped malformed cloud: data length") == 1, out
     assert "using geometry-only 'dror'" in out

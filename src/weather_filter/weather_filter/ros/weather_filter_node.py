@@ -4,8 +4,9 @@ Subscribes ``/lidar/points`` (remap it), publishes ``/lidar/points/filtered``
 and ``/lidar/points/removed`` (same fields as the input, SensorDataQoS) and a
 ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` per frame (points in/out
 per label when the cloud has ``label``, filter time, method, and ``weather`` /
-``weather_confidence`` from the shipped per-frame KNN when the cloud has x, echo and EPW). A malformed cloud is logged once per
-cause and skipped. A cloud lacking the fields of ``method`` (EPW, echo...) is
+``weather_confidence`` from the shipped per-frame KNN when the cloud has x, echo and EPW, and the count of
+clouds skipped so far). A malformed cloud is skipped: logged once per cause, and reported every time on
+``/diagnostics`` with level ERROR, its reason and the counts. A cloud lacking the fields of ``method`` (EPW, echo...) is
 filtered with ``fallback_method`` (geometry only, with
 ``weather_filter.filters.FALLBACK_PARAMS``), with a warning once.
 
@@ -29,6 +30,8 @@ from lidar_weather_sim.ros.node_main import run_node
 
 from weather_filter.filters import GEOMETRY_METHODS, METHODS, fallback_message, make_fallback_filter, make_filter
 
+DIAGNOSTIC_NAME = "weather_filter_node: filter"
+
 
 class WeatherFilterNode(Node):
     def __init__(self) -> None:
@@ -50,6 +53,7 @@ class WeatherFilterNode(Node):
         self._logged: set[str] = set()
         self._weather = self._load_weather_classifier()
         self.frames = 0
+        self.skipped = 0
         self._pub_filtered = self.create_publisher(PointCloud2, TOPIC_POINTS_FILTERED, qos_profile_sensor_data)
         self._pub_removed = self.create_publisher(PointCloud2, TOPIC_POINTS_REMOVED, qos_profile_sensor_data)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -79,11 +83,20 @@ class WeatherFilterNode(Node):
         else:
             logger.warning(text)
 
+    def _skip(self, msg: PointCloud2, key: str, text: str) -> None:
+        """A cloud not filtered: logged once per cause, and every time on /diagnostics (level ERROR, the count)."""
+        self._once(key, text, "error")
+        self.skipped += 1
+        status = DiagnosticStatus(level=DiagnosticStatus.ERROR, name=DIAGNOSTIC_NAME, hardware_id=msg.header.frame_id,
+                                  message=text, values=[KeyValue(key="clouds_skipped", value=str(self.skipped)),
+                                                        KeyValue(key="clouds_filtered", value=str(self.frames))])  # fmt: skip
+        self._pub_diag.publish(DiagnosticArray(header=msg.header, status=[status]))
+
     def _on_cloud(self, msg: PointCloud2) -> None:
         try:
             points = msg_to_cloud(msg).points
         except CloudFormatError as exc:
-            self._once(f"malformed:{exc.cause}", f"skipped malformed cloud: {exc}", "error")
+            self._skip(msg, f"malformed:{exc.cause}", f"skipped malformed cloud: {exc}")
             return
         filt = self._filter
         missing = filt.missing_fields(points)
@@ -91,12 +104,12 @@ class WeatherFilterNode(Node):
             self._once(f"missing:{missing}", fallback_message(filt.name, missing, self._fallback.name))
             filt = self._fallback
             if filt.missing_fields(points):
-                self._once("nogeom", "cloud lacks x, y or z: skipped", "error")
+                self._skip(msg, "nogeom", "cloud lacks x, y or z: skipped")
                 return
         try:
             result = filt(points)
         except Exception as exc:  # never crash on one frame
-            self._once(f"error:{type(exc).__name__}", f"filter '{filt.name}' failed, frame skipped: {exc!r}", "error")
+            self._skip(msg, f"error:{type(exc).__name__}", f"filter '{filt.name}' failed, frame skipped: {exc!r}")
             return
         stamp_ns, frame_id = stamp_to_ns(msg.header.stamp), msg.header.frame_id
         self._pub_filtered.publish(cloud_to_msg(points[~result.remove], stamp_ns, frame_id)[0])
@@ -122,6 +135,7 @@ class WeatherFilterNode(Node):
             KeyValue(key="points_out", value=str(int((~result.remove).sum()))),
             KeyValue(key="points_removed", value=str(int(result.remove.sum()))),
             KeyValue(key="time_ms", value=f"{result.elapsed_s * 1e3:.3f}"),
+            KeyValue(key="clouds_skipped", value=str(self.skipped)),  # malformed clouds so far (see _skip)
         ]
         if "label" in points.dtype.names:
             codes, counts = np.unique(points["label"], return_counts=True)
@@ -130,7 +144,7 @@ class WeatherFilterNode(Node):
                 values.append(KeyValue(key=f"label_{code}_in", value=str(count)))
                 values.append(KeyValue(key=f"label_{code}_out", value=str(int(kept.get(code, 0)))))
         values += self._weather_status(points)
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name="weather_filter_node: filter",
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=DIAGNOSTIC_NAME,
                                   hardware_id=msg.header.frame_id, message=f"{name}: removed {int(result.remove.sum())} of {len(points)}", values=values)  # fmt: skip
         return DiagnosticArray(header=msg.header, status=[status])
 
