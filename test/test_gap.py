@@ -99,6 +99,7 @@ def test_each_hidden_effect_changes_only_itself(highway):
      ("sensor.sun:irradiance=bright", "needs a number"),
      ("spray:actor=100", "needs its main parameter 'water_film'"),
      ("atmosphere.rain:intensity=inf", "'intensity' must be a finite number above 0 (mm/h), got inf"),
+     ("atmosphere.rain:intensity=1e9", "key 'intensity_mm_h': value 1000000000.0: Input should be less than or equal to 300"),
      ("sensor.sun:irradiance=-400", "must be a finite number above 0 (W/m^2), got -400"),
      ("cover.water:transmission=1.5", "at most 1, got 1.5"),
      ("atmosphere.fog:visual_range=80,visual_range=90", "parameter 'visual_range' given twice")],

@@ -92,7 +92,7 @@ class AtmosphereParams(ConfigModel):
     weather_class: Literal["auto", "clear", "rain", "fog", "snow"] = Field("auto", description="auto: from the weather")
     visual_range_m: float | None = Field(None, gt=0, description="Overrides weather.fog.visual_range_m (m)")
     precipitation_type: Literal["dry", "rain", "snow"] | None = Field(None, description="Overrides weather.precipitation.type")
-    intensity_mm_h: float | None = Field(None, ge=0, description="Overrides weather.precipitation.intensity_mm_h (mm/h)")
+    intensity_mm_h: float | None = Field(None, ge=0, le=300, description="Overrides weather.precipitation.intensity_mm_h (mm/h; <= 300 as there)")
     near_field_max_m: float = Field(5.0, gt=0.5, description="Far end of the near-field volume (m)")
     path_gap_m: float = Field(0.8, ge=0, description="Path scatterers end this far before the scene hit (m)")
     splash_depth_m: float = Field(1.5, gt=0, description="Splash drops lie up to this far (range) before the path gap (m)")
