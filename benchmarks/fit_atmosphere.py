@@ -99,15 +99,12 @@ def decode(x: float, kind: str) -> float:
     return float(1 / (1 + np.exp(-x))) if kind == "logit" else float(np.exp(x))
 
 
-#: sensor profile of the fit (name or YAML path; None: the rooftop scenario's scala4), set by --profile
-PROFILE: str | None = None
-
-
-def residuals(params: dict, weather: str, stage: str, tables: dict, frames: int, fit_file: str) -> np.ndarray:
+def residuals(params: dict, weather: str, stage: str, tables: dict, frames: int, fit_file: str,
+              profile: str | None = None) -> np.ndarray:  # fmt: skip
     targets = TARGETS[stage]
     z = []
     for sun in (False, True):
-        cond = simulate(weather, sun, frames, seed=12345, fit_file=fit_file, overrides=params, profile=PROFILE)
+        cond = simulate(weather, sun, frames, seed=12345, fit_file=fit_file, overrides=params, profile=profile)
         for row in rows_of(cond, tables):
             if row["parameter"] in targets.get(row["region"], ()) and row["paper_mean"] is not None:
                 sim = row["sim_mean"] if row["sim_mean"] is not None else 0.0
@@ -119,27 +116,28 @@ def loss(z: np.ndarray) -> float:
     return float(np.sum(np.maximum(np.abs(z) - 0.8, 0.0) ** 2) + 0.01 * np.sum(z**2))
 
 
-def fit_stage(current: dict, names: dict, weather, stage, tables, frames, iters, fit_file) -> tuple[dict, np.ndarray]:
+def fit_stage(current: dict, names: dict, weather, stage, tables, frames, iters, fit_file,
+              profile: str | None = None) -> tuple[dict, np.ndarray]:  # fmt: skip
     keys = list(names)
     x0 = np.array([encode(current[k] if current.get(k) else START.get(k, 1e-3), names[k]) for k in keys])
 
     def unpack(x):
         return {**current, **{k: decode(v, names[k]) for k, v in zip(keys, x)}}
 
-    f = lambda x: loss(residuals(unpack(x), weather, stage, tables, frames, fit_file))  # noqa: E731
+    f = lambda x: loss(residuals(unpack(x), weather, stage, tables, frames, fit_file, profile))  # noqa: E731
     res = minimize(f, x0, method="Nelder-Mead", options={"maxfev": iters, "xatol": 1e-3, "fatol": 1e-3,
                                                           "initial_simplex": x0 + np.vstack([np.zeros(len(x0)), 0.5 * np.eye(len(x0))])})
     best = unpack(res.x)
-    return best, residuals(best, weather, stage, tables, frames, fit_file)
+    return best, residuals(best, weather, stage, tables, frames, fit_file, profile)
 
 
-def fit_street_gain(c: dict, tables: dict, frames: int, fit_file: str) -> float:
+def fit_street_gain(c: dict, tables: dict, frames: int, fit_file: str, profile: str | None = None) -> float:
     """1-D fit of street_gain on the clear-night street EPW (golden section on log gain)."""
     from scipy.optimize import minimize_scalar
 
     def z(log_gain: float) -> float:
         cond = simulate("clear", False, frames, seed=12345, fit_file=fit_file,
-                        overrides={**c, "street_gain": np.exp(log_gain)}, profile=PROFILE)  # fmt: skip
+                        overrides={**c, "street_gain": np.exp(log_gain)}, profile=profile)  # fmt: skip
         row = next(r for r in rows_of(cond, tables) if r["region"] == "street" and r["parameter"] == "epw_mean")
         return abs((row["sim_mean"] or 0.0) - row["paper_mean"]) / row["paper_std"]
 
@@ -163,15 +161,13 @@ def main() -> None:
     parser.add_argument("--profile", help="sensor profile (name or YAML path) instead of the scenario's scala4, e.g. "
                                           "one with another detection.sun_noise_per_w_m2")
     args = parser.parse_args()
-    global PROFILE
-    PROFILE = args.profile
     tables = yaml.safe_load(Path(args.tables).read_text())
     if not Path(args.out).exists():  # a new --out starts as a copy of the shipped fit (the runs read it)
         Path(args.out).write_text(OUT.read_text())
     data = yaml.safe_load(Path(args.out).read_text())
     if "clear" in args.classes.split(",") and "street" in args.stages.split(","):  # a street property
         gain = fit_street_gain({**data["classes"]["clear"], "street_gain": data.get("street_gain", START["street_gain"])},
-                               tables, args.frames, args.out)
+                               tables, args.frames, args.out, args.profile)
         data["street_gain"] = round(gain, 4)
         print(f"street_gain {gain:.3f}", flush=True)
     for weather in args.classes.split(","):
@@ -186,9 +182,9 @@ def main() -> None:
         z = {}
         for stage, names in stages.items():
             if stage in args.stages.split(",") and names:
-                c, z[stage] = fit_stage(c, names, weather, stage, tables, args.frames, args.iters, args.out)
+                c, z[stage] = fit_stage(c, names, weather, stage, tables, args.frames, args.iters, args.out, args.profile)
             else:
-                z[stage] = residuals(c, weather, stage, tables, args.frames, args.out)
+                z[stage] = residuals(c, weather, stage, tables, args.frames, args.out, args.profile)
         z_near, z_street = z["near"], z["street"]
         c.pop("street_gain")
         data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items() if v is not None}

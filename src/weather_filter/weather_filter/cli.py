@@ -17,26 +17,10 @@ import json
 import shlex
 import sys
 
+from lidar_weather_sim.cli import number_in
 from lidar_weather_sim.names import TOPIC_POINTS
 
 from weather_filter.filters import GEOMETRY_METHODS, METHODS
-
-
-def _bounded(kind: type, least: float, most: float | None = None, open_low: bool = False, open_high: bool = False):
-    """argparse type: ``kind`` within [least, most] (ends open where asked), finite; a one-line reason otherwise."""
-
-    def parse(text: str):
-        value = kind(text)
-        low_ok = value > least if open_low else value >= least
-        high_ok = most is None or (value < most if open_high else value <= most)
-        if not (low_ok and high_ok and abs(value) != float("inf") and value == value):
-            if most is None:
-                raise argparse.ArgumentTypeError(f"must be {'above' if open_low else 'at least'} {least}, got {text}")
-            span = f"{'(' if open_low else '['}{least}, {most}{')' if open_high else ']'}"
-            raise argparse.ArgumentTypeError(f"must lie in {span}, got {text}")
-        return value
-
-    return parse
 
 
 def _parse_params(items: list[str]) -> dict:
@@ -207,15 +191,15 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (simdata.TRAIN_SPECS)")
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
-    tr.add_argument("--synthetic-frames", type=_bounded(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")
+    tr.add_argument("--synthetic-frames", type=number_in(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")
     tr.add_argument("--hidden", default="16", help="hidden layer sizes, comma-separated (default 16; paper 4: 10)")
-    tr.add_argument("--spray-weight", type=_bounded(float, 0, open_low=True), default=20.0, help="weight of spray points in the fit (default 20)")
-    tr.add_argument("--solid-weight", type=_bounded(float, 0, open_low=True), default=3.0, help="weight of solid points in the fit (default 3)")
-    tr.add_argument("--threshold", type=_bounded(float, 0, 1, open_low=True, open_high=True), help="weather probability threshold (default: chosen on the training "
+    tr.add_argument("--spray-weight", type=number_in(float, 0, open_low=True), default=20.0, help="weight of spray points in the fit (default 20)")
+    tr.add_argument("--solid-weight", type=number_in(float, 0, open_low=True), default=3.0, help="weight of solid points in the fit (default 3)")
+    tr.add_argument("--threshold", type=number_in(float, 0, 1, open_low=True, open_high=True), help="weather probability threshold (default: chosen on the training "
                     "points for the best F1 at >= --object-recall)")
-    tr.add_argument("--object-recall", type=_bounded(float, 0, 1, open_low=True), default=TRAIN_OBJECT_RECALL,
+    tr.add_argument("--object-recall", type=number_in(float, 0, 1, open_low=True), default=TRAIN_OBJECT_RECALL,
                     help=f"least share of the training solid points the chosen threshold keeps (default {TRAIN_OBJECT_RECALL})")  # fmt: skip
-    tr.add_argument("--seed", type=_bounded(int, 0), default=0, help="random seed of sampling, synthetic frames and the MLP")
+    tr.add_argument("--seed", type=number_in(int, 0), default=0, help="random seed of sampling, synthetic frames and the MLP")
     tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib)")
     tr.set_defaults(func=_cmd_train)
 
@@ -225,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (weather_class.KNN_TRAIN_SPECS)")
     tw.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tw.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
-    tw.add_argument("--k", type=_bounded(int, 1), default=5, help="neighbours (default 5)")
+    tw.add_argument("--k", type=number_in(int, 1), default=5, help="neighbours (default 5)")
     tw.add_argument("--out", help="model file (default: the packaged models/weather_knn_v<N>.joblib)")
     tw.set_defaults(func=_cmd_train_weather)
     return parser
