@@ -24,10 +24,10 @@ import argparse
 import numpy as np
 import yaml
 
-from lidar_weather_sim.paths import config_dir
-from lidar_weather_sim.rooftop import RooftopPose, rooftop_scene
-from lidar_weather_sim.sensor_profile import load_profile
-from lidar_weather_sim.simulator import LidarSimulator
+from lidar_weather_sim.core.paths import config_dir
+from lidar_weather_sim.experiments.rooftop import RooftopPose, rooftop_scene
+from lidar_weather_sim.sensor.profile import load_profile
+from lidar_weather_sim.sim.simulator import LidarSimulator
 
 
 def frame_stats(profile, sun_w_m2: float, frames: int) -> dict[str, float]:

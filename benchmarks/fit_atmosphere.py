@@ -47,8 +47,8 @@ import numpy as np
 import yaml
 from scipy.optimize import minimize
 
-from lidar_weather_sim.regions_atmosphere import WEATHER_CLASSES, ClassParams
-from lidar_weather_sim.reproduce import default_tables_path, paper_value, rows_of, simulate
+from lidar_weather_sim.experiments.reproduce import default_tables_path, rows_of, simulate
+from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, ClassParams
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "config" / "atmosphere_fit.yaml"

@@ -74,7 +74,7 @@ def main() -> None:
     parser.add_argument("--out", default=str(ROOT / "config" / "cover" / "samples.yaml"))
     args = parser.parse_args()
     data = derive(yaml.safe_load(Path(args.tables).read_text()))
-    header = "# Cover texture database (lidar_weather_sim.cover_textures). " + data["source"] + "\n"
+    header = "# Cover texture database (lidar_weather_sim.regions.cover_textures). " + data["source"] + "\n"
     Path(args.out).write_text(header + yaml.safe_dump(data, sort_keys=False))
     print(f"wrote {len(data['samples'])} textures to {args.out}")
 

@@ -15,10 +15,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from lidar_weather_sim.effects import parse_effect
-from lidar_weather_sim.gap_command import run_gap
-from lidar_weather_sim.measured import RECOVERY_CASES, case_scenario, make_measured
-from lidar_weather_sim.scenario import load_scenario
+from lidar_weather_sim.gap.command import run_gap
+from lidar_weather_sim.gap.effects import parse_effect
+from lidar_weather_sim.gap.measured import RECOVERY_CASES, case_scenario, make_measured
+from lidar_weather_sim.scenario.schema import load_scenario
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

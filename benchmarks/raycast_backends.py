@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
-from lidar_weather_sim.mesh import TriangleMesh, box_mesh
-from lidar_weather_sim.raycast import SceneCaster, available_backends, make_caster, unavailable_backends
+from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
+from lidar_weather_sim.scene.raycast import SceneCaster, available_backends, make_caster, unavailable_backends
 
 SENSOR_Z = 1.9  # m
 

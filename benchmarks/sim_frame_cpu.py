@@ -18,11 +18,11 @@ import argparse
 import time
 
 import numpy as np
-
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.world import World
 from sim_frame_time import instrument, ten_vehicles
+
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sim.simulator import LidarSimulator
 
 
 def run(case: str, frames: int, sequence: int) -> np.ndarray:

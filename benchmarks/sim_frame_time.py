@@ -13,7 +13,7 @@ the fastest ("min ms": on a shared machine the least disturbed); Mrays/s of the 
 the same rays the simulator casts, timed around each backend call); "other ms" =
 frame - cast (poses, rotation, culling, echoes, points); overhead = frame / cast;
 points per frame. ``--threads`` sets the simulator's kernel threads
-(:mod:`lidar_weather_sim.workers`; 1 = single-threaded kernels).
+(:mod:`lidar_weather_sim.core.workers`; 1 = single-threaded kernels).
 
     python benchmarks/sim_frame_time.py [--frames N] [--backend B] [--profiles a,b] [--steps K] [--threads T]
 """
@@ -29,13 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_weather_sim.raycast import available_backends
-from lidar_weather_sim.scenario import Actor, load_scenario
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.world import World
+from lidar_weather_sim.scenario.schema import Actor, load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.scene.raycast import available_backends
+from lidar_weather_sim.sim.simulator import LidarSimulator
 
 try:
-    from lidar_weather_sim import workers
+    from lidar_weather_sim.core import workers
 except ImportError:  # a revision before the kernels' thread pool: single-threaded
     workers = None
 

@@ -39,16 +39,18 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
-from lidar_weather_sim.echo import overlap_factor, peak_amplitude, surface_reflectance
-from lidar_weather_sim.points import Label
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.simulator import LidarSimulator, quaternion_matrices
-from lidar_weather_sim.world import World
+from lidar_weather_sim.core.geometry import quaternion_matrices
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sensor.echo import overlap_factor, peak_amplitude, surface_reflectance
+from lidar_weather_sim.sim.simulator import LidarSimulator
 from spray_particles.metrics import bev_histogram as bev
 from spray_particles.metrics import compare_histograms as metrics
 from spray_particles.metrics import per_frame_overlap
 from spray_particles.reference import DropletReference, detect_frame
 from spray_particles.region import SprayRegion
+
 
 class _Timed:
     def __init__(self, region):

@@ -20,9 +20,9 @@ import time
 
 import numpy as np
 
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.world import World
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sim.simulator import LidarSimulator
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.forces import drag_rates

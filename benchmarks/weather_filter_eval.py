@@ -79,8 +79,12 @@ def repeat_timing(methods, model: Path | None, repeats: int = 20) -> None:
 
 
 def knn_accuracy() -> None:
-    from weather_filter.weather_class import (KNN_TEST_SCENARIO_SPECS, KNN_TEST_SEEDS_SPECS, FrameWeatherClassifier,
-                                              run_features)  # fmt: skip
+    from weather_filter.weather_class import (
+        KNN_TEST_SCENARIO_SPECS,
+        KNN_TEST_SEEDS_SPECS,
+        FrameWeatherClassifier,
+        run_features,  # fmt: skip
+    )
 
     knn = FrameWeatherClassifier.load()
     for title, specs in (("unseen seeds", KNN_TEST_SEEDS_SPECS), ("other scenarios", KNN_TEST_SCENARIO_SPECS)):

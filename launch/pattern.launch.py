@@ -3,10 +3,10 @@
     ros2 launch lidar_weather_sim pattern.launch.py rate_hz:=20
 
 Here (no `launch`): lidar-weather-sim up pattern rate_hz:=20. The node and its
-arguments come from the graph description, read by lidar_weather_sim.graph.
+arguments come from the graph description, read by lidar_weather_sim.ros.graph.
 """
 
-from lidar_weather_sim.graph import launch_description
+from lidar_weather_sim.ros.graph import launch_description
 
 GRAPH = "pattern"
 

@@ -6,10 +6,10 @@
 Here (no `launch`): lidar-weather-sim up sim scenario:=highway_clear ...
 
 The nodes, parameter files, remappings and arguments come from the graph
-description, read by lidar_weather_sim.graph: the same one `lidar-weather-sim up` runs.
+description, read by lidar_weather_sim.ros.graph: the same one `lidar-weather-sim up` runs.
 """
 
-from lidar_weather_sim.graph import launch_description
+from lidar_weather_sim.ros.graph import launch_description
 
 GRAPH = "sim"
 

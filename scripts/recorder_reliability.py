@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_weather_sim.bags import bag_info, read_messages
-from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF
+from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF
+from lidar_weather_sim.io.bags import bag_info, read_messages
 from lidar_weather_sim.ros.conversions import stamp_to_ns
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.sensor_profile import load_profile
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.sensor.profile import load_profile
 
 
 def _env(log_dir: Path) -> dict[str, str]:

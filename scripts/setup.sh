@@ -74,7 +74,7 @@ fi
 # --- 3c. the real OS1-128 recording of the sdist as a bag and a street mesh ----
 # (lidar-weather-sim import-ouster; redone when the importer changes)
 ouster_real="$venv/cache/ouster_real"
-import_hash=$(cd src/lidar_weather_sim/lidar_weather_sim && cat ouster_import.py ouster_pcap.py points.py | sha256sum | cut -c1-16)
+import_hash=$(cd src/lidar_weather_sim/lidar_weather_sim && cat io/ouster_import.py io/ouster_pcap.py core/points.py | sha256sum | cut -c1-16)
 if [[ "$(cat "$ouster_real/.stamp" 2>/dev/null)" != "$import_hash" ]]; then
   say "importing the real OS1-128 recording into $ouster_real"
   rm -rf "$ouster_real"

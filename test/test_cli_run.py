@@ -5,8 +5,8 @@ import subprocess
 import numpy as np
 import yaml
 
-from lidar_weather_sim.bags import bag_info, read_clouds, read_messages
-from lidar_weather_sim.paths import config_dir
+from lidar_weather_sim.core.paths import config_dir
+from lidar_weather_sim.io.bags import bag_info, read_clouds, read_messages
 
 
 def test_run_writes_a_complete_recording(tmp_path, cli):

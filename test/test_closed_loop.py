@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidar_weather_sim.acc import AccConfig, AccState, ObstacleTrack, braking_events, obstacle_distance, step
-from lidar_weather_sim.closed_loop import Variant, box_scenario, run_variant, write_report
-from lidar_weather_sim.scenario import load_scenario
+from lidar_weather_sim.control.acc import AccConfig, AccState, ObstacleTrack, braking_events, obstacle_distance, step
+from lidar_weather_sim.experiments.closed_loop import Variant, box_scenario, run_variant, write_report
+from lidar_weather_sim.scenario.schema import load_scenario
 
 BOX_AT_S = 1.0
 OBSTACLE, SPRAY = 3, 14

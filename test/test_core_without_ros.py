@@ -22,7 +22,7 @@ def _core_modules():
 
 def test_core_modules_import_without_ros():
     modules = sorted(_core_modules())
-    assert "lidar_weather_sim.cloud_codec" in modules and "lidar_weather_sim.bags" in modules
+    assert "lidar_weather_sim.io.cloud_codec" in modules and "lidar_weather_sim.io.bags" in modules
     script = "import sys\n" + "".join(f"sys.modules[{m!r}] = None\n" for m in BLOCKED)
     script += "".join(f"import {m}\n" for m in modules)
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)

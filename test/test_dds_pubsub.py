@@ -6,9 +6,9 @@ import numpy as np
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
-from lidar_weather_sim.points import Label
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.io.synthetic_pattern import synthetic_frame
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud
-from lidar_weather_sim.synthetic_pattern import synthetic_frame
 
 
 def test_listener_process_receives_clouds_from_publisher_process(processes, cli):

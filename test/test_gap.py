@@ -13,11 +13,11 @@ import subprocess
 import pytest
 import yaml
 
-from lidar_weather_sim.bags import bag_info
-from lidar_weather_sim.effects import apply_effects, parse_effect
-from lidar_weather_sim.gap_command import run_gap
-from lidar_weather_sim.measured import RECOVERY_CASES, case_scenario, make_measured
-from lidar_weather_sim.scenario import Scenario, load_scenario
+from lidar_weather_sim.gap.command import run_gap
+from lidar_weather_sim.gap.effects import apply_effects, parse_effect
+from lidar_weather_sim.gap.measured import RECOVERY_CASES, case_scenario, make_measured
+from lidar_weather_sim.io.bags import bag_info
+from lidar_weather_sim.scenario.schema import Scenario, load_scenario
 
 FRAMES = 60
 BUDGETS = {"fit_frames": 30, "heldout_frames": 30, "screen_frames": 6}

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from lidar_weather_sim.graph import available_graphs, command_line, load_graph, resolve, resolve_steps
+from lidar_weather_sim.ros.graph import available_graphs, command_line, load_graph, resolve, resolve_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = sorted((ROOT / "launch").glob("*.launch.py"))
@@ -116,7 +116,7 @@ def _check_after_steps(entities, nodes, plans, steps):
 
 
 def test_resolve_types_conditions_and_errors():
-    from lidar_weather_sim.config import ConfigError
+    from lidar_weather_sim.core.config import ConfigError
 
     sim = load_graph("sim")
     (node,) = resolve(sim, {"realtime_factor": "2", "max_frames": "7", "regions": "[cover]", "use_sim_time": "true"})

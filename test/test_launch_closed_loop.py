@@ -13,15 +13,16 @@ import unittest
 import pytest
 
 pytest.importorskip("launch_testing", reason="launch_testing is not installed (no full ROS 2 install); "
-                    "test/test_closed_loop.py covers the same graph through lidar_weather_sim.graph.run")
+                    "test/test_closed_loop.py covers the same graph through lidar_weather_sim.ros.graph.run")
 pytest.importorskip("launch_ros", reason="launch_ros is not installed (no full ROS 2 install)")
 
-import launch  # noqa: E402
 import launch_testing.actions  # noqa: E402
 import launch_testing.asserts  # noqa: E402
 import rclpy  # noqa: E402
 from launch.actions import IncludeLaunchDescription  # noqa: E402
 from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
+
+import launch  # noqa: E402
 
 LAUNCH = os.path.join(os.path.dirname(__file__), "..", "launch", "closed_loop.launch.py")
 

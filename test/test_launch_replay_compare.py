@@ -23,11 +23,12 @@ pytest.importorskip("launch_testing", reason="launch_testing is not installed (n
                     "test/test_replay.py covers the same graph through `lidar-weather-sim up`")
 pytest.importorskip("launch_ros", reason="launch_ros is not installed (no full ROS 2 install)")
 
-import launch  # noqa: E402
 import launch_testing.actions  # noqa: E402
 import launch_testing.asserts  # noqa: E402
 from launch.actions import IncludeLaunchDescription  # noqa: E402
 from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
+
+import launch  # noqa: E402
 
 LAUNCH = os.path.join(os.path.dirname(__file__), "..", "launch", "replay_compare.launch.py")
 WORK = Path(tempfile.mkdtemp(prefix="launch_replay_"))
@@ -62,7 +63,7 @@ class TestAfterShutdown(unittest.TestCase):
         launch_testing.asserts.assertExitCodes(proc_info, allowable_exit_codes=[0, -2, -15])
 
     def test_recording_and_comparison(self):
-        from lidar_weather_sim.bags import read_clouds
+        from lidar_weather_sim.io.bags import read_clouds
 
         replayed = list(read_clouds(OUT))
         self.assertGreaterEqual(len(replayed), FRAMES - 2)

@@ -17,12 +17,13 @@ pytest.importorskip("launch_testing", reason="launch_testing is not installed (n
                     "test/test_graphs.py covers the same graph through `lidar-weather-sim up`")
 pytest.importorskip("launch_ros", reason="launch_ros is not installed (no full ROS 2 install)")
 
-import launch  # noqa: E402
 import launch_testing.actions  # noqa: E402
 import launch_testing.asserts  # noqa: E402
 import rclpy  # noqa: E402
 from launch.actions import IncludeLaunchDescription  # noqa: E402
 from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
+
+import launch  # noqa: E402
 
 LAUNCH = os.path.join(os.path.dirname(__file__), "..", "launch", "sim.launch.py")
 FIELDS = ["x", "y", "z", "intensity", "return_type", "channel", "azimuth", "elevation", "distance", "time_stamp",

@@ -1,6 +1,6 @@
 """Each node, in its own process over DDS, fed malformed PointCloud2 / odometry interleaved with good messages.
 
-The stream comes from :mod:`lidar_weather_sim.malformed` (seeded: random field
+The stream comes from :mod:`lidar_weather_sim.testing.malformed` (seeded: random field
 tables, truncated and padded data, NaNs, absurd sizes, big-endian, vector x;
 NaN poses, zero quaternions, wrong frames, stamps far off, teleports). Every
 good message must still give the output the library computes for it, the node
@@ -19,9 +19,9 @@ import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2, PointField
 
-from lidar_weather_sim.acc import AccConfig, obstacle_distance
-from lidar_weather_sim.malformed import malformed_cloud, malformed_odometry
+from lidar_weather_sim.control.acc import AccConfig, obstacle_distance
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
+from lidar_weather_sim.testing.malformed import malformed_cloud, malformed_odometry
 from weather_filter.filters import make_filter
 from weather_filter.synthetic import highway_frame
 
@@ -101,11 +101,11 @@ def test_ego_controller_node_keeps_commanding_on_good_clouds(processes, ros, tmp
 def test_lidar_sim_node_casts_the_good_odometry_and_skips_the_rest(processes, ros):
     from nav_msgs.msg import Odometry
 
-    from lidar_weather_sim.pose_sources import TfPoseSource, add_odometry, mount_transform, set_static_mount
-    from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession
-    from lidar_weather_sim.scenario import load_scenario
-    from lidar_weather_sim.tf_buffer import TransformBuffer
-    from lidar_weather_sim.world import World
+    from lidar_weather_sim.poses.sources import TfPoseSource, add_odometry, mount_transform, set_static_mount
+    from lidar_weather_sim.poses.tf_buffer import TransformBuffer
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.scenario.world import World
+    from lidar_weather_sim.sim.session import RuntimeSettings, SimSession
 
     world = World.build(load_scenario("highway_clear"))
     t0, tick = 1_700_000_000 * S, 10_000_000

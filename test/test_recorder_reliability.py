@@ -30,7 +30,7 @@ def test_recorder_stops_on_sigint_while_recording(processes, cli, tmp_path):
     import signal
     import time
 
-    from lidar_weather_sim.bags import bag_info
+    from lidar_weather_sim.io.bags import bag_info
 
     pattern = processes.start(*cli, "pattern", "--rate", "50", "--count", "100000")
     for i, after_s in enumerate((0.0, 0.5, 2.0)):
@@ -55,7 +55,7 @@ def test_a_recorder_started_first_gets_the_whole_bag_with_play_wait_for(processe
     import signal
     import time
 
-    from lidar_weather_sim.bags import bag_info
+    from lidar_weather_sim.io.bags import bag_info
 
     source, out = tmp_path / "source", tmp_path / "recorded"
     assert subprocess.run([*cli, "run", "highway_clear", "--frames", "20", "--out", str(source)],

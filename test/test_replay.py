@@ -13,7 +13,7 @@ import json
 
 import numpy as np
 
-from lidar_weather_sim.bags import bag_info, read_clouds, read_messages
+from lidar_weather_sim.io.bags import bag_info, read_clouds, read_messages
 
 FRAMES = 12
 

@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 import yaml
 
-from lidar_weather_sim.config import ConfigError
-from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message
-from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.sensor_profile import load_profile, profiles_dir
-from lidar_weather_sim.tf_buffer import TransformBuffer
-from lidar_weather_sim.world import World
+from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.poses.sources import TfPoseSource, add_tf_message
+from lidar_weather_sim.poses.tf_buffer import TransformBuffer
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sensor.profile import load_profile, profiles_dir
+from lidar_weather_sim.sim.session import RuntimeSettings, SimSession, parse_region_params
 
 S = 1_000_000_000
 T0 = 1_700_000_000 * S  # wall-clock-like stamps: nanoseconds must survive (no float64 seconds on the wire)
@@ -97,7 +97,7 @@ class Lockstep:
             TFMessage, "/tf_static", QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, **reliable)
         )
         m = world.player.mount
-        from lidar_weather_sim.player import matrix_quaternion
+        from lidar_weather_sim.core.geometry import matrix_quaternion
 
         static.publish(TFMessage(transforms=[transform("base_link", "lidar", T0, m[:3, 3], matrix_quaternion(m[:3, :3]))]))
         self.static = static
@@ -182,7 +182,7 @@ def test_tf_mode_actors_and_their_spray_follow_their_tf_frames(processes, ros):
         if lock.k % 4 == 2:
             assert ros.spin_until(lambda: len(lock.clouds) > lock.k // 4, timeout_s=20), processes.output(proc)
         lock.k += 1
-    from lidar_weather_sim.points import Label
+    from lidar_weather_sim.core.points import Label
 
     points = np.concatenate([decode(m)[1] for m in lock.clouds[-10:]])
     body = points[(points["label"] == Label.VEHICLE) & (points["object_id"] == 100)]
@@ -292,7 +292,7 @@ def _tf_msg(world, k):
 def _static_msg(world):
     from tf2_msgs.msg import TFMessage
 
-    from lidar_weather_sim.player import matrix_quaternion
+    from lidar_weather_sim.core.geometry import matrix_quaternion
 
     m = world.player.mount
     return TFMessage(transforms=[transform("base_link", "lidar", T0, m[:3, 3], matrix_quaternion(m[:3, :3]))])
@@ -389,7 +389,7 @@ def test_odometry_mode_with_the_parameter_mount(processes, ros, world):
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import PointCloud2
 
-    from lidar_weather_sim.pose_sources import add_odometry, mount_transform, set_static_mount
+    from lidar_weather_sim.poses.sources import add_odometry, mount_transform, set_static_mount
 
     mount = ([3.7, 0.0, 1.5], [0.0, 2.0, 0.0])  # higher and pitched down: not the scenario's mount
     proc = node_process(processes, pose_source="odometry", fixed_frame="odom", odometry_topic="/ego/odom",

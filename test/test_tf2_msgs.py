@@ -5,8 +5,8 @@ from geometry_msgs.msg import TransformStamped
 from rosbags.typesys import Stores, get_typestore
 from tf2_msgs.msg import TFMessage
 
-from lidar_weather_sim.names import TOPIC_TF
-from lidar_weather_sim.tf_buffer import TransformBuffer
+from lidar_weather_sim.core.names import TOPIC_TF
+from lidar_weather_sim.poses.tf_buffer import TransformBuffer
 
 PUBLISH_TF = """
 import math, sys, time

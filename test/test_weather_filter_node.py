@@ -7,7 +7,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
-from lidar_weather_sim.points import Label, strip_ground_truth
+from lidar_weather_sim.core.points import Label, strip_ground_truth
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud
 from weather_filter.synthetic import highway_frame
 

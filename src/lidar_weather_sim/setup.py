@@ -45,8 +45,8 @@ setup(
             "ego_controller_node = lidar_weather_sim.ros.ego_controller_node:main",
         ],
         "lidar_weather_sim.regions": [
-            "cover = lidar_weather_sim.regions_cover:CoverRegion",
-            "atmosphere = lidar_weather_sim.regions_atmosphere:AtmosphereRegion",
+            "cover = lidar_weather_sim.regions.cover:CoverRegion",
+            "atmosphere = lidar_weather_sim.regions.atmosphere:AtmosphereRegion",
         ],
     },
 )

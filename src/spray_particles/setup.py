@@ -18,6 +18,6 @@ setup(
     license="Apache-2.0",
     entry_points={
         "lidar_weather_sim.regions": ["spray = spray_particles.region:SprayRegion"],
-        "console_scripts": ["spray_node = spray_particles.node:main"],
+        "console_scripts": ["spray_node = spray_particles.ros.node:main"],
     },
 )

@@ -15,7 +15,7 @@ setup(
         # The CLI on PATH (colcon adds <prefix>/bin); the node lives in lib/<package> for ros2 run.
         ("bin", glob("bin/*")),
     ],
-    package_data={package_name: ["models/*.joblib"]},
+    package_data={package_name: ["models/*.joblib", "scenarios/*.yaml"]},
     include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=False,
@@ -23,6 +23,8 @@ setup(
     maintainer_email="dev@lidar-weather-sim.invalid",
     license="Apache-2.0",
     entry_points={
+        # The filter's training and evaluation runs (weather_filter/scenarios/wf_*.yaml), runnable by name.
+        "lidar_weather_sim.scenario_dirs": ["weather_filter = weather_filter.simdata:scenario_directory"],
         "console_scripts": [
             "weather-filter = weather_filter.cli:main",
             "weather_filter_node = weather_filter.ros.weather_filter_node:main",

@@ -7,51 +7,22 @@ returns an exit code; errors print one line naming the problem and exit 2.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 
-from lidar_weather_sim.names import TOPIC_POINTS
-
-
-def number_in(kind: type, least: float, most: float | None = None, *, open_low: bool = False,
-              open_high: bool = False, reason: str | None = None):
-    """argparse type: a finite ``kind`` in [least, most] (ends open where asked); else the one-line
-    "must <reason>, got <text>" (default reason: "be at least / above <least>" or "lie in [least, most]")."""
-    if reason is None:
-        if most is None:
-            reason = f"be {'above' if open_low else 'at least'} {least}"
-        else:
-            reason = f"lie in {'(' if open_low else '['}{least}, {most}{')' if open_high else ']'}"
-
-    def parse(text: str):
-        value = kind(text)
-        low_ok = value > least if open_low else value >= least
-        high_ok = most is None or (value < most if open_high else value <= most)
-        if not (math.isfinite(value) and low_ok and high_ok):
-            raise argparse.ArgumentTypeError(f"must {reason}, got {text}")
-        return value
-
-    parse.__name__ = kind.__name__  # argparse names the type in "invalid int value: 'x'"
-    return parse
-
-
-positive_int = number_in(int, 1)  # frame counts: 0 or fewer would write or compare nothing
-count_int = number_in(int, 0, reason="be 0 (no limit) or more")
-seed_int = number_in(int, 0, reason="be 0 or more")  # numpy's seed sequences take no negatives
-non_negative_float = number_in(float, 0.0, reason="be a finite number of 0 or more")  # times, timeouts
-positive_float = number_in(float, 0.0, open_low=True, reason="be a finite number above 0")  # rates, durations
+from lidar_weather_sim.core.argtypes import count_int, non_negative_float, positive_float, positive_int, seed_int
+from lidar_weather_sim.core.names import TOPIC_POINTS
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.bags import bag_info, format_info
+    from lidar_weather_sim.io.bags import bag_info, format_info
 
     print(format_info(bag_info(args.bag)))
     return 0
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.bags import recover
+    from lidar_weather_sim.io.bags import recover
 
     report = recover(args.bag)
     if report.damaged_copy is None:
@@ -67,8 +38,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return _run_realtime(args)
     from tqdm import tqdm
 
-    from lidar_weather_sim.offline import run_scenario
-    from lidar_weather_sim.scenario import load_scenario
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.sim.offline import run_scenario
 
     scenario = load_scenario(args.scenario)
     out = args.out or f"{scenario.name}_run"
@@ -126,7 +97,15 @@ def _cmd_up(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from lidar_weather_sim.graph import command_line, load_graph, parameter_yaml, parse_assignments, resolve, resolve_steps, run
+    from lidar_weather_sim.ros.graph import (
+        command_line,
+        load_graph,
+        parameter_yaml,
+        parse_assignments,
+        resolve,
+        resolve_steps,
+        run,
+    )
 
     graph, given = load_graph(args.graph), parse_assignments(args.arguments)
     plans, steps = resolve(graph, given), resolve_steps(graph, given)
@@ -169,7 +148,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 
 def _cmd_import_ouster(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.ouster_import import default_sdist, import_ouster
+    from lidar_weather_sim.io.ouster_import import default_sdist, import_ouster
 
     mesh = args.mesh_out or f"{str(args.out).rstrip('/')}_mesh.ply"
     report = import_ouster(args.sdist or default_sdist(), args.out, mesh, overwrite=args.overwrite)
@@ -181,19 +160,19 @@ def _cmd_import_ouster(args: argparse.Namespace) -> int:
 
 
 def _cmd_closed_loop(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.closed_loop import main as closed_loop_main
+    from lidar_weather_sim.experiments.closed_loop import main as closed_loop_main
 
     return closed_loop_main(args)
 
 
 def _cmd_make_measured(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.effects import parse_effect
-    from lidar_weather_sim.measured import make_measured
-    from lidar_weather_sim.scenario import load_scenario
+    from lidar_weather_sim.gap.effects import parse_effect
+    from lidar_weather_sim.gap.measured import make_measured
+    from lidar_weather_sim.scenario.schema import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
     if args.on:
-        from lidar_weather_sim.augment import augment_recording
+        from lidar_weather_sim.gap.augment import augment_recording
 
         if args.frames is not None or args.seed is not None:
             raise ValueError("--on puts the effects on every frame of its recording, at the scenario's seed: "
@@ -217,10 +196,10 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from lidar_weather_sim.compare import build_comparison
-    from lidar_weather_sim.gap_report import write_compare
-    from lidar_weather_sim.recording import Recording
-    from lidar_weather_sim.scenario import load_scenario
+    from lidar_weather_sim.gap.compare import build_comparison
+    from lidar_weather_sim.gap.report import write_compare
+    from lidar_weather_sim.io.recording import Recording
+    from lidar_weather_sim.scenario.schema import load_scenario
 
     scenario = load_scenario(args.scenario) if args.scenario else None
     comparison = build_comparison(Recording.load(args.measured, args.topic), Recording.load(args.simulated, args.topic),
@@ -234,8 +213,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _cmd_gap(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from lidar_weather_sim.gap_command import run_gap
-    from lidar_weather_sim.scenario import load_scenario
+    from lidar_weather_sim.gap.command import run_gap
+    from lidar_weather_sim.scenario.schema import load_scenario
 
     with tqdm(unit="frame", desc="gap: frames cast") as bar:
 
@@ -299,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--profile", help="sensor profile (name in config/sensors or YAML path) instead of scala4")
     reproduce.add_argument("--fit-file", help="atmosphere parameters, e.g. from benchmarks/fit_atmosphere.py --out "
                                               "(default config/atmosphere_fit.yaml)")
-    reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.reproduce", fromlist=["main"]).main(a))
+    reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.experiments.reproduce", fromlist=["main"]).main(a))
 
     measured = commands.add_parser("make-measured", help="render 'measured' data with hidden effects and nuisance")
     measured.add_argument("scenario", metavar="SCENARIO", help="name in config/scenarios or a YAML path")

@@ -11,9 +11,9 @@ import sys
 
 import numpy as np
 
-from lidar_weather_sim.bags import BagWriter
-from lidar_weather_sim.names import FRAME_LIDAR, TOPIC_POINTS
-from lidar_weather_sim.points import empty_points
+from lidar_weather_sim.core.names import FRAME_LIDAR, TOPIC_POINTS
+from lidar_weather_sim.core.points import empty_points
+from lidar_weather_sim.io.bags import BagWriter
 
 N_POINTS = 3000
 STAMP_LAG_NS = 5_000_000

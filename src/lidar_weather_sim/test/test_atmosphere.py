@@ -2,21 +2,20 @@
 
 import json
 import subprocess
-import sys
-from pathlib import Path
 from importlib.metadata import entry_points
+from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from lidar_weather_sim.extinction import fog_alpha, rain_alpha, snow_alpha
-from lidar_weather_sim.regions import REGISTRY, RegionContext
-from lidar_weather_sim.regions_atmosphere import fit_path
-from lidar_weather_sim.reproduce import simulate
-from lidar_weather_sim.scenario import Weather
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.testing import MATERIALS, one_frame, scene_of, simple_profile, wall
+from lidar_weather_sim.experiments.reproduce import simulate
+from lidar_weather_sim.regions.atmosphere import fit_path
+from lidar_weather_sim.regions.base import REGISTRY, RegionContext
+from lidar_weather_sim.regions.extinction import fog_alpha, rain_alpha, snow_alpha
+from lidar_weather_sim.scenario.schema import Weather
+from lidar_weather_sim.sim.simulator import LidarSimulator
+from lidar_weather_sim.testing.fixtures import MATERIALS, one_frame, scene_of, simple_profile, wall
 
 
 def test_plugins_are_registered_by_entry_point():
@@ -108,7 +107,7 @@ def test_reproduce_rooftop_writes_a_valid_json(tmp_path, cli):
 
 
 def test_reproduce_rooftop_takes_another_sensor_profile_and_fit_file(tmp_path, cli):
-    from lidar_weather_sim.paths import config_dir
+    from lidar_weather_sim.core.paths import config_dir
 
     profile = yaml.safe_load((config_dir() / "sensors" / "scala4.yaml").read_text())
     profile["detection"]["sun_noise_per_w_m2"] *= 2.0  # a receiver that sunlight blinds more
@@ -144,7 +143,7 @@ MATCHED_AT_10_FRAMES = 64
 
 
 def test_rooftop_reproduction_matches_at_least_the_recorded_number_of_paper_means(tmp_path):
-    from lidar_weather_sim.reproduce import reproduce_rooftop, within_sigma
+    from lidar_weather_sim.experiments.reproduce import reproduce_rooftop, within_sigma
 
     rows = reproduce_rooftop(tmp_path, frames=10, seed=0, plots=False)
     compared = [within_sigma(r) for r in rows if within_sigma(r) is not None]

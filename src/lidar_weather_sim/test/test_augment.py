@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from lidar_weather_sim.augment import augment_frame, beam_keys
-from lidar_weather_sim.paths import cache_dir
-from lidar_weather_sim.points import POINT_DTYPE_NO_EPW, Label, empty_points, fill_polar
+from lidar_weather_sim.core.paths import cache_dir
+from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW, Label, empty_points, fill_polar
+from lidar_weather_sim.gap.augment import augment_frame, beam_keys
 
 COLUMNS = 8
 
@@ -46,7 +46,7 @@ def test_make_measured_on_the_real_recording(tmp_path):
     bag = cache_dir() / "ouster_real" / "os1_128_street"
     if not bag.exists():
         pytest.skip(f"real recording {bag} absent (make setup imports it)")
-    from lidar_weather_sim.recording import Recording
+    from lidar_weather_sim.io.recording import Recording
 
     out = tmp_path / "real_fog"
     done = subprocess.run([sys.executable, "-m", "lidar_weather_sim.cli", "make-measured", "ouster_street", "--on",

@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from lidar_weather_sim.bags import (
+from lidar_weather_sim.core.names import FRAME_LIDAR, TOPIC_POINTS, TOPIC_TF
+from lidar_weather_sim.core.points import POINT_DTYPE, empty_points
+from lidar_weather_sim.io.bags import (
     BagError,
     BagWriter,
     bag_info,
@@ -29,9 +31,7 @@ from lidar_weather_sim.bags import (
     recover,
     typestore,
 )
-from lidar_weather_sim.cloud_codec import MessageTypes, build_message, fields_from_dtype
-from lidar_weather_sim.names import FRAME_LIDAR, TOPIC_POINTS, TOPIC_TF
-from lidar_weather_sim.points import POINT_DTYPE, empty_points
+from lidar_weather_sim.io.cloud_codec import MessageTypes, build_message, fields_from_dtype
 
 CHILD = Path(__file__).with_name("bag_writer_child.py")
 TOPIC_CHATTER = "/chatter"

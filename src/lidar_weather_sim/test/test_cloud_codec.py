@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidar_weather_sim.cloud_codec import (
+from lidar_weather_sim.core.points import empty_points, point_dtype
+from lidar_weather_sim.io.cloud_codec import (
     DATATYPE_TO_DTYPE,
     FLOAT32,
     UINT16,
@@ -15,7 +16,6 @@ from lidar_weather_sim.cloud_codec import (
     decode,
     encode,
 )
-from lidar_weather_sim.points import empty_points, point_dtype
 
 
 def _decode_body(body, **overrides):

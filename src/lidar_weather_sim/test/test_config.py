@@ -3,7 +3,7 @@
 import pydantic
 import pytest
 
-from lidar_weather_sim.config import ConfigError, ConfigModel, dump_yaml, load_yaml
+from lidar_weather_sim.core.config import ConfigError, ConfigModel, dump_yaml, load_yaml
 
 
 class Beam(ConfigModel):

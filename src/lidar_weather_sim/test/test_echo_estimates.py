@@ -4,7 +4,7 @@ echoes of overlapping pulses those of the exactly sampled waveform."""
 import numpy as np
 import pytest
 
-from lidar_weather_sim import echo
+from lidar_weather_sim.sensor import echo
 
 
 def _cluster(rng, n, spread):

@@ -6,11 +6,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lidar_weather_sim.bags import message_types
-from lidar_weather_sim.cloud_codec import CloudFormatError, build_message, decode_message
-from lidar_weather_sim.malformed import CLOUD_KINDS, ODOMETRY_KINDS, malformed_cloud, malformed_odometry
-from lidar_weather_sim.pose_gate import PoseGate
-from lidar_weather_sim.pose_sources import parse_odometry
+from lidar_weather_sim.io.bags import message_types
+from lidar_weather_sim.io.cloud_codec import CloudFormatError, build_message, decode_message
+from lidar_weather_sim.poses.gate import PoseGate
+from lidar_weather_sim.poses.sources import parse_odometry
+from lidar_weather_sim.testing.malformed import CLOUD_KINDS, ODOMETRY_KINDS, malformed_cloud, malformed_odometry
 
 S = 1_000_000_000
 

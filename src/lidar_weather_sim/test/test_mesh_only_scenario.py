@@ -8,11 +8,11 @@ import pytest
 import trimesh
 
 from lidar_weather_sim.cli import main as cli_main
-from lidar_weather_sim.paths import cache_dir, resolve_data_path
-from lidar_weather_sim.player import NoEgoError
-from lidar_weather_sim.scenario import Scenario, load_scenario
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.world import World
+from lidar_weather_sim.core.paths import cache_dir, resolve_data_path
+from lidar_weather_sim.scenario.player import NoEgoError
+from lidar_weather_sim.scenario.schema import Scenario, load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sim.simulator import LidarSimulator
 
 STREET_MESH = "ouster_real/os1_128_street_mesh.ply"
 STREET_BAG = "ouster_real/os1_128_street"
@@ -130,8 +130,8 @@ def _street_cache():
 
 def test_the_real_street_is_cast_from_the_recorded_poses():
     _street_cache()
-    from lidar_weather_sim.recording import Recording
-    from lidar_weather_sim.resim import RecordedPoses
+    from lidar_weather_sim.gap.resim import RecordedPoses
+    from lidar_weather_sim.io.recording import Recording
 
     world = World.build(load_scenario("ouster_street"))
     recording = Recording.load(cache_dir() / STREET_BAG)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lidar_weather_sim.materials import MaterialTable
-from lidar_weather_sim.opendrive import OpenDriveError, RoadNetwork
+from lidar_weather_sim.scene.materials import MaterialTable
+from lidar_weather_sim.scene.opendrive import OpenDriveError, RoadNetwork
 
 MAPS = Path(__file__).resolve().parents[3] / "maps"
 HIGHWAY = MAPS / "highway_straight.xodr"

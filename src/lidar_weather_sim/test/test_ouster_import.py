@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_weather_sim.bags import bag_info, read_clouds, read_messages
 from lidar_weather_sim.cli import main
-from lidar_weather_sim.names import FRAME_LIDAR, FRAME_MAP, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
-from lidar_weather_sim.ouster_import import MEMBERS, default_sdist, load_recording
-from lidar_weather_sim.ouster_pcap import OusterFormatError
-from lidar_weather_sim.points import POINT_DTYPE_NO_EPW
-from lidar_weather_sim.pose_sources import add_tf_message
-from lidar_weather_sim.scene import load_static_mesh
-from lidar_weather_sim.sensor_profile import load_profile
-from lidar_weather_sim.tf_buffer import TransformBuffer
+from lidar_weather_sim.core.names import FRAME_LIDAR, FRAME_MAP, TOPIC_TF, TOPIC_TF_STATIC
+from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW
+from lidar_weather_sim.io.bags import read_clouds, read_messages
+from lidar_weather_sim.io.ouster_import import MEMBERS, default_sdist, load_recording
+from lidar_weather_sim.io.ouster_pcap import OusterFormatError
+from lidar_weather_sim.poses.sources import add_tf_message
+from lidar_weather_sim.poses.tf_buffer import TransformBuffer
+from lidar_weather_sim.scene.scene import load_static_mesh
+from lidar_weather_sim.sensor.profile import load_profile
 
 PIXELS = 128 * 1024
 RNG15_MAX_M = (2**15 - 1) * 0.008  # largest range the low-bandwidth profile encodes

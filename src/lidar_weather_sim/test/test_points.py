@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.points import (
+from lidar_weather_sim.core.points import (
     POINT_DTYPE,
     POINT_DTYPE_NO_GROUND_TRUTH,
     Label,

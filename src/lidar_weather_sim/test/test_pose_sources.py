@@ -1,4 +1,4 @@
-"""Tests for lidar_weather_sim.pose_sources (messages duck-typed with SimpleNamespace; no ROS)."""
+"""Tests for lidar_weather_sim.poses.sources (messages duck-typed with SimpleNamespace; no ROS)."""
 
 import math
 from types import SimpleNamespace as NS
@@ -6,8 +6,8 @@ from types import SimpleNamespace as NS
 import numpy as np
 import pytest
 
-from lidar_weather_sim.player import matrix_quaternion
-from lidar_weather_sim.pose_sources import (
+from lidar_weather_sim.core.geometry import matrix_quaternion
+from lidar_weather_sim.poses.sources import (
     TfPoseSource,
     add_odometry,
     add_tf_message,
@@ -15,10 +15,10 @@ from lidar_weather_sim.pose_sources import (
     set_static_mount,
     stamp_ns,
 )
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.tf_buffer import TransformBuffer
-from lidar_weather_sim.world import World
+from lidar_weather_sim.poses.tf_buffer import TransformBuffer
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sim.simulator import LidarSimulator
 
 S = 1_000_000_000
 EPOCH = 1_700_000_000 * S  # a wall-clock-like origin: float64 seconds would lose the nanoseconds here

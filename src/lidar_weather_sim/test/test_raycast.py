@@ -5,8 +5,8 @@ import importlib.util
 import numpy as np
 import pytest
 
-from lidar_weather_sim.mesh import TriangleMesh, box_mesh
-from lidar_weather_sim.raycast import (
+from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
+from lidar_weather_sim.scene.raycast import (
     BackendUnavailableError,
     MeshCaster,
     SceneCaster,
@@ -128,7 +128,7 @@ def test_mitsuba_casts_leave_no_worker_threads():
     """Dr.Jit's workers spin for ~25 ms after a kernel: a cast stops them, large or small."""
     import drjit as dr
 
-    from lidar_weather_sim.raycast.backend_mitsuba import PARALLEL_RAYS
+    from lidar_weather_sim.scene.raycast.backend_mitsuba import PARALLEL_RAYS
 
     caster = make_caster("mitsuba", BOX.vertices, BOX.triangles)
     for n in (10, PARALLEL_RAYS):

@@ -4,13 +4,12 @@ import numpy as np
 import pydantic
 import pytest
 
-from lidar_weather_sim.config import ConfigError, ConfigModel
-from lidar_weather_sim.echo import FWHM_TO_SIGMA
-from lidar_weather_sim.points import Label
-from lidar_weather_sim.regions import REGISTRY, RegionContext, RegionEffect, Scatterers, region_rng
-from lidar_weather_sim.simulator import LidarSimulator
-
-from lidar_weather_sim.testing import one_frame, scene_of, simple_profile, wall
+from lidar_weather_sim.core.config import ConfigError, ConfigModel
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.regions.base import REGISTRY, RegionContext, RegionEffect, Scatterers, region_rng
+from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA
+from lidar_weather_sim.sim.simulator import LidarSimulator
+from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
 
 
 class Haze:

@@ -5,16 +5,16 @@ import pydantic
 import pytest
 import yaml
 
-from lidar_weather_sim.config import ConfigError, load_yaml
-from lidar_weather_sim.opendrive import RoadNetwork
-from lidar_weather_sim.paths import maps_dir
-from lidar_weather_sim.player import ScenarioPlayer
-from lidar_weather_sim.scenario import Scenario, load_scenario, scenarios_dir
+from lidar_weather_sim.core.config import ConfigError, load_yaml
+from lidar_weather_sim.core.paths import maps_dir
+from lidar_weather_sim.scenario.player import ScenarioPlayer
+from lidar_weather_sim.scenario.schema import Scenario, known_scenarios, load_scenario, scenarios_dir
+from lidar_weather_sim.scene.opendrive import RoadNetwork
 
 
 def test_every_shipped_scenario_validates():
-    names = sorted(p.stem for p in scenarios_dir().glob("*.yaml"))
-    assert {"highway_clear", "curved_clear", "example_all_keys"} <= set(names)
+    names = list(known_scenarios())
+    assert {"highway_clear", "curved_clear", "example_all_keys", "wf_train_fog", "wf_heldout_mixed"} <= set(names)
     for name in names:
         assert load_scenario(name).name == name
 
@@ -103,7 +103,7 @@ def test_bad_scenarios_name_the_key(tmp_path, patch, message):
 
 def test_batched_actor_poses_match_each_track_to_the_bit():
     """Steady actors (evaluated together), a commanded one and a left-lane one (against s)."""
-    from lidar_weather_sim.player import rpy_matrix
+    from lidar_weather_sim.core.geometry import rpy_matrix
 
     scenario = load_scenario("highway_clear")
     extra = [

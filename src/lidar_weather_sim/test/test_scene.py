@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import yaml
 
-from lidar_weather_sim.config import ConfigError
-from lidar_weather_sim.materials import MaterialTable
-from lidar_weather_sim.mesh import TriangleMesh, box_mesh
-from lidar_weather_sim.points import Label
-from lidar_weather_sim.scene import MeshLoadError, Scene, VehicleShape, load_static_mesh, vehicle_mesh
+from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.scene.materials import MaterialTable
+from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
+from lidar_weather_sim.scene.scene import MeshLoadError, Scene, VehicleShape, load_static_mesh, vehicle_mesh
 
 ROOT = Path(__file__).resolve().parents[3]
 THESIS_TABLES = ROOT.parent / "shared" / "data" / "thesis_tables.yaml"

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.config import ConfigError
-from lidar_weather_sim.scan import ScanPattern
-from lidar_weather_sim.sensor_profile import load_profile
+from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.sensor.profile import load_profile
+from lidar_weather_sim.sensor.scan import ScanPattern
 
 
 def test_scala4_matches_thesis_table_2_3(thesis_tables):

@@ -5,16 +5,16 @@ runs, batched player poses, padded Mitsuba casts."""
 import numpy as np
 import pytest
 
-from lidar_weather_sim import workers
-from lidar_weather_sim.echo import _beam_order, overlap_factor, peak_amplitude, surface_reflectance
-from lidar_weather_sim.materials import MaterialTable
-from lidar_weather_sim.mesh import TriangleMesh, box_mesh
-from lidar_weather_sim.points import POINT_DTYPE, Label
-from lidar_weather_sim.raycast import SceneCaster, available_backends
-from lidar_weather_sim.raycast.scene_caster import _padded_size
-from lidar_weather_sim.scene import Scene
-from lidar_weather_sim.sensor_profile import SensorProfile
-from lidar_weather_sim.simulator import (
+from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.points import POINT_DTYPE, Label
+from lidar_weather_sim.scene.materials import MaterialTable
+from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
+from lidar_weather_sim.scene.raycast import SceneCaster, available_backends
+from lidar_weather_sim.scene.raycast.scene_caster import _padded_size
+from lidar_weather_sim.scene.scene import Scene
+from lidar_weather_sim.sensor.echo import _beam_order, overlap_factor, peak_amplitude, surface_reflectance
+from lidar_weather_sim.sensor.profile import SensorProfile
+from lidar_weather_sim.sim.simulator import (
     LidarSimulator,
     _compact_candidates,
     _range_noise,
@@ -85,9 +85,9 @@ def frames(sim: LidarSimulator, steps: int = 23, dt: float = 0.013):
 @pytest.fixture
 def chunked(monkeypatch):
     """Two threads and tiny chunks, so that even these small batches are split."""
-    import lidar_weather_sim.echo as echo
-    import lidar_weather_sim.raycast.scene_caster as scene_caster
-    import lidar_weather_sim.simulator as simulator
+    import lidar_weather_sim.scene.raycast.scene_caster as scene_caster
+    import lidar_weather_sim.sensor.echo as echo
+    import lidar_weather_sim.sim.simulator as simulator
 
     monkeypatch.setattr(workers, "THREADS", 2)
     monkeypatch.setattr(simulator, "CHUNK_RAYS", 96)
@@ -271,10 +271,11 @@ def test_workers_run_every_chunk_once_and_reraise(monkeypatch):
 
 
 def test_batched_actor_poses_equal_single_time_poses(tmp_path):
-    from lidar_weather_sim.opendrive import RoadNetwork
-    from lidar_weather_sim.paths import maps_dir
-    from lidar_weather_sim.player import ScenarioPlayer, rpy_matrix
-    from lidar_weather_sim.scenario import load_scenario
+    from lidar_weather_sim.core.geometry import rpy_matrix
+    from lidar_weather_sim.core.paths import maps_dir
+    from lidar_weather_sim.scenario.player import ScenarioPlayer
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.scene.opendrive import RoadNetwork
 
     scenario = load_scenario("highway_clear")
     extra = [

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.echo import FWHM_TO_SIGMA
-from lidar_weather_sim.mesh import box_mesh
-from lidar_weather_sim.points import Label
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.testing import MATERIALS, LinearPose, one_frame, scene_of, simple_profile, wall
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.scene.mesh import box_mesh
+from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA
+from lidar_weather_sim.sim.simulator import LidarSimulator
+from lidar_weather_sim.testing.fixtures import MATERIALS, LinearPose, one_frame, scene_of, simple_profile, wall
+
 
 def test_flat_wall_ranges_follow_the_geometry():
     sim = LidarSimulator(simple_profile(), scene_of(wall(20.0, "concrete", 7)), backend="open3d")
@@ -127,8 +128,8 @@ def test_time_going_backwards_is_an_error():
 
 
 def test_scala4_sun_calibration_reproduces_the_table_2_first_echo_ratio(thesis_tables):
-    from lidar_weather_sim.rooftop import RooftopPose, rooftop_scene
-    from lidar_weather_sim.sensor_profile import load_profile
+    from lidar_weather_sim.experiments.rooftop import RooftopPose, rooftop_scene
+    from lidar_weather_sim.sensor.profile import load_profile
 
     table = thesis_tables["background_radiation_clear"]
     profile = load_profile("scala4")

@@ -1,4 +1,4 @@
-"""Tests for lidar_weather_sim.tf_buffer (expected values computed by hand)."""
+"""Tests for lidar_weather_sim.poses.tf_buffer (expected values computed by hand)."""
 
 import math
 import threading
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lidar_weather_sim.tf_buffer import (
+from lidar_weather_sim.poses.tf_buffer import (
     ConnectivityError,
     ExtrapolationError,
     Transform,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pydantic import Field
 
-from lidar_weather_sim.config import ConfigModel, load_yaml
+from lidar_weather_sim.core.config import ConfigModel, load_yaml
 
 
 class Physics(ConfigModel):
@@ -90,7 +90,7 @@ class SprayConstants(ConfigModel):
 
 
 def constants_path() -> Path:
-    from lidar_weather_sim.paths import config_dir
+    from lidar_weather_sim.core.paths import config_dir
 
     return config_dir() / "spray.yaml"
 

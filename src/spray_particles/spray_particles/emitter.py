@@ -7,7 +7,7 @@ wheel turns counter-clockwise seen with x right, z up; vertex 0 is the ground
 contact point and emits with zero velocity, the speed grows as v_c i / N counter-
 clockwise). :func:`ring_emission` returns exactly that. :class:`WheelEmitter`
 maps it to the vehicle body frame (x forward, y left, z up, origin at the
-footprint centre on the ground, as :class:`lidar_weather_sim.scene.VehicleShape`)
+footprint centre on the ground, as :class:`lidar_weather_sim.scene.scene.VehicleShape`)
 by x -> -x: vertex 0 at the contact point, vertices behind it thrown backwards and
 up. Velocities are relative to the vehicle body (m/s); positions in m.
 """
@@ -81,9 +81,9 @@ class WheelEmitter:
 
 def vehicle_emitter(length_m: float, width_m: float, height_m: float, tyre_radius_m: float, tyre_width_m: float,
                     treads: int = 3, n_vertices: int = 36) -> WheelEmitter:  # fmt: skip
-    """Emitter on the four wheels of the box car :class:`~lidar_weather_sim.scene.VehicleShape`
+    """Emitter on the four wheels of the box car :class:`~lidar_weather_sim.scene.scene.VehicleShape`
     of that size (wheel positions from ``VehicleShape.wheel_centres``)."""
-    from lidar_weather_sim.scene import VehicleShape
+    from lidar_weather_sim.scene.scene import VehicleShape
 
     centres = VehicleShape(length_m, width_m, height_m).wheel_centres
     return WheelEmitter(centres[:, :2].copy(), tyre_radius_m, tyre_width_m, treads, n_vertices)

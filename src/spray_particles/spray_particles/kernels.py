@@ -9,7 +9,6 @@ from __future__ import annotations
 
 # Each kernel exists twice: serial (compiled once, cached on disk) and parallel (compiled on first
 # use, for big particle sets: thread start-up costs ~0.5 ms a call, more than a few hundred particles).
-
 import math
 
 import numba

@@ -11,9 +11,8 @@ centimetre spheres at 50 m). All frames are the caller's (world); m.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numba
 import numpy as np

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import erf
 
-from lidar_weather_sim.echo import FWHM_TO_SIGMA, overlap_factor
+from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA, overlap_factor
 from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
 from spray_particles.forces import drag_rates
 from spray_particles.system import Particles, SpraySystem

@@ -19,7 +19,7 @@ e.g. the scenario player). ``step(t0, t1)`` advances the particles in simulated
 time (the simulator calls it before each batch).
 
 With ``source: topic`` the particles come from spray_node instead
-(``RegionContext.inputs``, a :class:`~lidar_weather_sim.topic_inputs.TopicInputs` that
+(``RegionContext.inputs``, a :class:`~lidar_weather_sim.regions.topic_inputs.TopicInputs` that
 lidar_sim_node fills from ``topic``): the newest message, as published, with the fields
 of :mod:`spray_particles.particle_cloud`; no particles until the first one arrives.
 """
@@ -32,9 +32,9 @@ import numba
 import numpy as np
 from pydantic import Field
 
-from lidar_weather_sim.config import ConfigError, ConfigModel
-from lidar_weather_sim.points import Label
-from lidar_weather_sim.regions import RayBatch, RegionContext, RegionEffect, Scatterers
+from lidar_weather_sim.core.config import ConfigError, ConfigModel
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect, Scatterers
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.fused import packet_radii

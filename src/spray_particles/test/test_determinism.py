@@ -117,8 +117,8 @@ def test_hit_returns_equal_the_optical_depth_formula_in_numpy():
 
 
 def test_region_radii_are_the_packet_axes_of_the_system():
-    from lidar_weather_sim.regions import REGISTRY, RegionContext
-    from lidar_weather_sim.testing import simple_profile
+    from lidar_weather_sim.regions.base import REGISTRY, RegionContext
+    from lidar_weather_sim.testing.fixtures import simple_profile
 
     region = REGISTRY.create("spray", {}, RegionContext(simple_profile()))
     region.system = _system()

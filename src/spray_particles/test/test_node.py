@@ -4,8 +4,8 @@ import sys
 
 import numpy as np
 
-from spray_particles.node import marker_array
 from spray_particles.particle_cloud import PARTICLE_DTYPE, TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
+from spray_particles.ros.node import marker_array
 
 
 def test_particle_cloud_and_markers():
@@ -27,7 +27,7 @@ def test_node_publishes_particles(ros, processes):
 
     got = []
     ros.node.create_subscription(PointCloud2, TOPIC_PARTICLES, lambda m: got.append(m), 10)
-    processes.start(sys.executable, "-m", "spray_particles.node", "--ros-args", "-p", "scenario:=highway_spray",
+    processes.start(sys.executable, "-m", "spray_particles.ros.node", "--ros-args", "-p", "scenario:=highway_spray",
                     "-p", "rate_hz:=20.0")  # fmt: skip
     assert ros.spin_until(lambda: any(m.width > 0 for m in got), 60.0), "no particles published"
     msg = next(m for m in got if m.width > 0)
@@ -44,8 +44,8 @@ def test_sim_node_sees_the_particles_spray_node_publishes(ros, processes, tmp_pa
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import PointCloud2
 
-    from lidar_weather_sim.paths import config_dir
-    from lidar_weather_sim.points import Label
+    from lidar_weather_sim.core.paths import config_dir
+    from lidar_weather_sim.core.points import Label
     from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
 
     scenario = yaml.safe_load((config_dir() / "scenarios" / "highway_spray.yaml").read_text())
@@ -53,7 +53,7 @@ def test_sim_node_sees_the_particles_spray_node_publishes(ros, processes, tmp_pa
     scenario["region_params"]["spray"]["source"] = "topic"
     path = tmp_path / "highway_spray_from_topic.yaml"
     path.write_text(yaml.safe_dump(scenario))
-    spray = processes.start(sys.executable, "-m", "spray_particles.node", "--ros-args", "-p", "scenario:=highway_spray",
+    spray = processes.start(sys.executable, "-m", "spray_particles.ros.node", "--ros-args", "-p", "scenario:=highway_spray",
                             "-p", "use_sim_time:=true", "-p", "rate_hz:=50.0")  # fmt: skip
     assert ros.spin_until(lambda: ros.node.count_publishers(TOPIC_PARTICLES) > 0, 60.0), processes.output(spray)
     clouds = []
@@ -85,7 +85,7 @@ def test_actors_from_tf_move_the_emitters(ros, processes):
     got = []
     ros.node.create_subscription(PointCloud2, TOPIC_PARTICLES, got.append, 100)
     tf = ros.node.create_publisher(TFMessage, "/tf", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-    proc = processes.start(sys.executable, "-m", "spray_particles.node", "--ros-args", "-p", "scenario:=highway_spray",
+    proc = processes.start(sys.executable, "-m", "spray_particles.ros.node", "--ros-args", "-p", "scenario:=highway_spray",
                            "-p", "actors_from_tf:=true", "-p", "rate_hz:=25.0")  # fmt: skip
     assert ros.spin_until(lambda: tf.get_subscription_count() > 0 and ros.node.count_publishers(TOPIC_PARTICLES) > 0,
                           60.0), processes.output(proc)  # fmt: skip

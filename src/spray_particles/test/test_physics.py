@@ -10,8 +10,13 @@ from spray_particles.emitter import ring_emission, vehicle_emitter
 from spray_particles.forces import CurlNoise, drag_rates, thesis_drag_constant, thesis_wind_constant
 from spray_particles.integrator import analytic_fall, integrate
 from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
-from spray_particles.water import (drop_mass_kg, mean_drop_diameter_m, tread_pickup_m3_s, tyre_dimensions,
-                                   water_film_mm)  # fmt: skip
+from spray_particles.water import (
+    drop_mass_kg,
+    mean_drop_diameter_m,
+    tread_pickup_m3_s,
+    tyre_dimensions,
+    water_film_mm,  # fmt: skip
+)
 
 C = load_constants()
 G = C.physics.gravity_m_s2

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.scan import ScanPattern
-from lidar_weather_sim.testing import simple_profile
+from lidar_weather_sim.sensor.scan import ScanPattern
+from lidar_weather_sim.testing.fixtures import simple_profile
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.metrics import bev_histogram, compare_histograms, per_frame_overlap

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.config import ConfigError
-from lidar_weather_sim.points import Label
-from lidar_weather_sim.regions import REGISTRY, RegionContext
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.simulator import LidarSimulator
-from lidar_weather_sim.testing import one_frame, scene_of, simple_profile, wall
-from lidar_weather_sim.topic_inputs import TopicInputs
-from lidar_weather_sim.world import World
+from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.regions.base import REGISTRY, RegionContext
+from lidar_weather_sim.regions.topic_inputs import TopicInputs
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sim.simulator import LidarSimulator
+from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
 from spray_particles.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.raycast import sphere_hits
 from spray_particles.region import SprayRegion
@@ -104,7 +104,7 @@ def test_spray_occludes_the_vehicle_on_some_subrays_and_keeps_echo_order():
     vehicle behind it stays as a later echo of the same beam."""
     profile = simple_profile(optics__divergence_v_mrad=14.0, optics__subrays_v=3)
     scene = scene_of(wall(20.0, "car_paint", 100))
-    from lidar_weather_sim.scan import ScanPattern
+    from lidar_weather_sim.sensor.scan import ScanPattern
 
     table = ScanPattern(profile).direction_table(0)
     column = int(np.argmin(np.abs(np.arctan2(table[:, 0, 1, 1], table[:, 0, 1, 0]))))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import weather_filter.features as features
-from lidar_weather_sim.points import empty_points
+from lidar_weather_sim.core.points import empty_points
 from weather_filter.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 

@@ -3,8 +3,23 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS, Label, empty_points, fill_polar, strip_ground_truth
-from weather_filter.filters import DRORFilter, DSORFilter, DSORParams, EchoAwareFilter, LIORFilter, MissingFieldsError, make_filter
+from lidar_weather_sim.core.points import (
+    SOLID_LABELS,
+    WEATHER_LABELS,
+    Label,
+    empty_points,
+    fill_polar,
+    strip_ground_truth,
+)
+from weather_filter.filters import (
+    DRORFilter,
+    DSORFilter,
+    DSORParams,
+    EchoAwareFilter,
+    LIORFilter,
+    MissingFieldsError,
+    make_filter,
+)
 from weather_filter.synthetic import highway_frame
 
 

@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from lidar_weather_sim.points import Label
+from lidar_weather_sim.core.points import Label
 from weather_filter.evaluate import evaluate_frames
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 from weather_filter.filters import PointFilter, make_filter
@@ -88,7 +88,7 @@ def test_object_recall_roi_uses_the_corridor():
 
 
 def test_unlabelled_frames_report_removed_fraction():
-    from lidar_weather_sim.points import strip_ground_truth
+    from lidar_weather_sim.core.points import strip_ground_truth
 
     pts = strip_ground_truth(highway_frame("rain", seed=3))
     result = evaluate_frames(make_filter("dror"), [pts])
@@ -98,7 +98,7 @@ def test_unlabelled_frames_report_removed_fraction():
 def test_eval_cli_on_a_labelled_bag(tmp_path):
     import subprocess
 
-    from lidar_weather_sim.bags import BagWriter
+    from lidar_weather_sim.io.bags import BagWriter
 
     bag = tmp_path / "bag"
     with BagWriter(bag) as writer:

@@ -9,8 +9,12 @@ import numpy as np
 import pytest
 
 from weather_filter.evaluate import evaluate_frames
-from weather_filter.filters import (FallbackFilter, GeometryFallbackWarning, make_fallback_filter,
-                                    make_filter_with_fallback)  # fmt: skip
+from weather_filter.filters import (
+    FallbackFilter,
+    GeometryFallbackWarning,
+    make_fallback_filter,
+    make_filter_with_fallback,  # fmt: skip
+)
 from weather_filter.scan_geometry import estimate_angular_steps
 
 REAL_BAG = Path(__file__).resolve().parents[3] / ".venv" / "cache" / "ouster_real" / "os1_128_street"
@@ -21,7 +25,7 @@ MAX_REMOVED = 0.005
 def real_frames():
     if not REAL_BAG.exists():
         pytest.skip(f"real OS1-128 recording not cached at {REAL_BAG} (run: lidar-weather-sim import-ouster --out {REAL_BAG})")
-    from lidar_weather_sim.bags import read_clouds
+    from lidar_weather_sim.io.bags import read_clouds
 
     frames = [frame.points for frame in read_clouds(str(REAL_BAG), "/lidar/points")]
     assert len(frames) == 3 and all("epw" not in p.dtype.names for p in frames)

@@ -12,9 +12,17 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from lidar_weather_sim.points import Label
+from lidar_weather_sim.core.points import Label
 from weather_filter.evaluate import evaluate_frames
-from weather_filter.features import CELL_SHAPES, CORNER, FEATURE_NAMES, HORIZONTAL, IMPULSE, PointFeatures, radial_histogram
+from weather_filter.features import (
+    CELL_SHAPES,
+    CORNER,
+    FEATURE_NAMES,
+    HORIZONTAL,
+    IMPULSE,
+    PointFeatures,
+    radial_histogram,
+)
 from weather_filter.filters import make_filter
 from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, frames_of, simulate
 

@@ -17,9 +17,8 @@ import json
 import shlex
 import sys
 
-from lidar_weather_sim.cli import number_in
-from lidar_weather_sim.names import TOPIC_POINTS
-
+from lidar_weather_sim.core.argtypes import number_in
+from lidar_weather_sim.core.names import TOPIC_POINTS
 from weather_filter.filters import GEOMETRY_METHODS, METHODS
 
 

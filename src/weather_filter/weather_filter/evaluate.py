@@ -19,8 +19,7 @@ from typing import Iterable
 
 import numpy as np
 
-from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS, Label
-
+from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS, Label
 from weather_filter.filters import FallbackFilter, PointFilter
 
 ROI_HALF_WIDTH_M = 1.75
@@ -124,8 +123,7 @@ def evaluate_frames(filt: PointFilter, frames: Iterable[np.ndarray], method: str
 def evaluate_bag(bag: str, method: str, topic: str, fallback: str = "dror", **filter_params) -> dict:
     """Clouds lacking the fields of ``method`` are filtered by the geometry-only ``fallback`` (warning, and a
     ``fallback`` entry in the result naming it and how many frames it filtered)."""
-    from lidar_weather_sim.bags import read_clouds
-
+    from lidar_weather_sim.io.bags import read_clouds
     from weather_filter.filters import make_filter_with_fallback
 
     filt = make_filter_with_fallback(method, fallback, **filter_params)

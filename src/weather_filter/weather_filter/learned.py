@@ -25,8 +25,7 @@ from typing import Iterable
 import numpy as np
 from numba import njit
 
-from lidar_weather_sim.points import SOLID_LABELS, WEATHER_LABELS
-
+from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
 from weather_filter.features import FEATURE_NAMES, REQUIRED_FIELDS, RI_CHANNELS, RI_COLUMNS, PointFeatures
 from weather_filter.filters import PointFilter
 
@@ -122,7 +121,7 @@ class LearnedFilter(PointFilter):
     def _warm_up(self) -> None:
         """Compile the numba feature passes and the network now, not on the first frame: a two-channel scan with
         second echoes takes every branch that compiles (the azimuth step needs >= 10 first echoes a channel)."""
-        from lidar_weather_sim.points import empty_points
+        from lidar_weather_sim.core.points import empty_points
 
         n = 64
         pts = empty_points(n)

@@ -1,12 +1,12 @@
 """Labelled simulation runs for training and evaluating the weather filters.
 
 A run is named by a spec ``SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]`` (scenario
-name in config/scenarios or a YAML path, simulation seed, frame count, optional
+name - in config/scenarios or this package's ``scenarios/``, the filter's own ``wf_*`` runs - or a YAML path, simulation seed, frame count, optional
 sensor profile overriding the scenario's (empty: the scenario's), optional
 weather replacing the scenario's precipitation and fog: ``clear``, ``rainR``,
 ``snowR`` (R mm/h), ``fogV`` (V m visual range) or two joined by ``+``, e.g.
 ``rain2+fog400``; it acts only through the scenario's ``atmosphere`` region). :func:`simulate` writes it with
-``lidar_weather_sim.offline.run_scenario`` into a cache directory, one bag per
+``lidar_weather_sim.sim.offline.run_scenario`` into a cache directory, one bag per
 spec, and reuses the bag when it is already there (the simulator is
 deterministic given the seed). The frames of a run are one sequence: the
 learned filter's frame-difference feature resets between runs, never within.
@@ -21,7 +21,12 @@ from typing import Iterator
 
 import numpy as np
 
-from lidar_weather_sim.names import TOPIC_POINTS
+from lidar_weather_sim.core.names import TOPIC_POINTS
+
+
+def scenario_directory() -> Path:
+    """The filter's own scenarios (``wf_*.yaml``), registered under ``lidar_weather_sim.scenario_dirs``."""
+    return Path(__file__).resolve().parent / "scenarios"
 
 
 @dataclass(frozen=True)
@@ -56,7 +61,7 @@ class SimSpec:
         return text + (f":{self.weather}" if self.weather else "")
 
     def load_scenario(self):
-        from lidar_weather_sim.scenario import load_scenario
+        from lidar_weather_sim.scenario.schema import load_scenario
 
         scenario = load_scenario(self.scenario)
         if self.weather:
@@ -72,7 +77,7 @@ class SimSpec:
 
 def weather_update(text: str) -> dict:
     """``clear`` / ``rainR`` / ``snowR`` / ``fogV``, joined by ``+``: fields of a Weather block."""
-    from lidar_weather_sim.scenario import Fog, Precipitation
+    from lidar_weather_sim.scenario.schema import Fog, Precipitation
 
     update = {"fog": Fog(), "precipitation": Precipitation()}
     for part in text.split("+"):
@@ -89,7 +94,7 @@ def weather_update(text: str) -> dict:
 
 def default_cache_dir() -> Path:
     """``.venv/cache/weather_filter`` of the workspace when it exists, else ``~/.cache/weather_filter``."""
-    from lidar_weather_sim.paths import config_dir
+    from lidar_weather_sim.core.paths import config_dir
 
     venv = config_dir().parent / ".venv"
     return (venv / "cache" / "weather_filter") if venv.is_dir() else Path.home() / ".cache" / "weather_filter"
@@ -97,7 +102,7 @@ def default_cache_dir() -> Path:
 
 def simulate(spec: SimSpec | str, cache_dir: str | Path | None = None) -> Path:
     """The bag of ``spec`` in ``cache_dir`` (simulated now unless already there)."""
-    from lidar_weather_sim.offline import run_scenario
+    from lidar_weather_sim.sim.offline import run_scenario
 
     spec = SimSpec.parse(spec) if isinstance(spec, str) else spec
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
@@ -110,7 +115,7 @@ def simulate(spec: SimSpec | str, cache_dir: str | Path | None = None) -> Path:
 
 
 def frames_of(bag: str | Path, topic: str = TOPIC_POINTS) -> Iterator[np.ndarray]:
-    from lidar_weather_sim.bags import read_clouds
+    from lidar_weather_sim.io.bags import read_clouds
 
     return (frame.points for frame in read_clouds(bag, topic))
 
@@ -120,7 +125,7 @@ _TRAIN_SCENARIOS = ("wf_train_rain_spray", "wf_train_fog", "wf_train_snow", "wf_
 #: Runs the shipped learned filter is trained on (``weather-filter train --sim ...``, see the model's
 #: ``command``): rain + spray + dirt at 100 km/h, fog at 60 km/h, snow at 40 km/h on the curved road, spray in
 #: dry air at 70 km/h, rain in fog at 80 km/h, spray blown over the ego's lane by a crosswind at 80 km/h
-#: (config/scenarios/wf_train_*.yaml) and the proving ground's spray at 39 and 48 km/h;
+#: (weather_filter/scenarios/wf_train_*.yaml) and the proving ground's spray at 39 and 48 km/h;
 #: scala4 and a 128-channel profile at 1024 and 2048 columns (the histogram counts scale with the scan's
 #: resolution: a model trained without a resolution fails on it).
 TRAIN_SPECS = (

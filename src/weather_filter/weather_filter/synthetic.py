@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidar_weather_sim.points import Label, empty_points, fill_polar
+from lidar_weather_sim.core.points import Label, empty_points, fill_polar
 
 
 @dataclass(frozen=True)

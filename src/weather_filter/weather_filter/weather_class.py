@@ -1,7 +1,7 @@
 """Per-frame weather classification (clear / rain / fog / snow) with KNN, as in paper 2.
 
 The 12 per-frame features of paper 2 (Fig. 4) come from the shared extractor
-``lidar_weather_sim.features.frame_features``, applied to the detections of the
+``lidar_weather_sim.gap.features.frame_features``, applied to the detections of the
 atmosphere region (horizontal distance x along the sensor's axis within
 [0, 5) m, as the paper's region), and again to the region's isotropic part
 (:class:`RegionFeatures`): 24 values per frame. Empty-region NaNs become fixed
@@ -20,7 +20,7 @@ mist in the runs) 0.86; v3 (with the isotropic part) 0.93
 
 The shipped model ``models/weather_knn_v<N>.joblib`` is trained on labelled
 simulation runs (:mod:`weather_filter.simdata`) whose class is the scenario's
-weather (``lidar_weather_sim.regions_atmosphere.classify``: rain or snow when it
+weather (``lidar_weather_sim.regions.atmosphere.classify``: rain or snow when it
 precipitates, else fog below 1 km visual range, else clear; spray and cover dirt
 do not change it); ``weather-filter train-weather --sim ...`` (the ``command``
 stored in the model) reproduces it.
@@ -37,7 +37,7 @@ import numpy as np
 CLASSES = ("clear", "rain", "fog", "snow")
 KNN_VERSION = 3
 DEFAULT_KNN_MODEL = Path(__file__).resolve().parent / "models" / f"weather_knn_v{KNN_VERSION}.joblib"
-#: Training runs of the shipped KNN (scala4, 20 frames each): five base scenarios (config/scenarios/wf_knn_*.yaml:
+#: Training runs of the shipped KNN (scala4, 20 frames each): five base scenarios (weather_filter/scenarios/wf_knn_*.yaml:
 #: clean cover, light, medium and heavy dirt, the ego driving into spray mist) under a grid of each class'
 #: intensity, and two dry scenarios without an atmosphere region; classes from the runs' weather. The nuisances
 #: (dirt, spray) are there so that the class is learned across them: v1, without the heavy dirt and the spray
@@ -65,7 +65,7 @@ COUNT_FEATURES = ("n_peak", "n_total", "n_dd", "n_e1", "n_e2", "n_e3")
 
 def _count_columns(width: int) -> list[int]:
     """Columns of the count features in feature vectors of ``width`` (12 or 24 values, FEATURES order)."""
-    from lidar_weather_sim.features import FEATURES
+    from lidar_weather_sim.gap.features import FEATURES
 
     return [FEATURES.index(name) + offset for offset in range(0, width, len(FEATURES)) for name in COUNT_FEATURES]
 
@@ -85,7 +85,7 @@ def frame_feature_extractor() -> Callable[[np.ndarray], np.ndarray]:
 
 
 class RegionFeatures:
-    """points -> 24 values, NaN-free: the 12 paper-2 parameters (``lidar_weather_sim.features.FEATURES`` order)
+    """points -> 24 values, NaN-free: the 12 paper-2 parameters (``lidar_weather_sim.gap.features.FEATURES`` order)
     of the detections with lo_m <= x < hi_m (x: horizontal distance along the sensor axis, sensor frame), then
     the same 12 of the region's isotropic part.
 
@@ -121,7 +121,7 @@ class RegionFeatures:
         return region[kept[sector]], self.sectors / int(kept.sum())
 
     def _parameters(self, points: np.ndarray, index: np.ndarray) -> np.ndarray:
-        from lidar_weather_sim.features import FEATURES, frame_features
+        from lidar_weather_sim.gap.features import FEATURES, frame_features
 
         values = frame_features(points["x"][index], points["echo"][index], points["epw"][index], self.lo_m, self.hi_m)
         fill = {"x_max": self.hi_m, "x_mean": self.hi_m, "x_sigma": 0.0, "x_90": self.hi_m, "n_dd": 0.0,
@@ -180,7 +180,7 @@ class FrameWeatherClassifier:
 
 def spec_weather_class(spec) -> str:
     """The weather class of a run's weather block (``regions_atmosphere.classify``)."""
-    from lidar_weather_sim.regions_atmosphere import classify
+    from lidar_weather_sim.regions.atmosphere import classify
 
     weather = spec.load_scenario().weather
     return classify(weather.fog.visual_range_m, weather.precipitation.type)
@@ -188,8 +188,7 @@ def spec_weather_class(spec) -> str:
 
 def run_features(specs: Iterable[str], cache_dir=None, topic: str | None = None, extractor=None):
     """(features (n, 12), labels, spec per frame) of simulated runs, labelled by their scenario's weather."""
-    from lidar_weather_sim.names import TOPIC_POINTS
-
+    from lidar_weather_sim.core.names import TOPIC_POINTS
     from weather_filter.simdata import SimSpec, frames_of, simulate
 
     extractor = extractor or RegionFeatures()

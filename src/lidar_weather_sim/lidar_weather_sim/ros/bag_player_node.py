@@ -38,8 +38,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from lidar_weather_sim.bags import BagError, read_messages, typestore
-from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_TF_STATIC
+from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF_STATIC
+from lidar_weather_sim.io.bags import BagError, read_messages, typestore
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)

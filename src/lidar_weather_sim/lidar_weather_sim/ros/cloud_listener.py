@@ -15,7 +15,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
-from lidar_weather_sim.cloud_codec import CloudFormatError
+from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
 
 

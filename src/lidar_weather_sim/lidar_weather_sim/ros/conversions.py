@@ -6,7 +6,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from lidar_weather_sim.cloud_codec import DecodedCloud, MessageTypes, NanPolicy, build_message, decode_message
+from lidar_weather_sim.io.cloud_codec import DecodedCloud, MessageTypes, NanPolicy, build_message, decode_message
 
 
 @lru_cache(maxsize=1)

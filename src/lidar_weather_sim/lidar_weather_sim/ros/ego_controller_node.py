@@ -3,7 +3,7 @@
 Subscribes ``cloud_topic`` (default /lidar/points/filtered, SensorDataQoS); per
 cloud it finds the nearest obstacle in its lane and publishes the commanded
 speed (std_msgs/Float64, m/s) on /ego/cmd_speed, which lidar_sim_node's
-scenario player follows. Logic and parameters: :mod:`lidar_weather_sim.acc`
+scenario player follows. Logic and parameters: :mod:`lidar_weather_sim.control.acc`
 (every AccConfig field is a parameter). Time is the cloud's header stamp (sim
 time). ``trace_csv``: if set, one line per cloud for the closed-loop report: stamp_s,
 detected_m (nearest in-lane cluster), distance_m (the confirmed obstacle the
@@ -13,7 +13,7 @@ cluster), cmd_speed_m_s, decel_m_s2, points.
 
 from __future__ import annotations
 
-
+import numpy as np
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
@@ -21,12 +21,10 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64
 
-import numpy as np
-
-from lidar_weather_sim.acc import AccConfig, AccState, ObstacleTrack, clusters, step
-from lidar_weather_sim.cloud_codec import CloudFormatError
-from lidar_weather_sim.config import ConfigError, validate
-from lidar_weather_sim.names import TOPIC_POINTS_FILTERED
+from lidar_weather_sim.control.acc import AccConfig, AccState, ObstacleTrack, clusters, step
+from lidar_weather_sim.core.config import ConfigError, validate
+from lidar_weather_sim.core.names import TOPIC_POINTS_FILTERED
+from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
 

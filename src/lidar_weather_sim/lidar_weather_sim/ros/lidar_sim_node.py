@@ -22,7 +22,7 @@ use_sim_time). ``regions``, ``region_params``, ``sun_irradiance_w_m2`` and
 start; the log gives the time of the request and the stamp of that frame.
 Regions may read points other nodes publish (the ``spray`` region with
 ``source: topic`` reads spray_node's /spray/particles): the node subscribes to
-every topic a region asks for (lidar_weather_sim.topic_inputs) and keeps the
+every topic a region asks for (lidar_weather_sim.regions.topic_inputs) and keeps the
 newest message in fixed_frame; a malformed one is logged and skipped.
 """
 
@@ -45,20 +45,34 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
-from lidar_weather_sim.config import ConfigError
-from lidar_weather_sim.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP, actor_frame
-from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
-from lidar_weather_sim.player import matrix_quaternion
-from lidar_weather_sim.pose_gate import PoseGate
-from lidar_weather_sim.pose_sources import TfPoseSource, add_tf_message, mount_transform, parse_odometry, set_static_mount
+from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.core.geometry import matrix_quaternion
+from lidar_weather_sim.core.names import (
+    FRAME_BASE_LINK,
+    FRAME_LIDAR,
+    FRAME_MAP,
+    TOPIC_CLOCK,
+    TOPIC_POINTS,
+    TOPIC_TF,
+    TOPIC_TF_STATIC,
+    actor_frame,
+)
+from lidar_weather_sim.poses.gate import PoseGate
+from lidar_weather_sim.poses.sources import (
+    TfPoseSource,
+    add_tf_message,
+    mount_transform,
+    parse_odometry,
+    set_static_mount,
+)
+from lidar_weather_sim.poses.tf_buffer import TransformBuffer, TransformError
+from lidar_weather_sim.regions.topic_inputs import TopicInputs
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.ros.qos import CLOCK_QOS, TF_QOS, TF_STATIC_QOS
-from lidar_weather_sim.ros.sim_session import RuntimeSettings, SimSession, parse_region_params
-from lidar_weather_sim.scenario import load_scenario
-from lidar_weather_sim.tf_buffer import TransformBuffer, TransformError
-from lidar_weather_sim.topic_inputs import TopicInputs
-from lidar_weather_sim.world import World
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.sim.session import RuntimeSettings, SimSession, parse_region_params
 
 TOPIC_CMD_SPEED = "/ego/cmd_speed"
 POSE_SOURCES = ("scenario", "tf", "odometry")

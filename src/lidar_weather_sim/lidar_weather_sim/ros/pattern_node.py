@@ -13,10 +13,10 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
-from lidar_weather_sim.names import FRAME_LIDAR, TOPIC_POINTS
+from lidar_weather_sim.core.names import FRAME_LIDAR, TOPIC_POINTS
+from lidar_weather_sim.io.synthetic_pattern import synthetic_frame
 from lidar_weather_sim.ros.conversions import cloud_to_msg
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
-from lidar_weather_sim.synthetic_pattern import synthetic_frame
 
 
 class PatternNode(Node):

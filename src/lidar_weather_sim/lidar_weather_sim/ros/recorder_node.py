@@ -1,4 +1,4 @@
-"""``recorder_node``: records topics to an MCAP rosbag2 (``lidar_weather_sim.bags.BagWriter``).
+"""``recorder_node``: records topics to an MCAP rosbag2 (``lidar_weather_sim.io.bags.BagWriter``).
 
 The project's ``ros2 bag record``. Each topic is subscribed to as raw CDR as
 soon as a publisher shows its type (checked every 0.2 s of steady time), so
@@ -26,8 +26,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from lidar_weather_sim.bags import POINTCLOUD2, BagError, BagWriter
-from lidar_weather_sim.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF_STATIC
+from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF_STATIC
+from lidar_weather_sim.io.bags import POINTCLOUD2, BagError, BagWriter
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 
 

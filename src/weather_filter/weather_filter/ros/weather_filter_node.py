@@ -23,11 +23,10 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
 
-from lidar_weather_sim.cloud_codec import CloudFormatError
-from lidar_weather_sim.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TOPIC_POINTS_REMOVED
+from lidar_weather_sim.core.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TOPIC_POINTS_REMOVED
+from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
-
 from weather_filter.filters import GEOMETRY_METHODS, METHODS, fallback_message, make_fallback_filter, make_filter
 
 DIAGNOSTIC_NAME = "weather_filter_node: filter"
@@ -120,7 +119,7 @@ class WeatherFilterNode(Node):
     def _weather_status(self, points: np.ndarray) -> list[KeyValue]:
         if self._weather is None:
             self._once("noweather", "per-frame weather classification unavailable (no trained KNN / "
-                       "lidar_weather_sim.features): not published", "info")  # fmt: skip
+                       "lidar_weather_sim.gap.features): not published", "info")  # fmt: skip
             return []
         if not {"x", "echo", "epw"} <= set(points.dtype.names or ()):
             self._once("noweatherfields", "cloud lacks x, echo or epw: no per-frame weather class", "info")

@@ -1,0 +1,1 @@
+"""Driving functions on a LiDAR cloud (the closed loop's adaptive cruise controller)."""

@@ -1,0 +1,1 @@
+"""Foundations every layer uses: configuration models, names, paths, the point layout, seeding, worker threads, rotations."""

@@ -1,0 +1,215 @@
+"""Named weather and sensor effects as scenario patches: what ``make-measured`` hides and ``gap`` finds.
+
+An effect is a name and parameters; its first parameter is the main one, in these units:
+
+=========================  ==============  ==================================================
+name                       main parameter  model
+=========================  ==============  ==================================================
+atmosphere.fog             visual_range    m; region ``atmosphere``, fog class (Koschmieder)
+atmosphere.rain            intensity       mm/h; region ``atmosphere``, rain class
+atmosphere.snow            intensity       mm/h water equivalent; ``atmosphere``, snow class
+atmosphere.road_wet        water_film      mm on the road; ``atmosphere`` with ``air: false``
+cover.dirt                 transmission    mean one-way (0-1); region ``cover``, ``dirt:<T>``
+                                           (or ``sample=3l``: that thesis sample at mean T)
+cover.water                transmission    mean one-way (0-1); ``cover``, ``water_film``
+sensor.sun                 irradiance      W/m^2; the receiver's noise floor
+spray                      water_film      mm; region ``spray`` (``actor=ID`` picks the emitter)
+=========================  ==============  ==================================================
+
+Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
+unless ``atmosphere.road_wet`` is applied too) and does not feed spray, so the effects
+hidden in a recording are exactly the ones named. :func:`apply_effects` returns a new,
+validated :class:`~lidar_weather_sim.scenario.schema.Scenario`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidar_weather_sim.scenario.schema import Scenario
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """An effect the model knows: its main parameter, unit, search bounds and extra keys."""
+
+    name: str
+    main: str
+    unit: str
+    bounds: tuple[float, float]
+    log_search: bool  # search the main parameter on a log scale
+    extras: tuple[str, ...] = ()
+
+
+EFFECTS: dict[str, EffectSpec] = {
+    s.name: s
+    for s in (
+        EffectSpec("atmosphere.fog", "visual_range", "m", (15.0, 1000.0), True),
+        EffectSpec("atmosphere.rain", "intensity", "mm/h", (0.2, 100.0), True),
+        EffectSpec("atmosphere.snow", "intensity", "mm/h", (0.05, 10.0), True),
+        EffectSpec("atmosphere.road_wet", "water_film", "mm", (0.03, 5.0), True),
+        EffectSpec("cover.dirt", "transmission", "1", (0.2, 0.995), False, ("sample",)),
+        EffectSpec("cover.water", "transmission", "1", (0.2, 0.995), False),
+        EffectSpec("sensor.sun", "irradiance", "W/m^2", (10.0, 1200.0), True),
+        EffectSpec("spray", "water_film", "mm", (0.05, 3.0), True, ("actor",)),
+    )
+}
+PRECIPITATION = ("atmosphere.rain", "atmosphere.snow")
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One effect with its parameters (``params[spec.main]`` is the main one)."""
+
+    name: str
+    params: dict[str, float | str] = field(default_factory=dict)
+
+    @property
+    def spec(self) -> EffectSpec:
+        return EFFECTS[self.name]
+
+    @property
+    def value(self) -> float:
+        return float(self.params[self.spec.main])
+
+    def with_value(self, value: float) -> "Effect":
+        return Effect(self.name, {**self.params, self.spec.main: float(value)})
+
+    def label(self) -> str:
+        extra = "".join(f",{k}={v}" for k, v in self.params.items() if k != self.spec.main)
+        return f"{self.name}:{self.spec.main}={self.value:g}{extra}"
+
+
+def parse_effect(text: str) -> Effect:
+    """``NAME:key=value[,key=value...]`` (e.g. ``atmosphere.fog:visual_range=60``) -> Effect.
+
+    A value without a key is the main parameter; ``cover.dirt:sample=3l`` alone takes the
+    sample's own mean transmission. Raises ValueError naming the problem."""
+    name, _, rest = text.partition(":")
+    if name not in EFFECTS:
+        raise ValueError(f"--hide {text!r}: unknown effect '{name}' (known: {', '.join(EFFECTS)})")
+    spec = EFFECTS[name]
+    params: dict[str, float | str] = {}
+    for item in filter(None, rest.split(",")):
+        key, eq, value = item.partition("=")
+        key, value = (key, value) if eq else (spec.main, key)
+        if key not in (spec.main, *spec.extras):
+            raise ValueError(f"--hide {text!r}: effect '{name}' has no parameter '{key}' "
+                             f"(parameters: {', '.join((spec.main, *spec.extras))})")  # fmt: skip
+        if key in params:
+            raise ValueError(f"--hide {text!r}: parameter '{key}' given twice")
+        if key == "sample":
+            params[key] = value
+            continue
+        try:
+            params[key] = int(value) if key == "actor" else float(value)
+        except ValueError:
+            raise ValueError(f"--hide {text!r}: parameter '{key}' needs a number, got '{value}'") from None
+        if key == spec.main and not 0.0 < params[key] < float("inf"):
+            raise ValueError(f"--hide {text!r}: '{key}' must be a finite number above 0 ({spec.unit}), got {value}")
+        if key == spec.main and spec.unit == "1" and params[key] > 1.0:
+            raise ValueError(f"--hide {text!r}: '{key}' is a transmission, at most 1, got {value}")
+    if spec.main not in params:
+        if name == "cover.dirt" and "sample" in params:
+            from lidar_weather_sim.regions.cover_textures import load_samples
+
+            sample = str(params["sample"])
+            samples = load_samples().samples
+            if sample not in samples or sample == "water_film":
+                raise ValueError(f"--hide {text!r}: unknown dirt sample '{sample}' (known: "
+                                 f"{', '.join(k for k in samples if k != 'water_film')})")  # fmt: skip
+            params[spec.main] = samples[sample].mean_transmission
+        else:
+            raise ValueError(f"--hide {text!r}: effect '{name}' needs its main parameter '{spec.main}' ({spec.unit})")
+    return Effect(name, params)
+
+
+def conflicts(effects: list[Effect]) -> str | None:
+    """Why ``effects`` cannot be applied together (None if they can)."""
+    names = [e.name for e in effects]
+    for name in set(names):
+        if name != "spray" and names.count(name) > 1:
+            return f"effect '{name}' given twice"
+    spray = [e for e in effects if e.name == "spray"]
+    if len({e.params.get("actor") for e in spray}) != len(spray):
+        return "spray given twice for the same actor"
+    if len({e.value for e in spray}) > 1:
+        return "spray from several actors needs one water film (the road's) for all of them"
+    if all(p in names for p in PRECIPITATION):
+        return "precipitation is rain or snow, not both"
+    if "cover.dirt" in names and "cover.water" in names:
+        return "the cover holds one texture: cover.dirt or cover.water, not both"
+    return None
+
+
+def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
+    """``scenario`` with ``effects`` added (a new, validated Scenario; raises ValueError on conflicts)."""
+    problem = conflicts(effects)
+    if problem:
+        raise ValueError(f"cannot apply {', '.join(e.label() for e in effects)}: {problem}")
+    data = scenario.model_dump(mode="json")
+    regions: list[str] = data["regions"]
+    params: dict[str, dict] = data["region_params"]
+
+    def region(name: str) -> dict:
+        if name not in regions:
+            regions.append(name)
+        return params.setdefault(name, {})
+
+    names = {e.name for e in effects}
+    air = names & {"atmosphere.fog", *PRECIPITATION}
+    if air or "atmosphere.road_wet" in names:
+        atmo = region("atmosphere")
+        atmo["air"] = bool(air)
+        atmo.setdefault("road_water_film_mm", 0.0)
+    spray_actors = []
+    for e in effects:
+        v = e.value
+        if e.name == "atmosphere.fog":
+            region("atmosphere")["visual_range_m"] = v
+        elif e.name in PRECIPITATION:
+            atmo = region("atmosphere")
+            atmo["precipitation_type"] = e.name.split(".")[1]
+            atmo["intensity_mm_h"] = v
+        elif e.name == "atmosphere.road_wet":
+            region("atmosphere")["road_water_film_mm"] = v
+        elif e.name == "cover.dirt":
+            sample = e.params.get("sample")
+            if sample:
+                region("cover").update(texture=str(sample), mean_transmission=v)
+            else:
+                region("cover").update(texture=f"dirt:{v:.6g}", mean_transmission=None)
+        elif e.name == "cover.water":
+            region("cover").update(texture="water_film", mean_transmission=v)
+        elif e.name == "sensor.sun":
+            data["weather"]["sun"]["irradiance_w_m2"] = v
+        elif e.name == "spray":
+            actor = e.params.get("actor", _default_emitter(scenario))
+            spray_actors.append((int(actor), v))
+    if spray_actors:
+        region("spray").update(actor_ids=[a for a, _ in spray_actors], water_film_mm=spray_actors[0][1])
+    return Scenario.model_validate(data)
+
+
+def _default_emitter(scenario: Scenario) -> int:
+    """The first actor flagged ``emits_spray``, else the first vehicle."""
+    for actor in scenario.actors:
+        if actor.emits_spray:
+            return actor.id
+    for actor in scenario.actors:
+        if actor.type == "vehicle":
+            return actor.id
+    raise ValueError(f"scenario '{scenario.name}' has no vehicle to emit spray")
+
+
+def spray_candidates(scenario: Scenario) -> list[int]:
+    """Actor ids that may throw spray: the vehicles of the scenario."""
+    return [a.id for a in scenario.actors if a.type == "vehicle"]
+
+
+def search_grid(spec: EffectSpec, n: int) -> np.ndarray:
+    """``n`` values spanning the spec's bounds (geometric when searched on a log scale)."""
+    lo, hi = spec.bounds
+    return np.geomspace(lo, hi, n) if spec.log_search else np.linspace(lo, hi, n)

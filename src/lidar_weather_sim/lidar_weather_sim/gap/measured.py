@@ -1,0 +1,101 @@
+"""``lidar-weather-sim make-measured``: "measured" data with effects hidden in it, for testing ``gap``.
+
+The scenario is run with the hidden effects (:mod:`lidar_weather_sim.gap.effects`) plus
+nuisance that no effect of the model explains, so that a perfect diagnosis still leaves a
+residual gap:
+
+- another seed than the scenario's (default: the scenario's seed + 1000);
+- extra range noise: Gaussian, ``extra_range_noise_m`` (default 0.02 m) along the beam;
+- dropped frames: each frame is lost with probability ``drop_fraction`` (default 0.02).
+
+The bag looks like a real recording: ``/clock``, ``/tf``, ``/tf_static`` and the cloud
+topic only, and points without ``label`` and ``object_id`` (the 40-byte layout).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from lidar_weather_sim.core.points import strip_ground_truth
+from lidar_weather_sim.gap.effects import Effect, apply_effects
+from lidar_weather_sim.scenario.schema import Scenario
+from lidar_weather_sim.sim.offline import RunReport, run_scenario
+from lidar_weather_sim.sim.simulator import Frame
+
+
+@dataclass(frozen=True)
+class Nuisance:
+    """What the measurement adds beyond the model (see module doc)."""
+
+    seed_offset: int = 1000
+    extra_range_noise_m: float = 0.02
+    drop_fraction: float = 0.02
+
+
+def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator) -> np.ndarray:
+    """Points without ground truth, each moved along its beam by N(0, sigma_m) (m)."""
+    out = strip_ground_truth(points)
+    if sigma_m <= 0 or not len(out):
+        return out
+    d = out["distance"].astype(np.float64)
+    new = np.maximum(d + rng.normal(0.0, sigma_m, len(d)), 1e-3)
+    scale = new / np.maximum(d, 1e-9)
+    for axis in ("x", "y", "z"):
+        out[axis] = out[axis] * scale
+    out["distance"] = new
+    return out
+
+
+def make_measured(
+    scenario: Scenario,
+    effects: list[Effect],
+    output: str | Path,
+    *,
+    frames: int | None = None,
+    seed: int | None = None,
+    profile: str | None = None,
+    nuisance: Nuisance = Nuisance(),
+    overwrite: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> RunReport:
+    """Record ``scenario`` with ``effects`` hidden in it and ``nuisance`` added to ``output``."""
+    hidden = apply_effects(scenario, effects)
+    run_seed = scenario.seed + nuisance.seed_offset if seed is None else seed
+    rng = np.random.default_rng([run_seed & 0xFFFFFFFF, 0x6D6561])  # "mea": the nuisance's own stream
+
+    def measure(frame: Frame) -> np.ndarray | None:
+        if rng.random() < nuisance.drop_fraction:
+            return None
+        return degrade(frame.points, nuisance.extra_range_noise_m, rng)
+
+    return run_scenario(hidden, output, frames=frames, seed=run_seed, profile=profile, overwrite=overwrite,
+                        progress=progress, postprocess=measure)  # fmt: skip
+
+
+#: Reference diagnoses (each effect alone and two pairs) checked by test/test_gap.py and
+#: printed by benchmarks/gap_recovery.py, on highway_clear.
+RECOVERY_CASES = [
+    ["atmosphere.fog:visual_range=80"],
+    ["atmosphere.rain:intensity=10"],
+    ["atmosphere.snow:intensity=1.5"],
+    ["atmosphere.road_wet:water_film=1.5"],
+    ["cover.dirt:transmission=0.7"],
+    ["cover.water:transmission=0.8"],
+    ["sensor.sun:irradiance=400"],
+    ["spray:water_film=1.0,actor=100"],
+    ["atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400"],
+    ["cover.dirt:transmission=0.7", "spray:water_film=1.0,actor=100"],
+]
+
+
+def case_scenario(base: Scenario, hidden: list[str]) -> Scenario:
+    """``base`` for a recovery case: the scala4 at bumper height, level, sees almost no road, so
+    a hidden road effect is measured with the sensor pitched 3 deg down (road in view)."""
+    if not any(h.startswith("atmosphere.road_wet") for h in hidden):
+        return base
+    mount = base.sensor.mount.model_copy(update={"pitch_deg": 3.0})
+    return base.model_copy(update={"sensor": base.sensor.model_copy(update={"mount": mount})})

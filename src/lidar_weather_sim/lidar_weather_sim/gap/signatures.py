@@ -1,0 +1,246 @@
+"""Signatures of a set of LiDAR frames, per zone: the histograms the reality-gap tools compare.
+
+ROS-free. Points are in the sensor frame (REP-103, m). Every point falls in one zone:
+
+=========  ===========================================================================
+cover      range < 0.5 m (returns from the sensor cover, thesis paper 1)
+near       0.5 m <= range < 5 m (near-field weather, thesis paper 2)
+body       range >= 5 m on a known vehicle (its body box + 0.3 m)
+wake       range >= 5 m around a known vehicle and in the 10 m behind it, above the road
+           and off its body: where its spray flies (thesis paper 3)
+road       range >= 5 m, not body or wake, z below the road level + 0.3 m
+far        everything else (guard rails, vehicles far away, buildings)
+=========  ===========================================================================
+
+Per zone a :class:`Signature` sums over its frames the range histogram (5 cm bins up to
+5 m, 0.5 m beyond), the echo-number x intensity histogram (16 bins of 16) and the
+echo-number x EPW histogram (0.1 m bins to 3 m; only when the clouds carry ``epw``).
+Over all points it sums the bird's-eye histogram (0.5 m cells, x -100..100 m, y -50..50 m,
+as in the thesis' validation) and the channel x range-class counts (the return ratio by
+channel and range). Per frame it keeps the detections per zone and the 12 per-frame
+parameters of paper 2 over the near field (:mod:`lidar_weather_sim.gap.features`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidar_weather_sim.gap.features import FEATURES, frame_features
+
+ZONES = ("cover", "near", "body", "wake", "road", "far")
+COVER_M, NEAR_M = 0.5, 5.0
+ROAD_MARGIN_M = 0.3
+RANGE_EDGES = {
+    "cover": np.arange(0.0, COVER_M + 1e-9, 0.05),
+    "near": np.arange(COVER_M, NEAR_M + 1e-9, 0.05),
+    **{z: np.arange(NEAR_M, 150.0 + 1e-9, 0.5) for z in ("body", "wake", "road", "far")},
+}
+ECHOES = 3
+INTENSITY_BINS = 16
+EPW_EDGES = np.arange(0.0, 3.0 + 1e-9, 0.1)
+BEV_CELL_M = 0.5
+BEV_X, BEV_Y = (-100.0, 100.0), (-50.0, 50.0)
+RANGE_CLASS_EDGES = np.array([0.0, COVER_M, NEAR_M, 15.0, 30.0, 60.0, np.inf])
+ACTOR_ZONE_BEHIND_M = 10.0  # spray flies this far behind a vehicle
+ACTOR_ZONE_MARGIN_M = (1.0, 1.5, 1.5)  # beyond the body: ahead, to the sides, above
+BODY_MARGIN_M = 0.3  # returns this close to a body box belong to the body
+WAKE_ABOVE_ROAD_M = 0.15  # wake returns are at least this high in the vehicle's frame
+
+
+@dataclass(frozen=True)
+class ActorBox:
+    """A vehicle in the sensor frame: ``pose`` body-to-sensor 4x4 (body origin: centre of the
+    footprint on the road, x forward), size in m."""
+
+    actor_id: int
+    pose: np.ndarray
+    length_m: float = 4.7
+    width_m: float = 1.85
+    height_m: float = 1.45
+
+
+@dataclass(frozen=True)
+class FrameContext:
+    """What zoning needs besides the points: the road level (z in the sensor frame, m) and the
+    vehicles around."""
+
+    road_z_m: float
+    actors: tuple[ActorBox, ...] = ()
+
+
+def zone_of(points: np.ndarray, context: FrameContext) -> np.ndarray:
+    """Index into :data:`ZONES` of every point."""
+    d = points["distance"].astype(np.float64)
+    xyz = np.stack([points["x"], points["y"], points["z"]], axis=-1).astype(np.float64)
+    zone = np.full(len(points), ZONES.index("far"), np.int8)
+    far = d >= NEAR_M
+    zone[far & (xyz[:, 2] < context.road_z_m + ROAD_MARGIN_M)] = ZONES.index("road")
+    ahead, side, above = ACTOR_ZONE_MARGIN_M
+    for box in context.actors:
+        local = (xyz - box.pose[:3, 3]) @ box.pose[:3, :3]  # sensor -> body frame
+        x, y, z = local[:, 0], np.abs(local[:, 1]), local[:, 2]
+        wake = ((x >= -0.5 * box.length_m - ACTOR_ZONE_BEHIND_M) & (x <= 0.5 * box.length_m + ahead)
+                & (y <= 0.5 * box.width_m + side) & (z >= WAKE_ABOVE_ROAD_M) & (z <= box.height_m + above))  # fmt: skip
+        m = BODY_MARGIN_M
+        body = (np.abs(x) <= 0.5 * box.length_m + m) & (y <= 0.5 * box.width_m + m) & (z <= box.height_m + m)
+        zone[far & wake] = ZONES.index("wake")
+        zone[far & body] = ZONES.index("body")
+    zone[d < NEAR_M] = ZONES.index("near")
+    zone[d < COVER_M] = ZONES.index("cover")
+    return zone
+
+
+def _hist(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    idx = np.searchsorted(edges, values, side="right") - 1
+    ok = (idx >= 0) & (idx < len(edges) - 1)
+    return np.bincount(idx[ok], minlength=len(edges) - 1).astype(np.float64)
+
+
+def _echo_hist(echo: np.ndarray, values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    e = np.clip(echo.astype(np.int64), 1, ECHOES) - 1
+    idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
+    return np.bincount(e * (len(edges) - 1) + idx, minlength=ECHOES * (len(edges) - 1)).astype(np.float64)
+
+
+def bev_histogram(points: np.ndarray) -> np.ndarray:
+    """Counts in 0.5 m bird's-eye cells (rows x, columns y), sensor frame."""
+    nx = int(round((BEV_X[1] - BEV_X[0]) / BEV_CELL_M))
+    ny = int(round((BEV_Y[1] - BEV_Y[0]) / BEV_CELL_M))
+    ix = np.floor((points["x"].astype(np.float64) - BEV_X[0]) / BEV_CELL_M).astype(np.int64)
+    iy = np.floor((points["y"].astype(np.float64) - BEV_Y[0]) / BEV_CELL_M).astype(np.int64)
+    ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    return np.bincount(ix[ok] * ny + iy[ok], minlength=nx * ny).reshape(nx, ny).astype(np.float64)
+
+
+@dataclass
+class Signature:
+    """Sums over frames (see module doc); ``frames`` counts them. Use :meth:`mean` to compare."""
+
+    channels: int
+    frames: int = 0
+    has_epw: bool = True
+    sums: dict[str, np.ndarray] = field(default_factory=dict)
+    counts: list[np.ndarray] = field(default_factory=list)  # detections per zone, one row per frame
+    features: list[dict[str, float]] = field(default_factory=list)  # near-field paper-2 parameters per frame
+
+    def add(self, points: np.ndarray, context: FrameContext) -> None:
+        """Add one frame (structured points of the project's layout, or any with x, y, z,
+        distance, intensity, channel and optionally echo and epw)."""
+        names = points.dtype.names or ()
+        self.has_epw = self.has_epw and "epw" in names
+        echo = points["echo"] if "echo" in names else np.ones(len(points), np.uint8)
+        zone = zone_of(points, context)
+        d = points["distance"].astype(np.float64)
+        inten = points["intensity"].astype(np.float64)
+        parts = {"bev": bev_histogram(points)}
+        channel = np.clip(points["channel"].astype(np.int64), 0, self.channels - 1)
+        rc = np.searchsorted(RANGE_CLASS_EDGES, d, side="right") - 1
+        parts["channel_range"] = np.bincount(channel * (len(RANGE_CLASS_EDGES) - 1) + rc,
+                                             minlength=self.channels * (len(RANGE_CLASS_EDGES) - 1)).astype(np.float64)  # fmt: skip
+        for k, name in enumerate(ZONES):
+            m = zone == k
+            parts[f"{name}/range"] = _hist(d[m], RANGE_EDGES[name])
+            parts[f"{name}/intensity"] = _echo_hist(echo[m], inten[m], np.linspace(0.0, 256.0, INTENSITY_BINS + 1))
+            if self.has_epw:
+                parts[f"{name}/epw"] = _echo_hist(echo[m], points["epw"][m].astype(np.float64), EPW_EDGES)
+        for key, value in parts.items():
+            self.sums[key] = self.sums[key] + value if key in self.sums else value
+        if not self.has_epw:
+            self.sums = {k: v for k, v in self.sums.items() if not k.endswith("/epw")}
+        self.counts.append(np.bincount(zone, minlength=len(ZONES)))
+        epw = points["epw"] if self.has_epw else np.zeros(len(points), np.float32)
+        self.features.append(frame_features(d, echo, epw, COVER_M, NEAR_M))
+        self.frames += 1
+
+    def mean(self, key: str) -> np.ndarray:
+        """Per-frame mean of a summed histogram."""
+        return self.sums[key] / max(self.frames, 1)
+
+    def detections(self) -> np.ndarray:
+        """(frames, zones) detections per frame and zone."""
+        return np.array(self.counts, dtype=np.float64).reshape(-1, len(ZONES))
+
+    def feature_table(self) -> dict[str, np.ndarray]:
+        return {k: np.array([row[k] for row in self.features], dtype=np.float64) for k in FEATURES}
+
+
+def bray_curtis(a: np.ndarray, b: np.ndarray) -> float:
+    """sum |a - b| / sum (a + b) of two non-negative histograms (0 = equal, 1 = disjoint; 0 if both empty)."""
+    total = float(a.sum() + b.sum())
+    return float(np.abs(a - b).sum() / total) if total > 0 else 0.0
+
+
+EXACT_NOISE_MAX_COUNT = 60  # bins with fewer returns in total use the exact binomial expectation
+
+
+def _noise_abs_difference(total: np.ndarray, na: int, nb: int) -> np.ndarray:
+    """E|A/na - B/nb| per bin when the bin's ``total`` = A + B returns are split between the two
+    recordings by chance alone (A ~ Binomial(total, na / (na + nb))): exact for small totals,
+    the normal approximation above :data:`EXACT_NOISE_MAX_COUNT`."""
+    from scipy.stats import binom
+
+    p = na / (na + nb)
+    out = np.sqrt(2.0 / np.pi * total * p * (1.0 - p)) * (1.0 / na + 1.0 / nb)
+    for m in np.unique(total[(total > 0) & (total <= EXACT_NOISE_MAX_COUNT)]).astype(np.int64):
+        k = np.arange(m + 1)
+        out[total == m] = float(np.sum(binom.pmf(k, m, p) * np.abs(k / na - (m - k) / nb)))
+    return out
+
+
+def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, frames_b: int,
+                           clip: bool = True) -> float:  # fmt: skip
+    """Bray-Curtis dissimilarity of the per-frame means minus what counting noise alone gives.
+
+    Given a bin's total count, chance alone splits it between the two recordings
+    binomially; the expected |a - b| of that split (:func:`_noise_abs_difference`) is
+    subtracted bin by bin and the total clipped at 0. What is left is the systematic part:
+    a sparse zone (a few spray or cover returns per frame) does not look different merely
+    because it is sparse, and a recording compared with a re-draw of itself scores ~0.
+    ``clip=False`` keeps negative totals: a fit then still sees which of two near-perfect
+    parameter values matches better."""
+    na, nb = max(frames_a, 1), max(frames_b, 1)
+    a, b = sum_a / na, sum_b / nb
+    total = float(a.sum() + b.sum())
+    if total <= 0:
+        return 0.0
+    noise = _noise_abs_difference(np.rint(sum_a + sum_b), na, nb)
+    excess = np.abs(a - b).sum() - noise.sum()
+    return float((max(excess, 0.0) if clip else excess) / total)
+
+
+EVIDENCE_POINTS = 30.0  # a histogram with this many returns in both recordings together counts half
+
+
+def gap_terms(measured: Signature, simulated: Signature, clip: bool = True) -> dict[str, float]:
+    """Systematic Bray-Curtis dissimilarity of every histogram the two signatures share."""
+    keys = [k for k in measured.sums if k in simulated.sums]
+    return {k: systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip)
+            for k in keys}  # fmt: skip
+
+
+def evidence_weights(measured: Signature, simulated: Signature) -> dict[str, float]:
+    """m / (m + EVIDENCE_POINTS) per shared histogram, m its returns in both recordings: a zone
+    that holds a handful of returns (two stray points in 30 frames) cannot dominate the gap."""
+    keys = [k for k in measured.sums if k in simulated.sums]
+    out = {}
+    for k in keys:
+        m = float(measured.sums[k].sum() + simulated.sums[k].sum())
+        out[k] = m / (m + EVIDENCE_POINTS)
+    return out
+
+
+def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> float:
+    """The reality gap (0 = indistinguishable, 1 = disjoint; lower is better): the mean over
+    the histograms - per zone the range, intensity and EPW histograms by echo number, plus
+    the bird's-eye and channel x range histograms - of their systematic Bray-Curtis
+    dissimilarity times their evidence weight (:func:`evidence_weights`). Every zone with
+    enough returns counts equally, whatever its number of points, so a missing zone (spray,
+    cover returns) weighs as much as a wrong far field. ``clip=False``: the fitting objective
+    (see :func:`systematic_bray_curtis`)."""
+    terms = gap_terms(measured, simulated, clip)
+    if not terms:
+        return 0.0
+    weights = evidence_weights(measured, simulated)
+    return float(np.mean([terms[k] * weights[k] for k in terms]))

@@ -1,0 +1,1 @@
+"""Scenario files, the player that moves the ego and actors over time, and the World that makes a scenario runnable."""

@@ -1,0 +1,71 @@
+"""A scenario made runnable: its scene (roads, meshes, actor bodies), player and sensor profile."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.core.paths import maps_dir, resolve_data_path
+from lidar_weather_sim.regions.base import REGISTRY, Region, RegionContext
+from lidar_weather_sim.regions.topic_inputs import TopicInputs
+from lidar_weather_sim.scenario.player import ScenarioPlayer
+from lidar_weather_sim.scenario.schema import Scenario
+from lidar_weather_sim.scene.materials import MaterialTable
+from lidar_weather_sim.scene.mesh import box_mesh
+from lidar_weather_sim.scene.opendrive import RoadNetwork
+from lidar_weather_sim.scene.scene import Scene, load_static_mesh, vehicle_mesh
+from lidar_weather_sim.sensor.profile import SensorProfile, load_profile
+
+
+def _map_path(name: str) -> Path:
+    """A map or mesh of a scenario: ``cache:<path>``, a path, or a name in maps/."""
+    return resolve_data_path(name, maps_dir())
+
+
+@dataclass
+class World:
+    scenario: Scenario
+    profile: SensorProfile
+    scene: Scene
+    player: ScenarioPlayer  # without an ego (mesh-only): actor_poses is {}, ego poses raise NoEgoError
+
+    @classmethod
+    def build(cls, scenario: Scenario, profile: str | SensorProfile | None = None) -> "World":
+        """Scene, player and profile of ``scenario`` (``profile`` overrides the scenario's sensor)."""
+        if not isinstance(profile, SensorProfile):
+            profile = load_profile(profile or scenario.sensor.profile)
+        if scenario.map is None:  # mesh-only: an empty road network, the scene is the static meshes
+            scene = Scene(MaterialTable.default(), roads=RoadNetwork({}, "<no map>"))
+        else:
+            scene = Scene.from_xodr(_map_path(scenario.map))
+        for mesh_name in scenario.static_meshes:
+            scene.add_static(
+                load_static_mesh(_map_path(mesh_name), scene.materials.index("concrete"), scene.next_object_id()),
+                mesh_name,
+            )
+        for actor in scenario.actors:
+            size = actor.size
+            if actor.type == "vehicle":
+                mesh = vehicle_mesh(size.length_m, size.width_m, size.height_m, actor.id, scene.materials)
+            else:
+                mesh = box_mesh((size.length_m, size.width_m, size.height_m), scene.materials.index("car_paint"), actor.id)
+            scene.add_actor(actor.id, mesh, f"actor {actor.id}", actor.label_code)
+        return cls(scenario, profile, scene, ScenarioPlayer(scenario, scene.roads))
+
+    def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None,
+                pose_source=None, inputs=None) -> list[tuple[str, Region]]:  # fmt: skip
+        """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``;
+        actor poses come from ``pose_source`` (default: the scenario player), topic points from ``inputs``
+        (a :class:`~lidar_weather_sim.regions.topic_inputs.TopicInputs`, default a new one)."""
+        context = RegionContext(self.profile, self.scenario.weather, self.scene.materials,
+                                actors=self.scenario.actors, pose_source=pose_source or self.player,
+                                inputs=TopicInputs() if inputs is None else inputs)  # fmt: skip
+        names = self.scenario.regions if names is None else names
+        repeated = sorted({n for n in names if list(names).count(n) > 1})
+        if repeated:  # a region listed twice would apply its effect twice (twice the spray)
+            raise ConfigError(f"regions {list(names)}: {', '.join(repeated)} listed more than once")
+        merged = {**self.scenario.region_params}
+        for name, values in (params or {}).items():
+            merged[name] = {**merged.get(name, {}), **values}
+        return [(name, REGISTRY.create(name, merged.get(name), context)) for name in names]

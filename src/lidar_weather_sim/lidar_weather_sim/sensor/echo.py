@@ -1,0 +1,454 @@
+"""Echo decision: from candidate returns of each beam to detected echoes with EPW.
+
+Pulse model
+-----------
+Every candidate return i of a beam (a sub-ray hitting the scene, or a
+scatterer supplied by a region) contributes a Gaussian pulse to the beam's
+received waveform, in range units (m)::
+
+    w(r) = sum_i A_i * exp(-(r - r_i)^2 / (2 s^2)),    s = fwhm / (2 sqrt(2 ln 2))
+
+``A_i`` is the peak amplitude from the LIDAR equation (see
+:func:`peak_amplitude`). The receiver compares the waveform with the threshold
+``T = mu + x sigma`` (thesis paper 2, eq. 3-5): each interval where w > T is one
+echo. Its range is the position of the waveform's maximum inside the interval,
+its EPW (echo pulse width, m) the interval's length, and its label / object id
+those of the candidate contributing most at the maximum. For one isolated
+pulse the EPW has the closed form ``2 s sqrt(2 ln(A / T))``: it grows with
+reflectivity and shrinks when background light raises ``T``. Candidates closer
+than the range resolution are merged first (power-summed at their
+power-weighted range). Up to ``max_echoes`` echoes per beam are kept, in range
+order, numbered from 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from lidar_weather_sim.core import workers
+
+FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+#: Power returned by a retro-reflective surface relative to a Lambertian one of the
+#: same albedo at normal incidence. Retro-reflective sheeting has R_A ~ 30-250
+#: cd/(lx m^2) at small observation angles (EN 12899-1 class RA1/RA2), a Lambertian
+#: white surface 1/pi ~ 0.32: a gain of ~100-800; we use the low end.
+RETRO_GAIN = 100.0
+#: Ranges below this are clamped in 1/R^2 (m), so cover returns stay finite.
+MIN_RANGE_M = 0.05
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """Receiver noise and threshold, in the profile's noise units."""
+
+    noise_mean: float
+    noise_sigma: float
+    threshold_sigma: float
+
+    @property
+    def level(self) -> float:
+        return self.noise_mean + self.threshold_sigma * self.noise_sigma
+
+
+@dataclass(frozen=True)
+class Echoes:
+    """Detected echoes: the runs (starts, counts) of the arrays (one per candidate), in order,
+    each chunk's echoes where the kernel wrote them; ``beam`` indexes the beams of the batch."""
+
+    beam: np.ndarray  # (E,) int64
+    echo: np.ndarray  # (E,) uint8, 1-based, in range order within the beam
+    range_m: np.ndarray  # (E,) float64
+    amplitude: np.ndarray  # (E,) float64, waveform peak (noise units)
+    epw_m: np.ndarray  # (E,) float64
+    label: np.ndarray  # (E,) uint8
+    object_id: np.ndarray  # (E,) uint32
+    runs: tuple[np.ndarray, np.ndarray]  # (starts, counts) int64
+
+
+def surface_reflectance(reflectivity, retro_share, cos_incidence):
+    """Effective reflectance of a surface hit: Lambertian share x cos(theta) + retro share x gain."""
+    cos_incidence = np.clip(cos_incidence, 0.0, 1.0)
+    return reflectivity * ((1.0 - retro_share) * cos_incidence + retro_share * RETRO_GAIN)
+
+
+def peak_amplitude(power_constant, weight, reflectance, range_m, two_way_transmission, overlap):
+    """LIDAR equation for an extended target: ``C w rho / R^2 * T_two_way * O(R)`` (noise units).
+
+    ``weight`` is the share of the beam energy carried by the sub-ray,
+    ``reflectance`` the effective reflectance (:func:`surface_reflectance`),
+    ``two_way_transmission`` the product of all losses on the way out and back
+    (cover ~ tau^2, Beer-Lambert exp(-2 alpha R), occlusion by scatterers in front)
+    and ``overlap`` the biaxial sender/receiver overlap factor at that range.
+    """
+    r = np.maximum(range_m, MIN_RANGE_M)
+    return power_constant * weight * reflectance / (r * r) * two_way_transmission * overlap
+
+
+def overlap_factor(range_m, start_m: float, full_m: float):
+    """Biaxial optics: 0 before ``start_m``, smoothstep to 1 at ``full_m``, then 1."""
+    if full_m <= start_m:
+        return (np.asarray(range_m) >= start_m).astype(np.float64)
+    u = np.clip((np.asarray(range_m) - start_m) / (full_m - start_m), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def detect_echoes(
+    beam: np.ndarray,
+    range_m: np.ndarray,
+    amplitude: np.ndarray,
+    label: np.ndarray,
+    object_id: np.ndarray,
+    *,
+    threshold: Threshold,
+    fwhm_m: float,
+    resolution_m: float,
+    max_echoes: int,
+    segments: tuple[np.ndarray, np.ndarray] | None = None,
+    scratch=None,
+) -> Echoes:
+    """Echoes of candidate returns of the beams of a batch (fastest when grouped by beam).
+
+    Candidates with zero amplitude or non-finite range are ignored. ``segments``
+    (starts, counts): the candidates are only these runs of the arrays, grouped by beam
+    in beam order, as the simulator's kernels leave them (None: all of the arrays).
+    With ``scratch`` (:class:`lidar_weather_sim.core.workers.Scratch`) the echoes are views
+    of its arrays, valid until its next use.
+    """
+    beam = np.ascontiguousarray(beam, np.int64)
+    if segments is None and not _ascending(beam):
+        order = _beam_order(beam)
+        beam, range_m, amplitude, label, object_id = (x[order] for x in (beam, range_m, amplitude, label, object_id))
+    out = _detect(
+        beam,
+        np.ascontiguousarray(range_m, np.float64),
+        np.ascontiguousarray(amplitude, np.float64),
+        np.ascontiguousarray(label, np.uint8),
+        np.ascontiguousarray(object_id, np.uint32),
+        float(threshold.level),
+        float(fwhm_m) * FWHM_TO_SIGMA,
+        float(resolution_m),
+        int(max_echoes),
+        scratch,
+        segments,
+    )
+    return Echoes(*out)
+
+
+@numba.njit(cache=True)
+def _ascending(beam):
+    """The beams are in ascending order (grouped)."""
+    for i in range(1, len(beam)):
+        if beam[i] < beam[i - 1]:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _beam_order(beam):
+    """``np.argsort(beam, kind="stable")`` of beam indices >= 0: a counting sort."""
+    start = np.zeros(beam.max() + 2, np.int64)
+    for b in beam:
+        start[b + 1] += 1
+    for b in range(len(start) - 1):
+        start[b + 1] += start[b]
+    order = np.empty(len(beam), np.int64)
+    for i in range(len(beam)):
+        order[start[beam[i]]] = i
+        start[beam[i]] += 1
+    return order
+
+
+@numba.njit(cache=True, inline="always")
+def _sort_and_merge(r, a, lab, obj, i0, i1, resolution, idx, mr, ma, ml, mo):
+    """Sort candidates i0..i1 (one beam) by range (insertion sort: beams hold few) and merge
+    runs closer than ``resolution`` (chained) into mr/ma/ml/mo[0:m]; returns m."""
+    n = i1 - i0
+    for q in range(n):
+        k = q
+        rq = r[i0 + q]
+        while k > 0 and r[idx[k - 1]] > rq:
+            idx[k] = idx[k - 1]
+            k -= 1
+        idx[k] = i0 + q
+    m = -1
+    strongest = 0.0
+    start_r = -1e300
+    for q in range(n):
+        i = idx[q]
+        if a[i] <= 0.0 or not np.isfinite(r[i]):
+            continue
+        if m < 0 or r[i] - start_r > resolution:
+            m += 1
+            mr[m] = r[i] * a[i]
+            ma[m] = a[i]
+            ml[m] = lab[i]
+            mo[m] = obj[i]
+            strongest = a[i]
+            start_r = r[i]
+        else:
+            mr[m] += r[i] * a[i]
+            ma[m] += a[i]
+            if a[i] > strongest:
+                strongest = a[i]
+                ml[m] = lab[i]
+                mo[m] = obj[i]
+    m += 1
+    for q in range(m):
+        mr[q] /= ma[q]
+    return m
+
+
+@numba.njit(cache=True, inline="always")
+def _reach(a, thr, s):
+    """Distance (m) from a pulse's centre beyond which it is below threshold, plus a margin."""
+    return s * np.sqrt(2.0 * np.log(max(a / thr, 1.0))) + 2.0 * s
+
+
+@numba.njit(cache=True, inline="always")
+def _sample(r, a, c0, c1, s, x):
+    """The waveform of pulses c0..c1 at range ``x`` (m), summed in order: the detector's value."""
+    w = 0.0
+    for i in range(c0, c1):
+        d = (x - r[i]) / s
+        w += a[i] * np.exp(-0.5 * d * d)
+    return w
+
+
+#: Bound on the relative error of :func:`_fill_estimates` (its error stays below 1e-9: ~k^2
+#: roundings of 1.1e-16 after k steps, k < 480 as every sample is within 30 widths of every
+#: pulse, and ~1e-11 from rounding the exact samples' arguments).
+ESTIMATE_TOLERANCE = 1e-7
+#: Longest window (samples) and farthest sample (pulse widths from a pulse) estimated by recurrence.
+ESTIMATE_SAMPLES = 4096
+ESTIMATE_REACH = 30.0
+
+
+@numba.njit(cache=True, inline="always")
+def _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf):
+    """Waveform samples first..first+n (at ``lo + k dx``) into buf[:n]; returns their relative error
+    bound. A Gaussian on a uniform grid is a recurrence, two products a sample (e_k+1 = e_k q_k,
+    q_k+1 = q_k exp(-h^2), h = dx / s; run as two chains, even and odd k): after k steps its
+    error is a few k^2 ulps. Exact samples (:func:`_sample`, bound 0) when the window is longer
+    or reaches where the recurrence would underflow."""
+    h = dx / s
+    x0 = lo + first * dx
+    exact = n > ESTIMATE_SAMPLES
+    for i in range(c0, c1):
+        d0 = (x0 - r[i]) / s
+        exact = exact or max(abs(d0), abs(d0 + n * h)) > ESTIMATE_REACH
+    if exact:
+        for j in range(n):
+            buf[j] = _sample(r, a, c0, c1, s, lo + (first + j) * dx)
+        return 0.0
+    buf[:n] = 0.0
+    c = np.exp(-h * h)
+    c4 = c * c * c * c
+    for i in range(c0, c1):
+        d0 = (x0 - r[i]) / s
+        e0 = a[i] * np.exp(-0.5 * d0 * d0)
+        q0 = np.exp(-d0 * h - 0.5 * h * h)
+        # two interleaved chains (even and odd samples, e_k+2 = e_k q_k q_k+1) that the CPU runs side by side
+        e1, q1 = e0 * q0, q0 * c
+        p0, p1 = q0 * q1, q1 * (q1 * c)
+        for j in range(0, n - 1, 2):
+            buf[j] += e0
+            buf[j + 1] += e1
+            e0 *= p0
+            e1 *= p1
+            p0 *= c4
+            p1 *= c4
+        if n % 2:
+            buf[n - 1] += e0
+    return ESTIMATE_TOLERANCE
+
+
+@numba.njit(cache=True, inline="always")
+def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, out_o, out0, room, buf):
+    """Echoes of the overlapping pulses c0..c1 (two or more), written from out0 on; returns how
+    many (<= room). ``buf``: scratch for the samples (grown if too short).
+
+    The waveform is sampled every s / 8 m; an echo runs from the first sample above the
+    threshold to the last (crossings interpolated linearly between samples) and peaks at its
+    first highest sample. Samples are estimated (:func:`_fill_estimates`); the exact value
+    (:func:`_sample`) is computed only where the estimate's error bound leaves the comparison
+    with the threshold open, at the crossings and for the samples that may be the highest:
+    the echoes are those of the exact samples, bit for bit."""
+    dx = s / 8.0
+    lo = 1e300
+    hi = -1e300
+    total = 0.0
+    r_min = 1e300
+    r_max = -1e300
+    for i in range(c0, c1):
+        h = _reach(a[i], thr, s)
+        lo = min(lo, r[i] - h)
+        hi = max(hi, r[i] + h)
+        total += a[i]
+        r_min = min(r_min, r[i])
+        r_max = max(r_max, r[i])
+    if total <= thr:  # w <= total everywhere
+        return 0
+    steps = int((hi - lo) / dx) + 2
+    # The waveform is below the threshold farther than s sqrt(2 ln(total / thr)) from every pulse
+    # (w <= total exp(-d^2 / 2s^2)): only the samples of that window are computed, from one below
+    # it to one above it, which finds the same crossings and maxima as the whole grid.
+    bound = s * (np.sqrt(2.0 * np.log(total / thr)) + 1e-6)
+    first = max(int((r_min - bound - lo) / dx) - 2, 0)
+    n = min(int((r_max + bound - lo) / dx) + 3, steps) - first
+    if n <= 0:
+        return 0
+    if n > len(buf):
+        buf = np.empty(n)
+    tol = _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf)
+    up, down = 1.0 + tol, 1.0 - tol  # the exact sample lies in [est * down, est * up]
+    written = 0
+    inside = False
+    ks = 0
+    for j in range(n):
+        est = buf[j]
+        if est * down > thr:
+            over = True
+        elif est * up < thr:
+            over = False
+        else:
+            over = _sample(r, a, c0, c1, s, lo + (first + j) * dx) > thr
+        if over and not inside:
+            inside = True
+            ks = j
+        elif not over and inside:
+            inside = False
+            w_in = _sample(r, a, c0, c1, s, lo + (first + ks) * dx)
+            prev = _sample(r, a, c0, c1, s, lo + (first + ks - 1) * dx) if ks > 0 else 0.0
+            x = lo + (first + ks) * dx
+            start = x - dx * (w_in - thr) / (w_in - prev)  # linear interpolation of the crossing
+            peak = 0.0
+            for m in range(ks, j):
+                peak = max(peak, buf[m])
+            best_w = -1.0
+            best_x = 0.0
+            for m in range(ks, j):  # the first highest exact sample among those that may be highest
+                if buf[m] * up >= peak * down:
+                    x = lo + (first + m) * dx
+                    w = _sample(r, a, c0, c1, s, x)
+                    if w > best_w:
+                        best_w = w
+                        best_x = x
+            x = lo + (first + j) * dx
+            w = _sample(r, a, c0, c1, s, x)
+            prev = _sample(r, a, c0, c1, s, lo + (first + j - 1) * dx)
+            end = x - dx * (thr - w) / (prev - w)
+            best_i = c0  # label of the strongest contributor at the peak
+            best_c = -1.0
+            for i in range(c0, c1):
+                d = (best_x - r[i]) / s
+                c = a[i] * np.exp(-0.5 * d * d)
+                if c > best_c:
+                    best_c = c
+                    best_i = i
+            out_r[out0 + written] = best_x
+            out_a[out0 + written] = best_w
+            out_w[out0 + written] = end - start
+            out_l[out0 + written] = lab[best_i]
+            out_o[out0 + written] = obj[best_i]
+            written += 1
+            if written == room:
+                return written
+    return written
+
+
+#: Candidates per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.core.workers`):
+#: chunks are cut where the beam changes, every beam is computed the same way.
+CHUNK_CANDIDATES = 8192
+
+
+def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None, segments=None):
+    n = len(beam)
+    cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
+    new = workers.allocator(scratch)
+    out = tuple(new(f"echo_{k}", cap, dtype) for k, dtype in
+                enumerate((np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)))  # fmt: skip
+    if segments is None:
+        cuts = workers.bounds(n, CHUNK_CANDIDATES)
+        if len(cuts) > 2:
+            cuts = _beam_starts(beam, cuts)
+        starts, ends = cuts[:-1], cuts[1:]
+    else:
+        starts, ends = segments[0], segments[0] + segments[1]
+    counts = np.array(workers.run_chunks(
+        lambda c: _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, starts[c], ends[c], *out),
+        len(starts),
+    ), np.int64)  # fmt: skip
+    return (*out, (starts, counts))
+
+
+@numba.njit(cache=True)
+def _beam_starts(beam, cuts):
+    """``cuts`` moved forward to where the beam changes (dropping empty chunks)."""
+    out = np.empty(len(cuts), np.int64)
+    out[0] = 0
+    k = 1
+    n = len(beam)
+    for c in range(1, len(cuts) - 1):
+        p = max(cuts[c], out[k - 1])
+        while 0 < p < n and beam[p] == beam[p - 1]:
+            p += 1
+        if out[k - 1] < p < n:
+            out[k] = p
+            k += 1
+    out[k] = n
+    return out[: k + 1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb, ee, er, ea, ew, el, eo):
+    """Echoes of the beams of candidates lo..hi (whole beams), written from index lo on; returns how many."""
+    size = hi - lo
+    idx = np.empty(size, np.int64)
+    mr = np.empty(size)
+    ma = np.empty(size)
+    ml = np.empty(size, np.uint8)
+    mo = np.empty(size, np.uint32)
+    reach = np.empty(size)  # _reach of each merged pulse of the beam
+    buf = np.empty(ESTIMATE_SAMPLES)  # waveform samples of a cluster
+    isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
+    n_isolated = 0
+    count = lo
+    i = lo
+    while i < hi:
+        j = i
+        while j < hi and beam[j] == beam[i]:
+            j += 1
+        m = _sort_and_merge(r, a, lab, obj, i, j, resolution, idx, mr, ma, ml, mo)
+        if m > 1:
+            for q in range(m):
+                reach[q] = _reach(ma[q], thr, s)
+        found = 0
+        c0 = 0
+        while c0 < m and found < max_echoes:
+            c1 = c0 + 1
+            while c1 < m and mr[c1] - mr[c1 - 1] < reach[c1 - 1] + reach[c1]:
+                c1 += 1  # pulses that may overlap above the threshold form one cluster
+            if c1 - c0 > 1:
+                got = _cluster_echoes(mr, ma, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count, max_echoes - found,
+                                      buf)
+            else:
+                got = 0
+                if ma[c0] > thr:
+                    er[count], ea[count], ew[count], el[count], eo[count] = mr[c0], ma[c0], ma[c0] / thr, ml[c0], mo[c0]
+                    isolated[n_isolated] = count
+                    n_isolated += 1
+                    got = 1
+            for k in range(got):
+                eb[count + k] = beam[i]
+                ee[count + k] = found + k + 1
+            count += got
+            found += got
+            c0 = c1
+        i = j
+    for q in range(n_isolated):  # independent of each other: the CPU overlaps the logarithms
+        k = isolated[q]
+        ew[k] = 2.0 * s * np.sqrt(2.0 * np.log(ew[k]))
+    return count - lo

@@ -1,0 +1,130 @@
+"""Sensor profiles: beam geometry, scan timing, optics, pulse and detection parameters.
+
+A profile is a YAML file in ``config/sensors/`` validated by :class:`SensorProfile`.
+Angles follow REP-103 in the sensor frame: azimuth = atan2(y, x) (positive to
+the left), elevation positive upwards. Channels are numbered by elevation,
+0 = lowest beam.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from lidar_weather_sim.core.config import ConfigModel, load_named
+
+
+class Beam(ConfigModel):
+    elevation_deg: float = Field(ge=-90, le=90, description="Beam elevation (deg, up positive)")
+    azimuth_offset_deg: float = Field(0.0, ge=-180, le=180, description="Horizontal offset from the column azimuth (deg)")
+
+
+class Scan(ConfigModel):
+    frame_rate_hz: float = Field(gt=0, le=200, description="Frames per second (Hz)")
+    azimuth_min_deg: float = Field(-180.0, ge=-180, le=180, description="Right edge of the horizontal FOV (deg)")
+    azimuth_max_deg: float = Field(180.0, ge=-180, le=180, description="Left edge of the horizontal FOV (deg)")
+    columns: int = Field(gt=0, le=16384, description="Firing columns per frame")
+    direction: Literal["cw", "ccw"] = Field("cw", description="Sweep direction seen from above (cw: left to right)")
+    sweep_fraction: float = Field(
+        1.0, gt=0, le=1, description="Share of the frame period spent sweeping the FOV (1 for spinning heads)"
+    )
+    layer_schedule: list[list[int]] | None = Field(
+        None, description="Channels active in frame k are layer_schedule[k % len]; all channels when absent"
+    )
+
+    @model_validator(mode="after")
+    def _fov(self) -> "Scan":
+        if self.azimuth_max_deg <= self.azimuth_min_deg:
+            raise ValueError(f"azimuth_max_deg {self.azimuth_max_deg} must exceed azimuth_min_deg {self.azimuth_min_deg}")
+        return self
+
+
+class RangeSpec(ConfigModel):
+    min_m: float = Field(0.0, ge=0, description="Closest reported range (m)")
+    max_m: float = Field(gt=0, description="Farthest range cast (m)")
+    resolution_m: float = Field(gt=0, description="Returns closer than this merge into one echo (m)")
+    noise_sigma_m: float = Field(0.0, ge=0, description="Gaussian range noise, one sigma (m)")
+
+
+class Optics(ConfigModel):
+    divergence_h_mrad: float = Field(ge=0, description="Full horizontal beam divergence (1/e^2, mrad)")
+    divergence_v_mrad: float = Field(ge=0, description="Full vertical beam divergence (1/e^2, mrad)")
+    subrays_h: int = Field(1, ge=1, le=16, description="Sub-rays across the horizontal divergence")
+    subrays_v: int = Field(1, ge=1, le=16, description="Sub-rays across the vertical divergence")
+    overlap_start_m: float = Field(0.0, ge=0, description="Biaxial optics: sender/receiver FOVs start to overlap (m)")
+    overlap_full_m: float = Field(0.0, ge=0, description="Biaxial optics: full overlap from here on (m)")
+
+    @property
+    def subrays(self) -> int:
+        return self.subrays_h * self.subrays_v
+
+
+class Pulse(ConfigModel):
+    fwhm_m: float = Field(gt=0, description="Full width at half maximum of the Gaussian echo pulse, in range (m)")
+
+
+class Detection(ConfigModel):
+    max_echoes: int = Field(1, ge=1, le=8, description="Echoes reported per beam")
+    power_constant: float = Field(
+        gt=0, description="C of P = C * w * rho * cos(theta) / R^2 * T^2: peak amplitude of a full-beam hit (noise units m^2)"
+    )
+    noise_mean: float = Field(0.0, ge=0, description="Mean noise level without background light (noise units)")
+    noise_sigma: float = Field(1.0, gt=0, description="Noise standard deviation without background light (noise units)")
+    threshold_sigma: float = Field(3.0, gt=0, description="x of the detection threshold mu + x sigma (thesis eq. 4)")
+    sun_noise_per_w_m2: float = Field(
+        0.0, ge=0, description="Rise of the noise mean per W/m^2 of solar irradiance (noise units per W/m^2)"
+    )
+    sun_sigma_per_w_m2: float = Field(
+        0.0, ge=0, description="Rise of the noise sigma per W/m^2 of solar irradiance (shot noise; noise units per W/m^2)"
+    )
+    false_alarms_per_beam: float = Field(
+        0.0, ge=0, description="Mean noise detections per beam and frame at the threshold (label NOISE)"
+    )
+    intensity_dynamic_range: float = Field(
+        1.0e4, gt=1, description="Peak amplitude ratio above the dark threshold mapped onto intensity 0-255 (log scale)"
+    )
+
+
+class SensorProfile(ConfigModel):
+    name: str
+    description: str = ""
+    source: str = Field("", description="Where the values come from (data sheet, calibration file, thesis table)")
+    beams: list[Beam] = Field(min_length=1)
+    scan: Scan
+    range: RangeSpec
+    optics: Optics
+    pulse: Pulse
+    detection: Detection
+
+    @model_validator(mode="after")
+    def _schedule(self) -> "SensorProfile":
+        for group in self.scan.layer_schedule or []:
+            bad = [c for c in group if not 0 <= c < len(self.beams)]
+            if bad:
+                raise ValueError(f"scan.layer_schedule names channels {bad}, profile has {len(self.beams)} beams")
+        return self
+
+    @cached_property
+    def channel_order(self) -> np.ndarray:
+        """Index into ``beams`` of each channel (channel 0 = lowest elevation)."""
+        return np.argsort([b.elevation_deg for b in self.beams], kind="stable")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.scan.frame_rate_hz
+
+
+def profiles_dir() -> Path:
+    """``config/sensors`` of the workspace (found from this file or ``LWS_WORKSPACE``)."""
+    from lidar_weather_sim.core.paths import config_dir
+
+    return config_dir() / "sensors"
+
+
+def load_profile(name_or_path: str | Path) -> SensorProfile:
+    """A profile by name (``config/sensors/<name>.yaml``) or by path."""
+    return load_named(name_or_path, profiles_dir(), SensorProfile, "sensor profile")
