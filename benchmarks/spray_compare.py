@@ -43,7 +43,7 @@ from lidar_weather_sim.core.geometry import quaternion_matrices
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scenario.world import World
-from lidar_weather_sim.sensor.echo import overlap_factor, peak_amplitude, surface_reflectance
+from lidar_weather_sim.sensor.radiometry import overlap_factor, peak_amplitude, surface_reflectance
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from spray_particles.metrics import bev_histogram as bev
 from spray_particles.metrics import compare_histograms as metrics
@@ -102,7 +102,7 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
     if airborne is not None:
         constants = constants.model_copy(update={"drops": constants.drops.model_copy(
             update={"airborne_fraction": airborne})})  # fmt: skip
-    reference = DropletReference(system.vehicles, system.poses, dataclasses.replace(system.params), constants)
+    reference = DropletReference(system.vehicles, system.poses, system.params.model_copy(), constants)
     pattern, player = sim.pattern, world.player
 
     def sensor_poses(times):

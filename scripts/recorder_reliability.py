@@ -69,7 +69,7 @@ def run(duration_s: float, scenario: str, out: Path) -> dict:
     time.sleep(1.0)  # the last cloud's way through DDS
     recorder.send_signal(signal.SIGINT)
     recorder_status = recorder.wait(timeout=60)
-    sim_log, rec_log = (out / "sim.log").read_text(), (out / "recorder.log").read_text()
+    sim_log = (out / "sim.log").read_text()
     published = int(re.search(r"published (\d+) clouds", sim_log).group(1)) if "published" in sim_log else -1
     counts = {t.name: t.count for t in bag_info(bag).topics}
     stamps = np.array([stamp_to_ns(m.msg.header.stamp) for m in read_messages(bag, [TOPIC_POINTS])], dtype=np.int64)

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 import yaml
 
+from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.experiments.reproduce import simulate
 from lidar_weather_sim.regions.atmosphere import fit_path
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
 from lidar_weather_sim.regions.extinction import fog_alpha, rain_alpha, snow_alpha
-from lidar_weather_sim.scenario.schema import Weather
+from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from lidar_weather_sim.testing.fixtures import MATERIALS, one_frame, scene_of, simple_profile, wall
 
@@ -69,6 +70,24 @@ def test_wet_and_snow_covered_road():
     wet = MATERIALS["asphalt_wet"].reflectivity / MATERIALS["asphalt_dry"].reflectivity
     assert rain._wet_scale == pytest.approx(wet ** rain.c.wetness)
     assert snow.c.snow_depth_m > 0 and snow._snow_refl == MATERIALS["snow"].reflectivity
+
+
+def test_the_road_block_sets_wetness_and_snow_cover_and_the_region_parameter_overrides_the_film():
+    profile = simple_profile()
+    wet = MATERIALS["asphalt_wet"].reflectivity / MATERIALS["asphalt_dry"].reflectivity
+
+    def region(road, **params):
+        weather = Weather.model_validate({"road": road})
+        return REGISTRY.create("atmosphere", {"weather_class": "rain", **params}, RegionContext(profile, weather, MATERIALS))
+
+    fitted = region({})
+    assert fitted.wetness == fitted.c.wetness and fitted.snow_depth_m == fitted.c.snow_depth_m == 0.0
+    film = region({"water_film_mm": 1.2, "texture_depth_mm": 0.6})
+    assert film.wetness == pytest.approx(1.0 - np.exp(-2.0)) and film._wet_scale == pytest.approx(wet ** film.wetness)
+    assert region({"water_film_mm": 1.2}, road_water_film_mm=0.0).wetness == 0.0  # the gap effects' isolation
+    assert region({"snow_depth_m": 0.05}).snow_depth_m == 0.05
+    with pytest.raises(ConfigError, match=r"key 'road_texture_depth_mm' moved to weather.road.texture_depth_mm"):
+        region({}, road_texture_depth_mm=2.0)
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
 from lidar_weather_sim.regions.cover import _forward_scatter_factors
 from lidar_weather_sim.regions.cover_textures import blend, image_texture, load_samples, make_texture
-from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
 

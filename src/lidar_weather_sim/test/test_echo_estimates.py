@@ -4,7 +4,7 @@ echoes of overlapping pulses those of the exactly sampled waveform."""
 import numpy as np
 import pytest
 
-from lidar_weather_sim.sensor import echo
+from lidar_weather_sim.sensor import echo, radiometry
 
 
 def _cluster(rng, n, spread):
@@ -16,7 +16,7 @@ def _cluster(rng, n, spread):
 @pytest.mark.parametrize("spread", [0.1, 1.0, 4.0, 5.5])
 def test_estimates_are_within_their_bound(spread):
     rng = np.random.default_rng(3)
-    s = 0.75 * echo.FWHM_TO_SIGMA
+    s = 0.75 * radiometry.FWHM_TO_SIGMA
     dx = s / 8.0
     for _ in range(50):
         r, a = _cluster(rng, int(rng.integers(2, 6)), spread)
@@ -41,10 +41,10 @@ def test_two_pulses_match_a_sampled_waveform():
     """Two pulses 0.5 m apart: one echo, its range, peak and EPW those of the waveform (sampled
     every s / 8 on the detector's own grid: within a sample)."""
     fwhm, thr = 0.75, 4.0
-    s = fwhm * echo.FWHM_TO_SIGMA
+    s = fwhm * radiometry.FWHM_TO_SIGMA
     r, a = np.array([30.0, 30.5]), np.array([200.0, 100.0])
     out = echo.detect_echoes(np.zeros(2, np.int64), r, a, np.array([1, 2], np.uint8), np.array([7, 8], np.uint32),
-                             threshold=echo.Threshold(1.0, 1.0, 3.0), fwhm_m=fwhm, resolution_m=0.03, max_echoes=2)  # fmt: skip
+                             threshold=radiometry.Threshold(1.0, 1.0, 3.0), fwhm_m=fwhm, resolution_m=0.03, max_echoes=2)  # fmt: skip
     (start,), (count,) = out.runs
     assert count == 1
     x = np.arange(r[0] - 8.0, r[1] + 8.0, s / 64.0)

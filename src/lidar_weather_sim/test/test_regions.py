@@ -7,7 +7,7 @@ import pytest
 from lidar_weather_sim.core.config import ConfigError, ConfigModel
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext, RegionEffect, Scatterers, region_rng
-from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
 

@@ -5,7 +5,7 @@ import pydantic
 import pytest
 import yaml
 
-from lidar_weather_sim.core.config import ConfigError, load_yaml
+from lidar_weather_sim.core.config import ConfigError, load_yaml, validate
 from lidar_weather_sim.core.paths import maps_dir
 from lidar_weather_sim.scenario.player import ScenarioPlayer
 from lidar_weather_sim.scenario.schema import Scenario, known_scenarios, load_scenario, scenarios_dir
@@ -60,6 +60,23 @@ def test_highway_clear_is_the_thesis_highway_setup():
     assert lead_xy[1] - ego_xy[1] == pytest.approx(3.75, abs=0.01)  # one lane to the left (thesis: ~3.6 m)
 
 
+def test_a_lead_gap_resolves_to_the_lane_and_position_of_the_rear_middle():
+    s = load_scenario("highway_clear")
+    network = RoadNetwork.from_xodr(maps_dir() / s.map)
+    extra = [{"id": 140, "lead_gap_m": 30.0, "lead_offset_y_m": -3.7, "speed_m_s": 20.0,
+              "size": {"length_m": 10.0, "width_m": 2.5, "height_m": 3.0}},
+             {"id": 141, "lead_gap_m": 15.5, "lead_offset_y_m": 0.0, "speed_m_s": 20.0}]  # fmt: skip
+    scenario = Scenario.model_validate({**s.model_dump(exclude_unset=True), "actors": extra})
+    player = ScenarioPlayer(scenario, network)
+    sensor_s = s.ego.s_m + s.sensor.mount.x_m
+    truck, car = player.actors[140][0], player.actors[141][0]
+    assert (truck.lane, truck.s_m) == (-3, pytest.approx(sensor_s + 30.0 + 5.0))  # right of the ego's lane
+    assert (car.lane, car.s_m) == (s.ego.lane, pytest.approx(sensor_s + 15.5 + 0.5 * car.size.length_m))
+    off_road = {**s.model_dump(exclude_unset=True), "actors": [{"id": 150, "lead_gap_m": 20.0, "lead_offset_y_m": 9.0}]}
+    with pytest.raises(ConfigError, match=r"actor 150: lead_gap_m 20.0 m, lead_offset_y_m 9.0 m: the rear middle is on no lane"):
+        ScenarioPlayer(Scenario.model_validate(off_road), network)
+
+
 def test_player_moves_the_ego_along_its_lane_and_through_a_lane_change():
     s = load_scenario("example_all_keys")
     player = ScenarioPlayer(s, RoadNetwork.from_xodr(maps_dir() / s.map))
@@ -89,6 +106,9 @@ def test_speed_command_changes_the_ego_speed_from_then_on():
         ({"weather": {"fog": {"visual_range_km": 3}}}, "unknown key 'weather.fog.visual_range_km'"),
         ({"actors": [{"id": 5, "lane": -1}]}, "key 'actors.0.id': value 5"),
         ({"region_params": {"spray": {}}}, "region_params for regions not in 'regions'"),
+        ({"actors": [{"id": 100, "lane": -1, "s_m": 70.0, "lead_gap_m": 17.5}]}, "'lead_gap_m' places the actor; remove ['lane', 's_m']"),
+        ({"actors": [{"id": 100, "s_m": 70.0}]}, "actor 100: give 'lane' and 's_m', or 'lead_gap_m'"),
+        ({"actors": [{"id": 100, "lane": -1, "lead_offset_y_m": 3.7}]}, "actor 100: 'lead_offset_y_m' needs 'lead_gap_m'"),
     ],
 )
 def test_bad_scenarios_name_the_key(tmp_path, patch, message):
@@ -124,3 +144,13 @@ def test_batched_actor_poses_match_each_track_to_the_bit():
             want[:3, :3] = rpy_matrix(0.0, 0.0, float(heading[0]))
             want[:3, 3] = pos[0]
             assert m.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("key", ["azimuth_deg", "elevation_deg"])
+def test_a_removed_key_is_refused_with_one_line_naming_where_it_went(key):
+    data = yaml.safe_load((scenarios_dir() / "highway_clear.yaml").read_text())
+    data["weather"]["sun"] = {"irradiance_w_m2": 200.0, key: 30.0}
+    with pytest.raises(ConfigError) as err:
+        validate(data, Scenario, "s.yaml")
+    message = str(err.value)
+    assert message == f"s.yaml: key 'weather.sun.{key}' was removed: sunlight acts through weather.sun.irradiance_w_m2 only (the noise floor)"

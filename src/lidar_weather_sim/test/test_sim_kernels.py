@@ -6,23 +6,18 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.geometry import quaternion_matrices
 from lidar_weather_sim.core.points import POINT_DTYPE, Label
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
 from lidar_weather_sim.scene.raycast import SceneCaster, available_backends
 from lidar_weather_sim.scene.raycast.scene_caster import _padded_size
 from lidar_weather_sim.scene.scene import Scene
-from lidar_weather_sim.sensor.echo import _beam_order, overlap_factor, peak_amplitude, surface_reflectance
+from lidar_weather_sim.sensor.echo import _beam_order
 from lidar_weather_sim.sensor.profile import SensorProfile
-from lidar_weather_sim.sim.simulator import (
-    LidarSimulator,
-    _compact_candidates,
-    _range_noise,
-    _sub_ray_order,
-    _surface_returns,
-    _world_rays,
-    quaternion_matrices,
-)
+from lidar_weather_sim.sensor.radiometry import overlap_factor, peak_amplitude, surface_reflectance
+from lidar_weather_sim.sim.kernels import compact_candidates, range_noise, sub_ray_order, surface_returns, world_rays
+from lidar_weather_sim.sim.simulator import LidarSimulator
 
 MATERIALS = MaterialTable.default()
 
@@ -87,10 +82,10 @@ def chunked(monkeypatch):
     """Two threads and tiny chunks, so that even these small batches are split."""
     import lidar_weather_sim.scene.raycast.scene_caster as scene_caster
     import lidar_weather_sim.sensor.echo as echo
-    import lidar_weather_sim.sim.simulator as simulator
+    import lidar_weather_sim.sim.kernels as kernels
 
     monkeypatch.setattr(workers, "THREADS", 2)
-    monkeypatch.setattr(simulator, "CHUNK_RAYS", 96)
+    monkeypatch.setattr(kernels, "CHUNK_RAYS", 96)
     monkeypatch.setattr(scene_caster, "CHUNK_RAYS", 256)
     monkeypatch.setattr(echo, "CHUNK_CANDIDATES", 40)
 
@@ -113,7 +108,7 @@ def test_world_rays_match_numpy_rotation():
     rotation = quaternion_matrices(q / np.linalg.norm(q, axis=1, keepdims=True))
     directions = rng.normal(size=(17, 5, 3, 3))
     translation = rng.normal(size=(17, 3)) * 100
-    o32, d32, d64 = _world_rays(directions, rotation, translation, True)
+    o32, d32, d64 = world_rays(directions, rotation, translation, True)
     world = np.einsum("cij,cbsj->cbsi", rotation, directions).reshape(-1, 3)
     assert d64.tobytes() == world.tobytes()
     assert d32.tobytes() == world.astype(np.float32).tobytes()
@@ -131,7 +126,7 @@ def test_sub_ray_and_beam_orders_match_numpy_sorts():
     r = rng.uniform(0, 50, len(key))
     for value, share in ((np.inf, 0.2), (np.nan, 0.05), (5.0, 0.1)):
         r[rng.random(len(r)) < share] = value
-    assert np.array_equal(_sub_ray_order(key, r, n_keys), np.lexsort((r, key)))
+    assert np.array_equal(sub_ray_order(key, r, n_keys), np.lexsort((r, key)))
     assert np.array_equal(_beam_order(key), np.argsort(key, kind="stable"))
 
 
@@ -188,13 +183,13 @@ def test_surface_returns_match_the_lidar_equation_in_numpy(effects, overlap):
     hits = (distance, triangle, per_ray[0], per_ray[1], actor, per_ray[2])
     args = (hits, tables, directions, rotation, reflectivity, retro, material_label, actor_label, weights, 1.0e5,
             *map(float, overlap), effects, scale, offset, two_way)  # fmt: skip
-    *compact, segments = _surface_returns(*args, True)
-    beam, got_rng, got_amp, got_label, got_obj = _compact_candidates(compact, segments)
+    *compact, segments = surface_returns(*args, True)
+    beam, got_rng, got_amp, got_label, got_obj = compact_candidates(compact, segments)
     assert got_amp.tobytes() == amp.ravel()[keep].tobytes()
     assert got_rng.tobytes() == rng_m.ravel()[keep].tobytes()
     assert np.array_equal(beam, np.repeat(np.arange(shape[0]), n_sub)[keep])
     assert np.array_equal(got_label, label.ravel()[keep]) and np.array_equal(got_obj, object_id[keep])
-    _, full_rng, full_amp, _, _, _ = _surface_returns(*args, False)
+    _, full_rng, full_amp, _, _, _ = surface_returns(*args, False)
     assert full_amp.tobytes() == amp.ravel().tobytes() and full_rng.tobytes() == rng_m.ravel().tobytes()
 
 
@@ -326,5 +321,5 @@ def test_padded_mitsuba_casts_equal_unpadded():
 @pytest.mark.parametrize("n", [10, 5000])
 def test_range_noise_is_numpys_normal_stream(n):
     """Drawn by numpy or numba (many draws): the values of ``rng.normal(0, sigma, n)``."""
-    noise = _range_noise(np.random.default_rng([1, 2, 3]), 0.01, n, workers.Scratch())
+    noise = range_noise(np.random.default_rng([1, 2, 3]), 0.01, n, workers.Scratch())
     np.testing.assert_array_equal(noise, np.random.default_rng([1, 2, 3]).normal(0.0, 0.01, n))

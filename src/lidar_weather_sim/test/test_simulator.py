@@ -5,7 +5,7 @@ import pytest
 
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.scene.mesh import box_mesh
-from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from lidar_weather_sim.testing.fixtures import MATERIALS, LinearPose, one_frame, scene_of, simple_profile, wall
 

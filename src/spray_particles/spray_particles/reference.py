@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import erf
 
-from lidar_weather_sim.sensor.echo import FWHM_TO_SIGMA, overlap_factor
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, overlap_factor
 from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
 from spray_particles.forces import drag_rates
-from spray_particles.system import Particles, SpraySystem
+from spray_particles.system import Particles, SpraySystem, drawn_film_mm
 
 
 class DropletReference(SpraySystem):
@@ -57,10 +57,7 @@ class DropletReference(SpraySystem):
             if not present[k]:
                 continue
             speed = float(np.linalg.norm(vel[k]))
-            film = prm.water_film_mm
-            if prm.film_cv > 0:
-                shape = 1.0 / prm.film_cv**2
-                film *= rng.gamma(shape, 1.0 / shape)
+            film = drawn_film_mm(prm, rng)
             water = prm.emission_scale * airborne_water_m3(c, film, speed, prm.tick_s)
             if water <= 0:
                 continue

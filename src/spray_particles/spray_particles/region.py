@@ -26,48 +26,39 @@ of :mod:`spray_particles.particle_cloud`; no particles until the first one arriv
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import ClassVar, Literal, NamedTuple
 
 import numba
 import numpy as np
 from pydantic import Field
 
-from lidar_weather_sim.core.config import ConfigError, ConfigModel
+from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect, Scatterers
+from lidar_weather_sim.regions.weather import Weather
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.fused import packet_radii
 from spray_particles.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.raycast import candidates, group_bounds, sphere_hits
-from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
+from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem, SprayTunables
 from spray_particles.water import tyre_dimensions, water_film_mm
 
 
 class SprayRegion:
     name = "spray"
 
-    class Params(ConfigModel):
+    class Params(SprayTunables):
         source: Literal["internal", "topic"] = Field(
             "internal", description="Particles: 'internal' (this process steps them) or 'topic' (spray_node's)")
         topic: str = Field(TOPIC_PARTICLES, description="PointCloud2 of spray_node's particles (source 'topic')")
-        seed: int = Field(0, description="Seed of emission and turbulence")
         actor_ids: list[int] | None = Field(None, description="Emitting actors (default: those with emits_spray)")
-        water_film_mm: float | None = Field(None, ge=0, le=3, description="Water film (mm); default eq. 1 from the rain")
-        texture_depth_mm: float = Field(1.5, gt=0, description="Road texture depth T_s for eq. 1 (mm)")
-        emission_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated emission rate")
-        film_cv: float = Field(0.0, ge=0, description="Variation of the film seen per tick (coefficient of variation)")
-        wind_over_speed: float = Field(0.4, ge=0, le=1.5, description="Air speed past the car in its wake / car speed")
-        wake_length_m: float = Field(30.0, gt=0, description="e-folding length of the wake (m)")
-        lateral_wind_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated lateral wind fields")
-        turbulence_intensity: float = Field(0.1, ge=0, description="RMS turbulence speed / car speed")
-        turbulence_length_m: float = Field(1.0, gt=0, description="Eddy size of the curl noise (m)")
-        mist_packets_per_wheel_per_tick: float = Field(16.0, ge=0, description="Drop packets per wheel per tick (mean)")
-        lifetime_s: float = Field(2.0, gt=0, description="Lifetime of inertial particles (s)")
-        mist_lifetime_s: float = Field(4.0, gt=0, description="Lifetime of drop packets (s)")
-        tick_s: float = Field(0.01, gt=0, le=0.05, description="Integration step (s)")
+        water_film_mm: float | None = Field(None, ge=0, le=3, description="Overrides weather.road.water_film_mm for "
+                                            "this region (mm); both none: eq. 1 from the rain")
         mesh_diameter_m: float | None = Field(None, gt=0, description="Render sphere diameter (m); default config/spray.yaml")
         albedo: float | None = Field(None, ge=0, le=1, description="Single scattering albedo; default config/spray.yaml")
+
+        moved_keys: ClassVar[dict[str, str]] = {"texture_depth_mm": "moved to weather.road.texture_depth_mm"}
 
     def __init__(self, params: "SprayRegion.Params", context: RegionContext) -> None:
         self.p = params
@@ -94,28 +85,19 @@ class SprayRegion:
             emitter = vehicle_emitter(s.length_m, s.width_m, s.height_m, radius, width, c.tyre.treads_across,
                                       c.tyre.ring_vertices)  # fmt: skip
             vehicles.append(EmittingVehicle(a.id, s.length_m, s.width_m, s.height_m, 0.15, emitter))
-        weather = context.weather
-        film = params.water_film_mm
+        weather = context.weather or Weather()
+        film = params.water_film_mm if params.water_film_mm is not None else weather.road.water_film_mm
         if film is None:
-            rain = 0.0
-            if weather is not None and weather.precipitation.type == "rain":
-                rain = weather.precipitation.intensity_mm_h
-            film = float(water_film_mm(rain, params.texture_depth_mm, c.water.drainage_length_m, c.water.cross_slope,
-                                       c.water.film_constant_k_s))  # fmt: skip
+            rain = weather.precipitation.intensity_mm_h if weather.precipitation.type == "rain" else 0.0
+            film = float(water_film_mm(rain, weather.road.texture_depth_mm, c.water.drainage_length_m,
+                                       c.water.cross_slope, c.water.film_constant_k_s))  # fmt: skip
         wind = (0.0, 0.0, 0.0)
-        if weather is not None and weather.wind.speed_m_s > 0:  # blows from direction_deg (from north, clockwise)
+        if weather.wind.speed_m_s > 0:  # blows from direction_deg (from north, clockwise)
             a = np.deg2rad(weather.wind.direction_deg)
             wind = (-weather.wind.speed_m_s * np.sin(a), -weather.wind.speed_m_s * np.cos(a), 0.0)
         self.water_film_mm = film
-        sp = SprayParams(
-            water_film_mm=film, emission_scale=params.emission_scale, film_cv=params.film_cv,
-            wind_over_speed=params.wind_over_speed, wake_length_m=params.wake_length_m, ambient_wind_m_s=wind,
-            lateral_wind_scale=params.lateral_wind_scale, turbulence_intensity=params.turbulence_intensity,
-            turbulence_length_m=params.turbulence_length_m,
-            mist_packets_per_wheel_per_tick=params.mist_packets_per_wheel_per_tick, lifetime_s=params.lifetime_s,
-            mist_lifetime_s=params.mist_lifetime_s, tick_s=params.tick_s,
-            seed=params.seed,
-        )  # fmt: skip
+        sp = SprayParams(**params.model_dump(include=set(SprayTunables.model_fields)), water_film_mm=film,
+                         ambient_wind_m_s=wind)  # fmt: skip
         poses = self.pose_source.actor_poses if self.pose_source is not None else (lambda t: {})
         self.system = SpraySystem(vehicles, poses, sp, c)
         self.radius_m = 0.5 * (params.mesh_diameter_m or c.particles.mesh_diameter_m)

@@ -21,6 +21,9 @@ A tick of fewer than ``kernels.PARALLEL_FROM`` particles runs in two numba calls
 (spray_particles.fused) with the emission drawn first into the survivors' free rows;
 bigger sets (the droplet reference) go stage by stage through the parallel kernels.
 Both give the same particles bit for bit (test_determinism.py).
+
+Why one module of ~500 lines: the particle system's state (the arrays of one population) and the
+stages that advance it are one thing; the stages' kernels already live in fused.py and kernels.
 """
 
 from __future__ import annotations
@@ -29,7 +32,9 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from pydantic import Field
 
+from lidar_weather_sim.core.config import ConfigModel
 from spray_particles import fused
 from spray_particles.constants import SprayConstants, load_constants
 from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
@@ -57,24 +62,31 @@ class EmittingVehicle:
     emitter: WheelEmitter
 
 
-@dataclass(frozen=True)
-class SprayParams:
-    """Tunable parameters of the system (SI; see :class:`spray_particles.region.SprayRegion.Params`)."""
+class SprayTunables(ConfigModel):
+    """The spray system's tunable parameters that a user sets directly (SI units)."""
 
-    water_film_mm: float = 0.5
-    emission_scale: float = 1.0
-    film_cv: float = 0.0  # coefficient of variation of the film seen per tick (gamma)
-    wind_over_speed: float = 0.4  # air speed past the car in its wake / car speed (Table III: 0.4, IV: 1)
-    wake_length_m: float = 30.0  # e-folding length of the wake behind the car
-    ambient_wind_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world frame, blowing towards
-    lateral_wind_scale: float = 1.0
-    turbulence_intensity: float = 0.1  # RMS turbulent speed / car speed in the wake
-    turbulence_length_m: float = 1.0
-    mist_packets_per_wheel_per_tick: float = 16.0  # drop packets (population 1), Poisson mean
-    lifetime_s: float = 2.0
-    mist_lifetime_s: float = 4.0
-    tick_s: float = 0.01
-    seed: int = 0
+    seed: int = Field(0, description="Seed of emission and turbulence")
+    emission_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated emission rate")
+    film_cv: float = Field(0.0, ge=0, description="Variation of the film seen per tick (coefficient of variation)")
+    wind_over_speed: float = Field(0.4, ge=0, le=1.5, description="Air speed past the car in its wake / car speed "
+                                                                  "(Table III: 0.4, IV: 1)")
+    wake_length_m: float = Field(30.0, gt=0, description="e-folding length of the wake (m)")
+    lateral_wind_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated lateral wind fields")
+    turbulence_intensity: float = Field(0.1, ge=0, description="RMS turbulence speed / car speed")
+    turbulence_length_m: float = Field(1.0, gt=0, description="Eddy size of the curl noise (m)")
+    mist_packets_per_wheel_per_tick: float = Field(16.0, ge=0, description="Drop packets per wheel per tick (mean)")
+    lifetime_s: float = Field(2.0, gt=0, description="Lifetime of inertial particles (s)")
+    mist_lifetime_s: float = Field(4.0, gt=0, description="Lifetime of drop packets (s)")
+    tick_s: float = Field(0.01, gt=0, le=0.05, description="Integration step (s)")
+
+
+class SprayParams(SprayTunables):
+    """Everything a :class:`SpraySystem` runs with: the tunables plus what the region derives from the
+    scenario (the water film and the ambient wind)."""
+
+    water_film_mm: float = Field(0.5, ge=0, description="Water film on the road (mm)")
+    ambient_wind_m_s: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="Wind in the world frame, "
+                                                                                       "blowing towards (m/s)")
 
 
 @dataclass
@@ -105,6 +117,16 @@ class Particles:
     @classmethod
     def concatenate(cls, parts: list["Particles"]) -> "Particles":
         return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__))
+
+
+def drawn_film_mm(params: SprayParams, rng: np.random.Generator) -> float:
+    """One vehicle's water film for one tick (mm): ``water_film_mm`` times a gamma draw of mean 1 and
+    coefficient of variation ``film_cv`` (none when it is 0), from ``rng``."""
+    film = params.water_film_mm
+    if params.film_cv > 0:
+        shape = 1.0 / params.film_cv**2
+        film *= rng.gamma(shape, 1.0 / shape)
+    return film
 
 
 class SpraySystem:
@@ -394,10 +416,7 @@ class SpraySystem:
             if not present[k]:
                 continue
             speed = float(np.linalg.norm(vel[k]))
-            film = prm.water_film_mm
-            if prm.film_cv > 0:
-                shape = 1.0 / prm.film_cv**2
-                film *= rng.gamma(shape, 1.0 / shape)
+            film = drawn_film_mm(prm, rng)
             lam = self.emission_mean_per_frame(speed, film) * prm.tick_s / c.emission.frame_period_s
             # counts by inverse CDF of fixed uniforms and per-population generators: the same draws
             # whatever the film, so more water adds particles to the same ones (common random numbers,

@@ -55,7 +55,7 @@ def _region_with(centres, profile):
                                         np.zeros(n, np.uint8), np.zeros(n, np.int64), np.full(n, 0.004), np.ones(n), np.zeros(n),
                                         np.ones(n))  # fmt: skip
     region.system.tick_index = 0
-    region.system.params = region.system.params.__class__(tick_s=1e9)  # no ticks: the spheres stay put
+    region.system.params = region.system.params.model_copy(update={"tick_s": 1e9})  # no ticks: the spheres stay put
     region._actor_ids = np.array([100], np.uint32)
     return region
 
@@ -201,6 +201,25 @@ def test_film_from_rain_by_eq1_when_not_given():
     world = World.build(load_scenario("highway_spray"))
     region = dict(world.regions(params={"spray": {"water_film_mm": None}}))["spray"]
     assert region.water_film_mm == pytest.approx(0.7, rel=0.01)  # eq. 1 fitted to the highway
+
+
+def _with_road(name: str, **road):
+    """Scenario ``name`` with ``weather.road`` set and spray's own film override removed."""
+    scenario = load_scenario(name)
+    weather = scenario.weather.model_copy(update={"road": scenario.weather.road.model_copy(update=road)})
+    params = {**scenario.region_params, "spray": {k: v for k, v in scenario.region_params["spray"].items()
+                                                  if k != "water_film_mm"}}  # fmt: skip
+    return scenario.model_copy(update={"weather": weather, "region_params": params})
+
+
+def test_film_from_the_road_block_shared_with_the_atmosphere():
+    regions = dict(World.build(_with_road("highway_spray", water_film_mm=1.1)).regions())
+    assert regions["spray"].water_film_mm == 1.1
+    assert regions["atmosphere"].wetness == pytest.approx(1.0 - np.exp(-1.1 / 1.5))
+    region = dict(World.build(_with_road("highway_spray", texture_depth_mm=3.0)).regions())["spray"]
+    assert region.water_film_mm == pytest.approx(0.7 * 2.0**0.3, rel=0.01)  # eq. 1: h ~ T_s^0.3
+    with pytest.raises(ConfigError, match=r"key 'texture_depth_mm' moved to weather.road.texture_depth_mm"):
+        REGISTRY.create("spray", {"texture_depth_mm": 1.5}, RegionContext(None))
 
 
 def test_parameter_errors_name_the_key():

@@ -117,13 +117,13 @@ def test_eval_cli_on_a_labelled_bag(tmp_path):
 
 @pytest.mark.parametrize(
     "method, param, reason",
-    [("dror", "multiplier=abc", "filter 'dror': multiplier must be a number, got 'abc'"),
-     ("dror", "max_range_m=none", "max_range_m must be a number or null, got 'none'"),
-     ("dror", "min_neighbours=-1", "min_neighbours must be at least 0, got -1"),
-     ("dror", "min_neighbours=2.5", "min_neighbours must be an integer, got 2.5"),
+    [("dror", "multiplier=abc", "filter 'dror': key 'multiplier': value 'abc': Input should be a valid number"),
+     ("dror", "max_range_m=none", "key 'max_range_m': value 'none': Input should be a valid number"),
+     ("dror", "min_neighbours=-1", "key 'min_neighbours': value -1: Input should be greater than or equal to 0"),
+     ("dror", "min_neighbours=2.5", "key 'min_neighbours': value 2.5: Input should be a valid integer"),
      ("dror", "radius=1", "has no parameter(s) radius (its parameters: angular_resolution_deg, multiplier,"),
-     ("dsor", "neighbours=0", "neighbours must be at least 1, got 0"),
-     ("echo", 'lior={"epw_threshold_m": "x"}', "filter 'echo' lior: epw_threshold_m must be a number, got 'x'"),
+     ("dsor", "neighbours=0", "key 'neighbours': value 0: Input should be greater than or equal to 1"),
+     ("echo", 'lior={"epw_threshold_m": "x"}', "filter 'echo': key 'lior.epw_threshold_m': value 'x': Input should be a valid number"),
      ("learned", "foo=1", "filter 'learned' has no parameter(s) foo (its parameters: model_path, threshold)"),
      ("learned", "threshold=2", "threshold must be a probability between 0 and 1, got 2")],
 )  # fmt: skip

@@ -36,6 +36,9 @@ point fields copied to the feature columns (0.7 ms); the azimuth, a vectorised p
 convolutions (once per occupied cell, in integers: 4.4 ms); the azimuth step (0.7 ms); the range image (~7 ms:
 a dense first-echo plane read without branches by a window of constant size, later echoes only where the
 window holds a crowded cell, the logarithms vectorised by :mod:`weather_filter.log10f`).
+
+Why one module of ~410 lines: the per-point feature vector is one definition (column order, units,
+the trained model depends on it bit for bit); its stages share the cell tables.
 """
 
 from __future__ import annotations

@@ -16,6 +16,9 @@ noted.
 | ``lior``  | x, y, z, intensity, epw| LIOR-style: Park et al. 2020 (IEEE RA-L), plus EPW |
 | ``echo``  | + echo, channel        | multi-echo structure of the beam (this project)    |
 | ``learned`` | + echo, channel, epw | paper 4 per-point features, scikit-learn MLP       |
+
+Why one module of ~410 lines: the filters' table above, their parameter models and the factory
+(`make_filter`, the fallback) are read together; each filter is ~40 lines.
 """
 
 from __future__ import annotations
@@ -24,12 +27,17 @@ import time
 import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from dataclasses import fields as dc_fields
-from typing import ClassVar
+from functools import partial
+from typing import Annotated, Any, Callable, ClassVar
 
 import numpy as np
+import pydantic
+from pydantic import Field
+from pydantic_core import PydanticCustomError
 from scipy.spatial import cKDTree
 
+from lidar_weather_sim.core.config import ConfigModel, validate
+from lidar_weather_sim.core.registry import Registry
 from weather_filter.scan_geometry import angular_resolution_rad
 
 GEOMETRY_FIELDS = frozenset({"x", "y", "z"})
@@ -87,18 +95,41 @@ def neighbour_counts(tree: cKDTree, query: np.ndarray, radius: np.ndarray | floa
     return np.asarray(tree.query_ball_point(query, r=radius, return_length=True, workers=-1), dtype=np.int64)
 
 
-@dataclass(frozen=True)
-class DRORParams:
-    """Charron et al. 2018: ``multiplier`` (beta), ``min_search_radius_m`` (SR_min), ``min_neighbours``
-    (k_min, self excluded) as published. ``angular_resolution_deg`` (alpha): None = estimated from the cloud
-    (the coarser of its azimuth and elevation steps, :mod:`weather_filter.scan_geometry`); a number fixes it.
-    ``max_range_m``: None = the published filter (every range); a number leaves points beyond it alone."""
+#: A real-valued parameter: a finite number >= 0 (an integer is taken as that number; bools and strings are refused).
+NonNegative = Annotated[float, Field(ge=0, strict=True, allow_inf_nan=False)]
+#: A counting parameter: an integer >= 0.
+Count = Annotated[int, Field(ge=0, strict=True)]
 
-    angular_resolution_deg: float | None = None
-    multiplier: float = 3.0
-    min_search_radius_m: float = 0.04
-    min_neighbours: int = 3
-    max_range_m: float | None = None
+
+#: How a filter refuses parameter names it does not have.
+UNKNOWN_PARAMETERS = "has no parameter(s) {unknown} (its parameters: {known})"
+
+
+class FilterParams(ConfigModel):
+    """Base of the filters' parameter sets (validated by :func:`lidar_weather_sim.core.config.validate`):
+    an unknown name is refused with the list of the known ones."""
+
+    @pydantic.model_validator(mode="before")
+    @classmethod
+    def _refuse_unknown_names(cls, data: Any) -> Any:
+        unknown = sorted(set(data) - set(cls.model_fields)) if isinstance(data, dict) else []
+        if unknown:
+            names = {"unknown": ", ".join(unknown), "known": ", ".join(cls.model_fields)}
+            raise PydanticCustomError("unknown_parameter", UNKNOWN_PARAMETERS, names)
+        return data
+
+
+class DRORParams(FilterParams):
+    """Charron et al. 2018, as published unless ``max_range_m`` is set."""
+
+    angular_resolution_deg: NonNegative | None = Field(
+        None, description="alpha, the scan's angular step (deg); None = estimated from the cloud (the coarser of "
+        "its azimuth and elevation steps, weather_filter.scan_geometry)")  # fmt: skip
+    multiplier: NonNegative = Field(3.0, description="beta: search radius beta * alpha * r, r the horizontal range (-)")
+    min_search_radius_m: NonNegative = Field(0.04, description="SR_min: the least search radius (m)")
+    min_neighbours: Count = Field(3, description="k_min: fewer neighbours (self excluded) in the radius: removed (count)")
+    max_range_m: NonNegative | None = Field(
+        None, description="points farther than this from the sensor (m) are left alone; None = every range (as published)")
 
 
 #: alpha when the cloud has no scan structure to estimate it from (no ``channel``, or not a scanning
@@ -127,14 +158,14 @@ class DRORFilter(PointFilter):
         return remove
 
 
-@dataclass(frozen=True)
-class DSORParams:
-    """Kurup & Bos 2021: k nearest neighbours and global std multiplier s as published; range multiplier r
-    (1/m): None = 1 / (the cloud's mean horizontal range), a number fixes it (the paper's 0.05)."""
+class DSORParams(FilterParams):
+    """Kurup & Bos 2021: k and s as published; r from the cloud unless set."""
 
-    neighbours: int = 4
-    std_multiplier: float = 0.01
-    range_multiplier: float | None = None
+    neighbours: Annotated[int, Field(ge=1, strict=True)] = Field(
+        4, description="k: nearest neighbours (self excluded) whose mean distance d_i is compared (count, >= 1)")
+    std_multiplier: NonNegative = Field(0.01, description="s: global threshold T = mean(d) + s * std(d) (-)")
+    range_multiplier: NonNegative | None = Field(
+        None, description="r (1/m); None = 1 / (the cloud's mean horizontal range); the paper's fixed value: 0.05")
 
 
 class DSORFilter(PointFilter):
@@ -167,21 +198,18 @@ class DSORFilter(PointFilter):
         return mean_d > threshold * range_multiplier * r
 
 
-@dataclass(frozen=True)
-class LIORParams:
-    """Candidates: intensity below ``intensity_threshold`` (0-255) *and* EPW below ``epw_threshold_m``;
-    within ``max_range_m`` (weather returns are near-field). A candidate is removed if it has fewer than
-    ``min_neighbours`` (self excluded) inside a DROR-style radius
-    max(``min_search_radius_m``, ``multiplier`` * alpha * r), alpha = ``angular_resolution_deg`` or, when
-    None, the cloud's azimuth step (:mod:`weather_filter.scan_geometry`)."""
+class LIORParams(FilterParams):
+    """Candidates are weak, short and near; a candidate with fewer than ``min_neighbours`` inside the
+    DROR-style radius max(``min_search_radius_m``, ``multiplier`` * alpha * r) is removed."""
 
-    intensity_threshold: float = 60.0
-    epw_threshold_m: float = 0.9
-    max_range_m: float = 40.0
-    angular_resolution_deg: float | None = None
-    multiplier: float = 3.0
-    min_search_radius_m: float = 0.2
-    min_neighbours: int = 3
+    intensity_threshold: NonNegative = Field(60.0, description="a candidate's intensity is below this (0-255)")
+    epw_threshold_m: NonNegative = Field(0.9, description="a candidate's EPW is below this (m)")
+    max_range_m: NonNegative = Field(40.0, description="a candidate's horizontal range is at most this (m): weather is near")
+    angular_resolution_deg: NonNegative | None = Field(
+        None, description="alpha (deg); None = the cloud's azimuth step (weather_filter.scan_geometry)")
+    multiplier: NonNegative = Field(3.0, description="search radius multiplier * alpha * r, r the horizontal range (-)")
+    min_search_radius_m: NonNegative = Field(0.2, description="the least search radius (m)")
+    min_neighbours: Count = Field(3, description="fewer neighbours (self excluded) in the radius: removed (count)")
 
 
 class LIORFilter(PointFilter):
@@ -225,19 +253,17 @@ class LIORFilter(PointFilter):
         return remove
 
 
-@dataclass(frozen=True)
-class EchoParams:
-    """Weak-first-echo rule: echo 1 of a beam that has a later echo, with intensity below
-    ``weak_intensity`` and EPW below ``weak_epw_m``, within ``max_range_m``, and with fewer than
-    ``max_neighbours_for_weather`` (self excluded) neighbours in ``neighbour_radius_m``. Single-echo weak
-    isolated points are handled by the embedded LIOR stage (``lior``)."""
+class EchoParams(FilterParams):
+    """Weak-first-echo rule: echo 1 of a beam that has a later echo, weak, short, near and sparsely
+    surrounded, is removed. Single-echo weak isolated points are handled by the embedded LIOR stage."""
 
-    weak_intensity: float = 80.0
-    weak_epw_m: float = 1.0
-    max_range_m: float = 40.0
-    neighbour_radius_m: float = 0.3
-    max_neighbours_for_weather: int = 3
-    lior: LIORParams = LIORParams()
+    weak_intensity: NonNegative = Field(80.0, description="a weak first echo's intensity is below this (0-255)")
+    weak_epw_m: NonNegative = Field(1.0, description="a weak first echo's EPW is below this (m)")
+    max_range_m: NonNegative = Field(40.0, description="a weak first echo's horizontal range is at most this (m)")
+    neighbour_radius_m: NonNegative = Field(0.3, description="radius of a weak first echo's neighbour count (m)")
+    max_neighbours_for_weather: Count = Field(
+        3, description="a weak first echo with fewer neighbours (self excluded) in that radius is removed (count)")
+    lior: LIORParams = Field(LIORParams(), description="the embedded LIOR stage (a mapping of LIOR's parameters)")
 
 
 class EchoAwareFilter(PointFilter):
@@ -294,7 +320,6 @@ class EchoAwareFilter(PointFilter):
 
 #: Geometry-only filters usable on any cloud with x, y, z.
 GEOMETRY_METHODS = ("dror", "dsor")
-METHODS = ("dror", "dsor", "lior", "echo", "learned")
 
 #: Parameters of a geometry-only filter when it stands in for a method whose fields the cloud lacks (issue 6:
 #: on real clear frames the filter must remove <= 0.5 % of the points). Without intensity/EPW/echo nothing
@@ -304,7 +329,7 @@ METHODS = ("dror", "dsor", "lior", "echo", "learned")
 #: Published DROR (beta 3, k_min 3) removes 2.4 % of the real clear OS1-128 frames (foliage, thin
 #: structures, mixed pixels at edges); this setting 0.3 %.
 FALLBACK_PARAMS = {
-    "dror": dict(multiplier=5.0, min_neighbours=2, max_range_m=LIORParams.max_range_m),
+    "dror": dict(multiplier=5.0, min_neighbours=2, max_range_m=LIORParams().max_range_m),
     "dsor": dict(std_multiplier=1.0),
 }
 
@@ -362,53 +387,32 @@ def make_filter_with_fallback(method: str, fallback: str = "dror", **overrides) 
 
 
 def make_filter(method: str, **overrides) -> PointFilter:
-    """A filter by method name; ``overrides`` replace fields of its parameter dataclass."""
-    simple = {"dror": (DRORFilter, DRORParams), "dsor": (DSORFilter, DSORParams), "lior": (LIORFilter, LIORParams),
-              "echo": (EchoAwareFilter, EchoParams)}  # fmt: skip
-    if method in simple:
-        cls, params_cls = simple[method]
-        return cls(checked_params(params_cls, overrides, f"filter '{method}'"))
-    if method == "learned":
-        from weather_filter.learned import LearnedFilter
-
-        unknown = set(overrides) - {"model_path", "threshold"}
-        if unknown:
-            raise ValueError(f"filter 'learned' has no parameter(s) {', '.join(sorted(unknown))} "
-                             "(its parameters: model_path, threshold)")  # fmt: skip
-        return LearnedFilter.load(**overrides)
-    raise ValueError(f"unknown filter method '{method}' (choose from {', '.join(METHODS)})")
+    """A filter by method name (:data:`FILTERS`); ``overrides`` replace its default parameters."""
+    return FILTERS.get(method)(**overrides)
 
 
-#: least value of integer parameters that count neighbours to average over (0 would average nothing)
-MIN_INT_PARAMS = {"neighbours": 1}
+def _with_params(filter_cls: type[PointFilter], params_cls: type[FilterParams], /, **overrides) -> PointFilter:
+    """``filter_cls`` with the defaults of ``params_cls`` replaced by ``overrides`` (validated)."""
+    return filter_cls(validate(overrides, params_cls, f"filter '{filter_cls.name}'"))
 
 
-def checked_params(params_cls, overrides: dict, where: str):
-    """``params_cls(**overrides)`` with every override checked against the field's default: numbers must be
-    finite and >= 0 (integers for integer fields, >= MIN_INT_PARAMS where listed), None only where the
-    default is None, a nested parameter set a mapping of its own fields. Errors name the parameter."""
-    known = {f.name: f.default for f in dc_fields(params_cls)}
-    unknown = set(overrides) - set(known)
+def _learned(**overrides) -> PointFilter:
+    """The learned filter (imported on use: scikit-learn and its compiled features); its parameters are
+    ``model_path`` and ``threshold``."""
+    from weather_filter.learned import LearnedFilter
+
+    known = ("model_path", "threshold")
+    unknown = sorted(set(overrides) - set(known))
     if unknown:
-        raise ValueError(f"{where} has no parameter(s) {', '.join(sorted(unknown))} (its parameters: {', '.join(known)})")
-    values = {}
-    for name, value in overrides.items():
-        default = known[name]
-        if hasattr(default, "__dataclass_fields__"):
-            if not isinstance(value, dict):
-                raise ValueError(f"{where}: {name} must be a mapping of its own parameters, got {value!r}")
-            values[name] = checked_params(type(default), value, f"{where} {name}")
-            continue
-        if value is None and default is None:
-            values[name] = None
-            continue
-        integer = isinstance(default, int)
-        ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
-        if isinstance(value, bool) or not ok_type or not np.isfinite(value):
-            kind = "an integer" if integer else "a number" + (" or null" if default is None else "")
-            raise ValueError(f"{where}: {name} must be {kind}, got {value!r}")
-        least = MIN_INT_PARAMS.get(name, 0) if integer else 0
-        if value < least:
-            raise ValueError(f"{where}: {name} must be at least {least}, got {value!r}")
-        values[name] = value
-    return params_cls(**values)
+        raise ValueError("filter 'learned' " + UNKNOWN_PARAMETERS.format(unknown=", ".join(unknown), known=", ".join(known)))
+    return LearnedFilter.load(**overrides)
+
+
+#: Filter factories by method name: ``FILTERS.get(method)(**overrides)``.
+FILTERS: Registry[Callable[..., PointFilter]] = Registry("filter method")
+FILTERS.register("dror", partial(_with_params, DRORFilter, DRORParams))
+FILTERS.register("dsor", partial(_with_params, DSORFilter, DSORParams))
+FILTERS.register("lior", partial(_with_params, LIORFilter, LIORParams))
+FILTERS.register("echo", partial(_with_params, EchoAwareFilter, EchoParams))
+FILTERS.register("learned", _learned)
+METHODS = tuple(FILTERS.names())

@@ -77,7 +77,7 @@ class SimSpec:
 
 def weather_update(text: str) -> dict:
     """``clear`` / ``rainR`` / ``snowR`` / ``fogV``, joined by ``+``: fields of a Weather block."""
-    from lidar_weather_sim.scenario.schema import Fog, Precipitation
+    from lidar_weather_sim.regions.weather import Fog, Precipitation
 
     update = {"fog": Fog(), "precipitation": Precipitation()}
     for part in text.split("+"):

@@ -8,16 +8,31 @@ Every configurable component (sensor profile, scenario, region) defines one
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import pydantic
 import yaml
+from pydantic_core import PydanticCustomError
 
 
 class ConfigModel(pydantic.BaseModel):
-    """Base of all configuration schemas: unknown keys are errors, instances are immutable."""
+    """Base of all configuration schemas: unknown keys are errors, instances are immutable.
+
+    ``moved_keys`` maps a key that moved or was removed to where it went; such a key is refused
+    with that one line instead of "unknown key".
+    """
 
     model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+    moved_keys: ClassVar[dict[str, str]] = {}
+
+    @pydantic.model_validator(mode="before")
+    @classmethod
+    def _refuse_moved_keys(cls, data: Any) -> Any:
+        if cls.moved_keys and isinstance(data, dict):
+            for key, where in cls.moved_keys.items():
+                if key in data:
+                    raise PydanticCustomError("moved_key", "{where}", {"key": key, "where": where})
+        return data
 
 
 M = TypeVar("M", bound=pydantic.BaseModel)
@@ -46,10 +61,14 @@ def format_validation_error(source: str, error: pydantic.ValidationError, data: 
     for item in error.errors():
         loc = tuple(item["loc"])
         key = _key_path(loc)
-        if item["type"] == "extra_forbidden":
+        if item["type"] == "moved_key":
+            lines.append(f"{source}: key '{_key_path(loc + (item['ctx']['key'],))}' {item['ctx']['where']}")
+        elif item["type"] == "extra_forbidden":
             lines.append(f"{source}: unknown key '{key}'")
         elif item["type"] == "missing":
             lines.append(f"{source}: missing key '{key}'")
+        elif not loc:  # a model-level check: its message names the keys
+            lines.append(f"{source}: {item['msg']}")
         else:
             lines.append(f"{source}: key '{key}': value {_lookup(data, loc)!r}: {item['msg']}")
     return "\n".join(lines)

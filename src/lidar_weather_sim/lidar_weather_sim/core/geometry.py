@@ -1,4 +1,5 @@
-"""Rotations shared by every layer: roll-pitch-yaw matrices and quaternions (x, y, z, w order).
+"""Rotations shared by every layer: roll-pitch-yaw matrices, quaternions (x, y, z, w order) and
+named frame transforms.
 
 Angles in rad; REP-103 fixed-axis roll-pitch-yaw. Quaternion helpers take arrays of shape
 (..., 4) and vectors (..., 3).
@@ -6,8 +7,26 @@ Angles in rad; REP-103 fixed-axis roll-pitch-yaw. Quaternion helpers take arrays
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
+
+
+class FrameTransform(NamedTuple):
+    """The pose of frame ``child`` in frame ``parent`` (geometry_msgs/TransformStamped: header.frame_id
+    = parent): ``translation`` x, y, z (m) and the rotation ``quaternion`` x, y, z, w (maps child-frame
+    vectors into the parent frame)."""
+
+    parent: str
+    child: str
+    translation: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]
+
+
+def pose_transform(parent: str, child: str, pose: np.ndarray) -> FrameTransform:
+    """The 4x4 child-to-parent ``pose`` (m) as a :class:`FrameTransform`."""
+    return FrameTransform(parent, child, tuple(pose[:3, 3].tolist()), tuple(matrix_quaternion(pose[:3, :3]).tolist()))
 
 
 def yaw_quaternions(yaw: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ ground-truth fields follow. Clouds are unorganised (height 1).
 | y          | float32 |      4 | m     |                                                          |
 | z          | float32 |      8 | m     |                                                          |
 | intensity  | uint8   |     12 | -     | 0-255, received power on the sensor's scale              |
-| return_type| uint8   |     13 | -     | Nebula return type (0 unknown, 1 strongest, 2 last...)   |
+| return_type| uint8   |     13 | -     | Nebula return type (``ReturnType``: 1 last, 2 first...)  |
 | channel    | uint16  |     14 | -     | beam index, 0 = lowest beam                              |
 | azimuth    | float32 |     16 | rad   | atan2(y, x) in the sensor frame                          |
 | elevation  | float32 |     20 | rad   | atan2(z, hypot(x, y))                                    |
@@ -57,6 +57,17 @@ class Label(IntEnum):
 
 #: Labels of weather or sensor artefacts that a weather filter should remove.
 WEATHER_LABELS = frozenset({Label.COVER, Label.RAIN, Label.FOG, Label.SNOW, Label.SPRAY, Label.NOISE})
+class ReturnType(IntEnum):
+    """Nebula's return types (nebula_common ``ReturnType``) of the ``return_type`` field."""
+
+    UNKNOWN = 0
+    LAST = 1
+    FIRST = 2
+    STRONGEST = 3
+    IDENTICAL = 6  # the beam's only kept echo
+    SECOND = 7
+
+
 #: Labels of solid objects that a weather filter must keep.
 SOLID_LABELS = frozenset({Label.STATIC, Label.VEHICLE, Label.OBSTACLE})
 

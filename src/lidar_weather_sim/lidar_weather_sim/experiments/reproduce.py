@@ -28,7 +28,8 @@ from lidar_weather_sim.experiments.rooftop import ATMOSPHERE_REGION_M, STREET_RE
 from lidar_weather_sim.gap.features import FEATURES, UNITS, frame_features, summarize
 from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, FitFile, fit_path
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
-from lidar_weather_sim.scenario.schema import Weather, load_scenario
+from lidar_weather_sim.regions.weather import Weather
+from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.scene import Scene
 from lidar_weather_sim.sensor.profile import load_profile
@@ -76,7 +77,7 @@ def lot_scene(materials: MaterialTable | None = None, street_gain: float = 1.0) 
     clear weather (``street_gain`` in config/atmosphere_fit.yaml).
     """
     from lidar_weather_sim.scene.mesh import Material
-    from lidar_weather_sim.sensor.echo import RETRO_GAIN
+    from lidar_weather_sim.sensor.radiometry import RETRO_GAIN
 
     materials = materials or MaterialTable.default()
     dry = materials["asphalt_dry"]

@@ -24,7 +24,7 @@ from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.offline import POSE_STEP_S
-from lidar_weather_sim.sim.simulator import LidarSimulator
+from lidar_weather_sim.sim.simulator import LidarSimulator, scenario_settings
 
 
 class RecordedPoses:
@@ -104,7 +104,7 @@ class Resimulator:
         self.scenario = scenario
         self.world = World.build(scenario, profile)
         self.poses = RecordedPoses(recording, self.world)
-        self.sim = LidarSimulator(self.world.profile, self.world.scene, backend=backend, seed=scenario.seed)
+        self.sim = LidarSimulator.of_world(self.world, backend=backend, regions=[])
         self.contexts = frame_contexts(recording, scenario)
         self.channels = channel_count(recording, self.world)
         self.casts = 0  # frames cast so far (for progress and cost reports)
@@ -113,8 +113,7 @@ class Resimulator:
         """Points of the recording's frames ``indices`` simulated with ``effects``."""
         patched = apply_effects(self.scenario, effects)
         world = replace(self.world, scenario=patched)
-        self.sim.restart(regions=world.regions(pose_source=self.poses),
-                         sun_irradiance_w_m2=patched.weather.sun.irradiance_w_m2, seed=patched.seed)  # fmt: skip
+        self.sim.restart(regions=world.regions(pose_source=self.poses), **scenario_settings(patched))
         period = self.world.profile.period_s
         out = []
         for i in sorted(indices):

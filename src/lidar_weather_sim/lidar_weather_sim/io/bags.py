@@ -15,6 +15,9 @@ tail; :func:`recover` rewrites them as a valid, indexed bag. rosbags' MCAP
 writer buffers messages in chunks of about 1 MiB, so the messages of the
 chunk being filled when the writer died are lost. rosbags' sqlite3 writer
 commits only on close, so a killed sqlite3 recording holds no messages.
+
+Why one module of ~500 lines: reading, writing and recovering rosbag2 files share the open-bag
+helpers and the crash-safety rules above (a recording is never left without its index).
 """
 
 from __future__ import annotations

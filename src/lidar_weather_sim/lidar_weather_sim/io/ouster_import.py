@@ -51,6 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lidar_weather_sim.core.geometry import pose_transform
 from lidar_weather_sim.core.names import (
     FRAME_BASE_LINK,
     FRAME_LIDAR,
@@ -60,8 +61,9 @@ from lidar_weather_sim.core.names import (
     TOPIC_TF,
     TOPIC_TF_STATIC,
 )
-from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW, fill_polar
-from lidar_weather_sim.io.bags import BagWriter, typestore
+from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW, ReturnType, fill_polar
+from lidar_weather_sim.io.bag_messages import clock_message, tf_message
+from lidar_weather_sim.io.bags import BagWriter
 from lidar_weather_sim.io.ouster_pcap import (
     OusterFormatError,
     OusterMetadata,
@@ -79,7 +81,6 @@ MEMBERS = {
     "poses": f"{_BASE}_lb_n3_poses_kitti.txt",
     "map": "sdk/tests/osfs/OS-1-128_v2.3.0_1024x10_lb_n3_map-000.ply",
 }
-RETURN_STRONGEST = 3  # Nebula ReturnType
 TF_STEP_NS = 10_000_000  # /tf and /clock every 10 ms, as `lidar-weather-sim run`
 BALL_RADII = (1.5, 3.0, 6.0, 12.0)  # ball-pivoting radii in units of the map's mean point spacing
 
@@ -109,7 +110,7 @@ class OusterRecording:
         pts = np.zeros(len(r), POINT_DTYPE_NO_EPW)
         pts["x"], pts["y"], pts["z"] = xyz.T
         pts["intensity"] = scan.reflectivity.T[valid]
-        pts["return_type"] = RETURN_STRONGEST
+        pts["return_type"] = ReturnType.STRONGEST
         pts["channel"] = np.broadcast_to(channel, valid.shape)[valid]
         pts["time_stamp"] = np.broadcast_to((scan.timestamp_ns - scan.timestamp_ns[0])[:, None], valid.shape)[valid]
         pts["echo"] = 1
@@ -234,31 +235,6 @@ def frame_alignment(recording: OusterRecording, vertices: np.ndarray, triangles:
     return np.array(medians)
 
 
-class _Messages:
-    """rosbags builders of the /tf, /tf_static and /clock messages."""
-
-    def __init__(self) -> None:
-        self.t = typestore().types
-
-    def time(self, ns: int):
-        sec, nanosec = divmod(int(ns), 1_000_000_000)
-        return self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
-
-    def tf(self, ns: int, parent: str, child: str, pose: np.ndarray):
-        from lidar_weather_sim.core.geometry import matrix_quaternion
-
-        t = self.t
-        (x, y, z), (qx, qy, qz, qw) = pose[:3, 3].tolist(), matrix_quaternion(pose[:3, :3]).tolist()
-        transform = t["geometry_msgs/msg/Transform"](translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
-                                                    rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))  # fmt: skip
-        header = t["std_msgs/msg/Header"](stamp=self.time(ns), frame_id=parent)
-        stamped = t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform)
-        return t["tf2_msgs/msg/TFMessage"](transforms=[stamped])
-
-    def clock(self, ns: int):
-        return self.t["rosgraph_msgs/msg/Clock"](clock=self.time(ns))
-
-
 def write_bag(recording: OusterRecording, out: str | Path, overwrite: bool = False) -> list[int]:
     """Write the recording to the MCAP bag ``out``; returns the points per frame."""
     start = int(recording.scans[0].timestamp_ns[0])
@@ -266,17 +242,17 @@ def write_bag(recording: OusterRecording, out: str | Path, overwrite: bool = Fal
     stamps = np.union1d(np.arange(start, end + TF_STEP_NS, TF_STEP_NS), recording.pose_ns)
     poses = recording.sensor_poses(stamps)
     clouds = [(int(s.timestamp_ns[-1]), k) for k, s in enumerate(recording.scans)]
-    msgs, counts = _Messages(), []
+    counts = []
     with BagWriter(out, overwrite=overwrite) as bag:
-        bag.write(TOPIC_TF_STATIC, msgs.tf(start, FRAME_BASE_LINK, FRAME_LIDAR, np.eye(4)), start)
+        bag.write(TOPIC_TF_STATIC, tf_message(start, [pose_transform(FRAME_BASE_LINK, FRAME_LIDAR, np.eye(4))]), start)
         for ns, pose in zip(stamps.tolist(), poses):
             while clouds and clouds[0][0] <= ns:
                 log_ns, k = clouds.pop(0)
                 points = recording.points(k)
                 bag.write_cloud(TOPIC_POINTS, points, int(recording.scans[k].timestamp_ns[0]), FRAME_LIDAR, log_time_ns=log_ns)
                 counts.append(len(points))
-            bag.write(TOPIC_CLOCK, msgs.clock(ns), ns)
-            bag.write(TOPIC_TF, msgs.tf(ns, FRAME_MAP, FRAME_BASE_LINK, pose), ns)
+            bag.write(TOPIC_CLOCK, clock_message(ns), ns)
+            bag.write(TOPIC_TF, tf_message(ns, [pose_transform(FRAME_MAP, FRAME_BASE_LINK, pose)]), ns)
     return counts
 
 

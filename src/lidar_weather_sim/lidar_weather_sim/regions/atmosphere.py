@@ -23,17 +23,19 @@ Effects per batch (world frame rays, ranges in m along the ray):
   the street region "includes reflections coming from water drops splash");
 - road surface (scene hits on up-facing surfaces, |n_z| > 0.9): wetness w scales the
   reflectance by (rho_wet / rho_dry)^w (materials ``asphalt_wet`` / ``asphalt_dry``).
-  w is the weather class's fitted wetness, or, when ``road_water_film_mm`` h is given,
-  w = 1 - exp(-h / T_s) with T_s the road's mean texture depth: the film darkens the
+  w is the weather class's fitted wetness, or, when a water film h is given (``weather.road.
+  water_film_mm``, or this region's ``road_water_film_mm``), w = 1 - exp(-h / T_s) with T_s the
+  road's mean texture depth (``weather.road.texture_depth_mm``): the film darkens the
   road as it fills the texture and turns it into a mirror once it covers it;
-  a snow cover of depth d replaces the reflectance by that of ``snow`` and moves the
-  hit forward along the ray by d / cos(incidence).
+  a snow cover of depth d (``weather.road.snow_depth_m``, else the weather class's fitted
+  depth) replaces the reflectance by that of ``snow`` and moves the hit forward along the ray
+  by d / cos(incidence).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -43,8 +45,9 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect, Scatterers
 from lidar_weather_sim.regions.extinction import total_alpha
 from lidar_weather_sim.regions.near_field import NearFieldModel, sample_near_field
+from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.scene.materials import MaterialTable
-from lidar_weather_sim.sensor.echo import MIN_RANGE_M
+from lidar_weather_sim.sensor.radiometry import dark_level, reflectance_for_peak
 
 WEATHER_CLASSES = ("clear", "rain", "fog", "snow")
 VOLUME_LABEL = {"clear": Label.NOISE, "rain": Label.RAIN, "fog": Label.FOG, "snow": Label.SNOW}
@@ -97,9 +100,10 @@ class AtmosphereParams(ConfigModel):
     path_gap_m: float = Field(0.8, ge=0, description="Path scatterers end this far before the scene hit (m)")
     splash_depth_m: float = Field(1.5, gt=0, description="Splash drops lie up to this far (range) before the path gap (m)")
     air: bool = Field(True, description="Extinction and scatterers in the air; false: only the road surface changes")
-    road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Water film on the road (mm); "
-                                                                           "none = the weather class's wetness")
-    road_texture_depth_mm: float = Field(1.5, gt=0, description="Mean texture depth T_s of the road (mm)")
+    road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Overrides weather.road.water_film_mm "
+                                             "for this region (mm); both none: the weather class's wetness")
+
+    moved_keys: ClassVar[dict[str, str]] = {"road_texture_depth_mm": "moved to weather.road.texture_depth_mm"}
 
 
 def classify(visual_range_m: float, precipitation: str) -> str:
@@ -115,11 +119,10 @@ class AtmosphereRegion:
     def __init__(self, params: AtmosphereParams, context: RegionContext) -> None:
         self.p = params
         self.profile = context.profile
-        w = context.weather
-        self.visual_range_m = params.visual_range_m or (w.fog.visual_range_m if w is not None else 1.0e5)
-        self.precipitation = params.precipitation_type or (w.precipitation.type if w is not None else "dry")
-        self.intensity = params.intensity_mm_h if params.intensity_mm_h is not None else (
-            w.precipitation.intensity_mm_h if w is not None else 0.0)  # fmt: skip
+        w = context.weather or Weather()
+        self.visual_range_m = params.visual_range_m or w.fog.visual_range_m
+        self.precipitation = params.precipitation_type or w.precipitation.type
+        self.intensity = params.intensity_mm_h if params.intensity_mm_h is not None else w.precipitation.intensity_mm_h
         if self.precipitation == "dry":
             self.intensity = 0.0
         self.weather_class = classify(self.visual_range_m, self.precipitation) if params.weather_class == "auto" \
@@ -140,9 +143,10 @@ class AtmosphereRegion:
         self.rate_scale = 1.0 if ref_alpha is None else self.alpha / ref_alpha
         mats = context.materials or MaterialTable.default()
         self._refl = np.append(mats.reflectivity, 1.0)
-        self.wetness = self.c.wetness if params.road_water_film_mm is None else \
-            1.0 - float(np.exp(-params.road_water_film_mm / params.road_texture_depth_mm))  # fmt: skip
+        film = params.road_water_film_mm if params.road_water_film_mm is not None else w.road.water_film_mm
+        self.wetness = self.c.wetness if film is None else 1.0 - float(np.exp(-film / w.road.texture_depth_mm))
         self._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** self.wetness
+        self.snow_depth_m = self.c.snow_depth_m if w.road.snow_depth_m is None else w.road.snow_depth_m
         self._snow_refl = mats["snow"].reflectivity
         self.near_field = NearFieldModel(self.c.rate_per_beam, self.c.cover_share, self.c.cover_scale_m,
                                          self.c.amplitude_median, self.c.amplitude_sigma_ln,
@@ -154,7 +158,6 @@ class AtmosphereRegion:
 
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, s = batch.shape
-        c = self.c
         label = VOLUME_LABEL[self.weather_class]
         scatterers = None
         if self.p.air:
@@ -164,10 +167,10 @@ class AtmosphereRegion:
         ground = np.isfinite(batch.distance) & (np.abs(batch.normal[..., 2]) > 0.9)
         scale = np.where(ground, self._wet_scale, 1.0)
         offset = np.zeros((n, s))
-        if c.snow_depth_m > 0 and self.p.air:
+        if self.snow_depth_m > 0 and self.p.air:
             cos_inc = np.maximum(np.abs(np.einsum("nsk,nsk->ns", batch.normal, batch.directions)), 0.05)
             scale = np.where(ground, self._snow_refl / np.maximum(self._refl[batch.material], 1e-6), scale)
-            offset = np.where(ground, -c.snow_depth_m / cos_inc, 0.0)
+            offset = np.where(ground, -self.snow_depth_m / cos_inc, 0.0)
         return RegionEffect(
             extinction_per_m=np.full((n, s), self.alpha if self.p.air else 0.0),
             scatterers=scatterers,
@@ -209,8 +212,7 @@ class AtmosphereRegion:
         sigma_ln = c.amplitude_sigma_ln if c.path_amplitude_sigma_ln is None else c.path_amplitude_sigma_ln
         amp = c.path_amplitude_median * np.exp(sigma_ln * rng.standard_normal(m))
         det = self.profile.detection
-        dark = det.noise_mean + det.threshold_sigma * det.noise_sigma
-        refl = amp * dark * np.maximum(r, MIN_RANGE_M) ** 2 / (det.power_constant * w[core])
+        refl = reflectance_for_peak(amp * dark_level(det), det.power_constant, w[core], r)
         return Scatterers(beam=beam, subray=np.full(m, core), range_m=r, reflectance=refl, occlusion=np.zeros(m),
                           label=np.full(m, label, np.uint8), object_id=np.zeros(m, np.uint32),
                           bypass_overlap=np.zeros(m, bool))  # fmt: skip

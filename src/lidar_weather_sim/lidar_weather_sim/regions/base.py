@@ -25,19 +25,21 @@ Plugins register under the entry-point group ``lidar_weather_sim.regions``::
     lidar_weather_sim.regions = cover = my_pkg.cover:CoverRegion
 
 A plugin class has a ``Params`` attribute (a :class:`~lidar_weather_sim.core.config.ConfigModel`
-subclass) and is built as ``cls(params, context)``.
+subclass) and is built as ``cls(params, context)``. A minimal plugin package to copy:
+``templates/region_template`` at the repository root (its README says how to rename, build and use
+it); the shipped regions' pages are in ``src/lidar_weather_sim/docs/regions``.
 """
 
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
-from importlib.metadata import entry_points
+from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from lidar_weather_sim.core.config import ConfigError, ConfigModel, validate
+from lidar_weather_sim.core.registry import Registry
 
 ENTRY_POINT_GROUP = "lidar_weather_sim.regions"
 
@@ -138,25 +140,12 @@ class Region(Protocol):
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect: ...
 
 
-@dataclass
-class RegionRegistry:
-    """Region classes by name: installed entry points plus explicit registrations."""
+class RegionRegistry(Registry[type]):
+    """Region classes by name: installed entry points (``ENTRY_POINT_GROUP``) plus explicit registrations;
+    an unknown name raises :class:`ConfigError`."""
 
-    extra: dict[str, type] = field(default_factory=dict)
-
-    def register(self, name: str, cls: type) -> None:
-        self.extra[name] = cls
-
-    def names(self) -> list[str]:
-        return sorted(set(self.extra) | {ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
-
-    def get(self, name: str) -> type:
-        if name in self.extra:
-            return self.extra[name]
-        for ep in entry_points(group=ENTRY_POINT_GROUP):
-            if ep.name == name:
-                return ep.load()
-        raise ConfigError(f"unknown region '{name}' (available: {', '.join(self.names()) or 'none'})")
+    def __init__(self) -> None:
+        super().__init__("region", ENTRY_POINT_GROUP, ConfigError)
 
     def create(self, name: str, params: dict | None, context: RegionContext) -> Region:
         """Build region ``name`` from a parameter mapping validated by its schema."""

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_weather_sim.regions.base import Scatterers
-from lidar_weather_sim.sensor.echo import MIN_RANGE_M
+from lidar_weather_sim.sensor.radiometry import MIN_RANGE_M, dark_level, reflectance_for_peak
 
 
 @dataclass(frozen=True)
@@ -67,10 +67,9 @@ def sample_near_field(model: NearFieldModel, n_beams: int, weights: np.ndarray, 
     if model.cover_amp_scale_m > 0:
         amp = np.where(cover, amp * np.exp(-rng_m / model.cover_amp_scale_m), amp)
     det = profile.detection
-    dark = det.noise_mean + det.threshold_sigma * det.noise_sigma
     full = max(profile.optics.overlap_full_m, MIN_RANGE_M)
     r_ref = np.where(cover, np.maximum(rng_m, MIN_RANGE_M), full)  # cover: amplitude independent of range
-    reflectance = amp * dark * r_ref**2 / (det.power_constant * w[subray])
+    reflectance = reflectance_for_peak(amp * dark_level(det), det.power_constant, w[subray], r_ref)
     return Scatterers(
         beam=beam, subray=subray, range_m=rng_m, reflectance=reflectance,
         occlusion=np.clip(amp / model.occlusion_amplitude, 0.0, 1.0), label=np.where(cover, label_cover, label_volume).astype(np.uint8),

@@ -14,7 +14,6 @@ cluster), cmd_speed_m_s, decel_m_s2, points.
 from __future__ import annotations
 
 import numpy as np
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data

@@ -24,6 +24,9 @@ Regions may read points other nodes publish (the ``spray`` region with
 ``source: topic`` reads spray_node's /spray/particles): the node subscribes to
 every topic a region asks for (lidar_weather_sim.regions.topic_inputs) and keeps the
 newest message in fixed_frame; a malformed one is logged and skipped.
+
+Why one module of ~410 lines: one node, its parameters and its three pose modes; the simulation
+itself is in sim.session, the conversions in ros.conversions.
 """
 
 from __future__ import annotations
@@ -31,7 +34,6 @@ from __future__ import annotations
 import math
 import time
 
-import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
@@ -46,7 +48,6 @@ from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
 from lidar_weather_sim.core.config import ConfigError
-from lidar_weather_sim.core.geometry import matrix_quaternion
 from lidar_weather_sim.core.names import (
     FRAME_BASE_LINK,
     FRAME_LIDAR,
@@ -71,8 +72,10 @@ from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.ros.qos import CLOCK_QOS, TF_QOS, TF_STATIC_QOS
 from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.scenario.transforms import FrameTransform, moving_transforms, static_transforms
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.session import RuntimeSettings, SimSession, parse_region_params
+from lidar_weather_sim.sim.simulator import scenario_settings
 
 TOPIC_CMD_SPEED = "/ego/cmd_speed"
 POSE_SOURCES = ("scenario", "tf", "odometry")
@@ -86,13 +89,17 @@ def _time(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
-def _transform(parent: str, child: str, ns: int, t, q) -> TransformStamped:
-    msg = TransformStamped()
-    msg.header.stamp, msg.header.frame_id, msg.child_frame_id = _time(ns), parent, child
-    tr, rot = msg.transform.translation, msg.transform.rotation
-    tr.x, tr.y, tr.z = (float(v) for v in t)
-    rot.x, rot.y, rot.z, rot.w = (float(v) for v in q)
-    return msg
+def _tf_message(ns: int, transforms: list[FrameTransform]) -> TFMessage:
+    """The transforms as one TFMessage, each stamped ``ns``."""
+    msgs = []
+    for parent, child, translation, quaternion in transforms:
+        msg = TransformStamped()
+        msg.header.stamp, msg.header.frame_id, msg.child_frame_id = _time(ns), parent, child
+        tr, rot = msg.transform.translation, msg.transform.rotation
+        tr.x, tr.y, tr.z = translation
+        rot.x, rot.y, rot.z, rot.w = quaternion
+        msgs.append(msg)
+    return TFMessage(transforms=msgs)
 
 
 class LidarSimNode(Node):
@@ -120,9 +127,10 @@ class LidarSimNode(Node):
         publish_tf = p("publish_tf", True, "Scenario mode: publish map->base_link, actor_<id>, base_link->lidar")
         regions = p("regions", list(scenario.regions), "Region plugins in order (default: the scenario's)", None, False)
         p("region_params", "", "YAML mapping plugin -> parameters, over the scenario's region_params", None, False)
-        sun = scenario.weather.sun.irradiance_w_m2
-        p("sun_irradiance_w_m2", sun, "Sun irradiance (W/m^2; default: the scenario's weather)", (0.0, 1400.0), False)
-        p("seed", scenario.seed, "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
+        settings = scenario_settings(scenario)
+        p("sun_irradiance_w_m2", settings["sun_irradiance_w_m2"], "Sun irradiance (W/m^2; default: the scenario's weather)",
+          (0.0, 1400.0), False)  # fmt: skip
+        p("seed", settings["seed"], "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
         self.max_frames = p("max_frames", 0, "Stop after publishing this many clouds (0 = run until shut down)", (0, 2**31 - 1))
         wait = p("wait_for_subscriber", False, "Start the poses (scenario: the clock) once /lidar/points has a subscriber")
         self.exit_when_input_ends = p("exit_when_input_ends", False, "tf/odometry: exit once the pose publishers have left")
@@ -152,7 +160,6 @@ class LidarSimNode(Node):
         self.add_post_set_parameters_callback(self._apply)
         self._logged: set[str] = set()
         self._points = self.create_publisher(PointCloud2, TOPIC_POINTS, qos_profile_sensor_data)
-        player = self.world.player
         self.mode = mode
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # not sim time: runs without /clock
         if mode == "scenario":
@@ -161,9 +168,7 @@ class LidarSimNode(Node):
             self._tf = self.create_publisher(TFMessage, TOPIC_TF, TF_QOS) if publish_tf else None
             if publish_tf:
                 self._static = self.create_publisher(TFMessage, TOPIC_TF_STATIC, TF_STATIC_QOS)
-                m = player.mount
-                mount_tf = _transform(self.base, self.frame, 0, m[:3, 3], matrix_quaternion(m[:3, :3]))
-                self._static.publish(TFMessage(transforms=[mount_tf]))
+                self._static.publish(_tf_message(0, static_transforms(self.world.player, self.base, self.frame)))
             self.create_subscription(Float64, TOPIC_CMD_SPEED, self._on_speed, 10)
             self._hold = wait  # until /lidar/points has a subscriber
             self.create_timer(dt / rtf if rtf > 0 else 0.0, self._on_tick, clock=steady)
@@ -317,13 +322,7 @@ class LidarSimNode(Node):
         ns = round(t * 1e9)
         self._clock_pub.publish(ClockMsg(clock=_time(ns)))
         if self._tf is not None:
-            player = self.world.player
-            pos, quat = player.base_link_poses([t])
-            transforms = [_transform(self.fixed, self.base, ns, pos[0], quat[0])]
-            for actor_id, m in player.actor_poses(t).items():
-                q = matrix_quaternion(m[:3, :3])
-                transforms.append(_transform(self.fixed, actor_frame(actor_id), ns, m[:3, 3], q))
-            self._tf.publish(TFMessage(transforms=transforms))
+            self._tf.publish(_tf_message(ns, moving_transforms(self.world.player, t, self.fixed, self.base)))
         self._publish(self.session.advance(t, self.world.player))
 
     def _step(self, candidates: list[int]) -> None:

@@ -16,6 +16,7 @@ import numba
 import numpy as np
 
 from lidar_weather_sim.core.geometry import matrix_quaternion, rpy_matrix, yaw_quaternions
+from lidar_weather_sim.scenario.placement import place_lead
 from lidar_weather_sim.scenario.schema import Mount, Mover, Scenario
 from lidar_weather_sim.scene.opendrive import RoadNetwork
 
@@ -106,7 +107,10 @@ class ScenarioPlayer:
         self.scenario = scenario
         self.network = network
         self.ego = None if scenario.ego is None else MoverTrack(scenario.ego, network)
-        self.actors = {a.id: (a, MoverTrack(a, network)) for a in scenario.actors}
+        actors = scenario.actors
+        if self.ego is not None:  # actors placed by their gap to the sensor get their lane and s_m
+            actors = [place_lead(a, scenario.ego, scenario.sensor.mount, network) for a in actors]
+        self.actors = {a.id: (a, MoverTrack(a, network)) for a in actors}
         tracks = [t for _, t in self.actors.values()]
         # per actor (scenario order): appearance time, first speed segment, direction, road length, road, lane
         self._appear = np.array([a.appear_s for a, _ in self.actors.values()]).reshape(-1, 1)

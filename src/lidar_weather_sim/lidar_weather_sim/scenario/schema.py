@@ -1,9 +1,7 @@
 """Scenario files (``config/scenarios/*.yaml``): map, ego, actors, sensor, weather, regions.
 
-The weather block follows OpenSCENARIO's Weather concepts in snake_case with SI
-unit suffixes (``fog.visual_range_m``, ``precipitation.intensity_mm_h``,
-``sun.irradiance_w_m2`` - the thesis' unit, not OpenSCENARIO's lux,
-``wind.speed_m_s``). Positions on roads use OpenDRIVE road ids, lane ids
+The weather block (:mod:`lidar_weather_sim.regions.weather`, the regions' input) follows
+OpenSCENARIO's Weather concepts in snake_case with SI unit suffixes. Positions on roads use OpenDRIVE road ids, lane ids
 (negative = right of the reference line) and s (m along the road).
 
 A scenario without a ``map`` (``map: null`` or omitted) has an empty road
@@ -17,12 +15,13 @@ no ``ego`` and no ``actors``; its sensor poses must come from outside (``gap`` /
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
 from lidar_weather_sim.core.config import ConfigError, ConfigModel, load_yaml
 from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.regions.weather import Weather
 
 
 class LaneChange(ConfigModel):
@@ -47,11 +46,41 @@ class Mover(ConfigModel):
 
 
 class Actor(Mover):
+    """A vehicle or box on the roads: at ``lane`` / ``s_m`` (its footprint centre), or placed by the
+    thesis' measure, ``lead_gap_m`` / ``lead_offset_y_m`` from the ego's sensor to the middle of its
+    rear (:mod:`lidar_weather_sim.scenario.placement`)."""
+
     id: int = Field(ge=100, le=2**31, description="Object id of its points (ids below 100 belong to the map)")
+    lane: int | None = Field(None, description="OpenDRIVE lane id at the start (not with lead_gap_m)")
+    s_m: float | None = Field(None, ge=0, description="Start position of its footprint centre along the road (m; "
+                              "default 0; not with lead_gap_m)")
     type: Literal["vehicle", "box"] = "vehicle"
     label: Literal["vehicle", "obstacle"] = "vehicle"
     appear_s: float = Field(0.0, ge=0, description="Present from this simulated time on (s)")
     emits_spray: bool = Field(False, description="Wheels throw spray (spray region)")
+    lead_gap_m: float | None = Field(
+        None, gt=0, description="Gap from the ego's sensor to the middle of this actor's rear, along the ego's "
+        "x axis at time 0 (m; thesis paper 3: 17.5, Fig. 13: 15.5-32.6); sets lane and s_m")
+    lead_offset_y_m: float | None = Field(
+        None, description="With lead_gap_m: that point's offset to the left of the sensor (m; default the "
+        "thesis' 3.7); the actor drives the lane whose centre is nearest")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_placement(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        who = f"actor {data.get('id')}"
+        if data.get("lead_gap_m") is None:
+            if data.get("lead_offset_y_m") is not None:
+                raise ValueError(f"{who}: 'lead_offset_y_m' needs 'lead_gap_m'")
+            if data.get("lane") is None:
+                raise ValueError(f"{who}: give 'lane' and 's_m', or 'lead_gap_m'")
+            return {**data, "s_m": 0.0} if data.get("s_m") is None else data
+        both = [k for k in ("lane", "s_m") if data.get(k) is not None]
+        if both:
+            raise ValueError(f"{who}: 'lead_gap_m' places the actor; remove {both}")
+        return data
 
     @property
     def label_code(self) -> Label:
@@ -72,39 +101,6 @@ class Mount(ConfigModel):
 class SensorSetup(ConfigModel):
     profile: str = Field("scala4", description="Name in config/sensors or a path")
     mount: Mount = Field(default_factory=Mount)
-
-
-class Fog(ConfigModel):
-    visual_range_m: float = Field(100000.0, gt=0, description="Meteorological visual range (m)")
-
-
-class Precipitation(ConfigModel):
-    type: Literal["dry", "rain", "snow"] = "dry"
-    intensity_mm_h: float = Field(0.0, ge=0, le=300, description="Precipitation rate (mm/h)")
-
-    @model_validator(mode="after")
-    def _dry(self) -> "Precipitation":
-        if self.type == "dry" and self.intensity_mm_h > 0:
-            raise ValueError(f"precipitation type 'dry' with intensity_mm_h {self.intensity_mm_h} > 0")
-        return self
-
-
-class Sun(ConfigModel):
-    irradiance_w_m2: float = Field(0.0, ge=0, le=1400, description="Global solar irradiance (W/m^2), 0 at night")
-    azimuth_deg: float = Field(180.0, ge=0, le=360, description="Sun azimuth from north, clockwise (deg)")
-    elevation_deg: float = Field(30.0, ge=-90, le=90, description="Sun elevation above the horizon (deg)")
-
-
-class Wind(ConfigModel):
-    speed_m_s: float = Field(0.0, ge=0, description="Wind speed (m/s)")
-    direction_deg: float = Field(0.0, ge=0, le=360, description="Direction the wind blows from, from north (deg)")
-
-
-class Weather(ConfigModel):
-    fog: Fog = Field(default_factory=Fog)
-    precipitation: Precipitation = Field(default_factory=Precipitation)
-    sun: Sun = Field(default_factory=Sun)
-    wind: Wind = Field(default_factory=Wind)
 
 
 class Scenario(ConfigModel):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from lidar_weather_sim.core.config import ConfigError
@@ -29,6 +29,14 @@ class World:
     profile: SensorProfile
     scene: Scene
     player: ScenarioPlayer  # without an ego (mesh-only): actor_poses is {}, ego poses raise NoEgoError
+    _casters: dict = field(default_factory=dict, repr=False, compare=False)  # backend -> the scene's caster
+
+    def caster(self, backend: str | None = None):
+        """The scene's ray caster on ``backend`` (None: the fastest available), built once and shared by
+        every simulator of this world (re-simulations, restarts)."""
+        if backend not in self._casters:
+            self._casters[backend] = self.scene.caster(backend)
+        return self._casters[backend]
 
     @classmethod
     def build(cls, scenario: Scenario, profile: str | SensorProfile | None = None) -> "World":

@@ -20,6 +20,9 @@ road, y north, z up; m). ``s`` is arc length along a road's reference line (m),
 ``t`` the lateral offset, positive to the left of increasing ``s`` (m); angles
 are rad, counter-clockwise from +x. Lane ids follow OpenDRIVE: negative = right of
 the reference line (driving along +s in right-hand traffic), positive = left.
+
+Why one module of ~830 lines: it is one file format. The parser, the lane-pose evaluation and the mesh
+all work on the same private road records (_Road, _Section, _Lane); split, those would become a public API.
 """
 
 from __future__ import annotations

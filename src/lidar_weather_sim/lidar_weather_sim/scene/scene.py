@@ -188,6 +188,13 @@ class Scene:
         m[m == self.materials.index(old)] = self.materials.index(new)
         self.static = TriangleMesh(self.static.vertices, self.static.triangles, m, self.static.object_id)
 
+    def caster(self, backend: str | None = None):
+        """A ray caster over the scene as it is now: the static mesh and the actor meshes, instanced
+        (:class:`~lidar_weather_sim.scene.raycast.scene_caster.SceneCaster`; ``backend`` None: the fastest)."""
+        from lidar_weather_sim.scene.raycast.scene_caster import SceneCaster
+
+        return SceneCaster(self.static, self.actors, backend=backend)
+
     def world_mesh(self, poses: dict[int, np.ndarray] | None = None) -> TriangleMesh:
         """Static mesh plus each actor in ``poses`` (object id -> 4x4 map<-body) in the map frame."""
         posed = [self.actors[i].transformed(np.asarray(p, dtype=np.float64)) for i, p in (poses or {}).items()]

@@ -64,9 +64,9 @@ class SimSession:
             self.settings = self._pending[0]
             self._pending = None
         s = self.settings
-        self.sim = LidarSimulator(
-            self.world.profile, self.world.scene, regions=self.build_regions(s), seed=s.seed,
-            sun_irradiance_w_m2=s.sun_irradiance_w_m2, **self._options,
+        self.sim = LidarSimulator.of_world(
+            self.world, regions=self.build_regions(s), seed=s.seed, sun_irradiance_w_m2=s.sun_irradiance_w_m2,
+            **self._options,
         )  # fmt: skip
         self.inputs.retain(region for _, region in self.sim.regions)  # topics of replaced regions go
         self.frame_start_s: float | None = None  # scan start of the frame being cast

@@ -1,51 +1,59 @@
-"""The virtual LiDAR: incremental casting of the scan, regions, echo decision, frames.
+"""The virtual LiDAR: the scan cast incrementally, as a pipeline of named stages per batch of columns.
 
-Data path per batch of columns (the columns swept since the last pose update):
-scan pattern -> sensor pose per column (rolling shutter) -> backend cast ->
-regions -> candidate returns with LIDAR-equation amplitudes -> echo decision
-(:mod:`lidar_weather_sim.sensor.echo`) -> points in the sensor frame at their own
-firing time. A frame is returned when its sweep is complete; its stamp is the
-scan start and every point's ``time_stamp`` is its column's firing time after
-that (ns).
+:meth:`LidarSimulator.advance` plans the batches (the columns fired since the last pose update),
+asks the pose source once for all their poses, and runs each batch through :meth:`LidarSimulator._cast`,
+which reads as the data path::
 
-Speed (``benchmarks/sim_frame_time.py``): ``advance`` plans its batches first and
-asks the pose source once for all their sensor poses (one per column, exact) and
-actor poses; the sensor-frame sub-ray directions are a table per set of active
-channels; rotation, the LIDAR equation, echo detection and point assembly are numba
-kernels that reproduce the numpy expressions operation for operation (same clouds,
-bit for bit), run in chunks on all cores (:mod:`lidar_weather_sim.core.workers`); large
-temporaries are reused from batch to batch and each frame's points are written into
-one buffer.
+    poses -> rays -> cast -> regions -> candidates -> occlusion -> echoes -> points
+
+- **poses**: the sensor pose of every column at its own firing time (rolling shutter), the actors'
+  poses at the batch time;
+- **rays**: the scan pattern's sub-ray directions (:mod:`lidar_weather_sim.sensor.scan`) in the map frame;
+- **cast**: the rays handed to the scene's caster (:mod:`lidar_weather_sim.scene.raycast`, given to the
+  simulator, never built by it), nearest hits back;
+- **regions**: the region plugins step in simulated time and return their effects on the batch
+  (:mod:`lidar_weather_sim.regions.base`);
+- **candidates**: every scene hit and scatterer with its LIDAR-equation amplitude
+  (:mod:`lidar_weather_sim.sensor.radiometry`); **occlusion**: each scaled by the light the
+  scatterers in front of it leave;
+- **echoes**: the threshold decision on each beam's waveform (:mod:`lidar_weather_sim.sensor.echo`);
+- **points**: range noise, intensity, points in the sensor frame at their firing time, appended to the
+  frame; a frame is returned when its sweep is complete (stamp: the scan start; ``time_stamp``: ns after).
+
+The numba kernels behind the stages live in :mod:`lidar_weather_sim.sim.kernels`; they reproduce the
+numpy expressions bit for bit and run in chunks on all cores. Speed: ``benchmarks/sim_frame_time.py``.
+
+Why one module of ~440 lines: it is the frame pipeline, read top to bottom in one pass; the numba
+kernels it calls are already in kernels.py.
 """
 
 from __future__ import annotations
 
 import bisect
-import functools
 from dataclasses import dataclass
 from typing import Protocol
 
-import numba
 import numpy as np
 
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.geometry import quaternion_matrices
 from lidar_weather_sim.core.points import Label, empty_points, point_dtype
 from lidar_weather_sim.core.seeding import Reseedable
-from lidar_weather_sim.regions.base import RayBatch, Region, combine, region_entropy, region_rng
-from lidar_weather_sim.sensor.echo import (
-    MIN_RANGE_M,
-    RETRO_GAIN,
-    Threshold,
-    detect_echoes,
-    overlap_factor,
-    peak_amplitude,
-)
+from lidar_weather_sim.regions.base import RayBatch, Region, RegionEffect, combine, region_entropy, region_rng
+from lidar_weather_sim.sensor.echo import Echoes, detect_echoes
 from lidar_weather_sim.sensor.profile import SensorProfile
+from lidar_weather_sim.sensor.radiometry import Threshold, dark_level, overlap_factor, peak_amplitude
 from lidar_weather_sim.sensor.scan import ScanPattern
-
-#: Nebula return types (nebula_common ReturnType).
-RETURN_LAST, RETURN_FIRST, RETURN_IDENTICAL, RETURN_SECOND = 1, 2, 6, 7
+from lidar_weather_sim.sim.kernels import (
+    compact_candidates,
+    fill_points,
+    kept_echoes,
+    occlude,
+    padding_bytes,
+    range_noise,
+    surface_returns,
+    world_rays,
+)
 
 
 class PoseSource(Protocol):
@@ -58,6 +66,12 @@ class PoseSource(Protocol):
         A pose source may also offer ``actor_poses_at(times_s) -> list[dict]`` (the same for
         several times at once), or ``poses_at(sensor_times_s, actor_times_s)`` -> (translations,
         quaternions, list[dict]) (both at once); the simulator then uses it once per ``advance``."""
+
+
+def scenario_settings(scenario) -> dict:
+    """What the simulator takes from a scenario besides its world: ``seed`` and ``sun_irradiance_w_m2``
+    (W/m^2, from ``weather.sun``), as keyword arguments of :class:`LidarSimulator` and :meth:`~LidarSimulator.restart`."""
+    return {"seed": int(scenario.seed), "sun_irradiance_w_m2": float(scenario.weather.sun.irradiance_w_m2)}
 
 
 @dataclass
@@ -79,13 +93,21 @@ class _FrameAccumulator:
 
 
 class LidarSimulator:
-    """Virtual LiDAR over a scene; call :meth:`advance` whenever the sensor pose advances."""
+    """Virtual LiDAR over a scene; call :meth:`advance` whenever the sensor pose advances.
+
+    ``caster`` casts the rays (``scene.caster(backend)``, built once by whoever owns the scene - a
+    :class:`~lidar_weather_sim.scenario.world.World` - and shared by every simulator of it); without
+    one the scene's caster on ``backend`` is built here. ``scene`` gives the material table and the
+    actors' labels; ``sun_irradiance_w_m2`` (W/m^2) raises the noise floor; ``seed`` seeds every
+    random stream (same seed and poses, same clouds).
+    """
 
     def __init__(
         self,
         profile: SensorProfile,
         scene,
         *,
+        caster=None,
         backend: str | None = None,
         regions: list[tuple[str, Region]] | None = None,
         seed: int = 0,
@@ -93,13 +115,11 @@ class LidarSimulator:
         ground_truth: bool = True,
         max_catch_up_frames: int = 10,
     ) -> None:
-        from lidar_weather_sim.scene.raycast.scene_caster import SceneCaster
-
         self.profile = profile
         self.pattern = ScanPattern(profile)
         self._column_times = self.pattern.column_time_s.tolist()  # for bisect (s)
         self.scene = scene
-        self.caster = SceneCaster(scene.static, scene.actors, backend=backend)
+        self.caster = scene.caster(backend) if caster is None else caster
         self.regions = list(regions or [])
         self.seed = int(seed)
         self.sun_irradiance_w_m2 = float(sun_irradiance_w_m2)
@@ -121,18 +141,23 @@ class LidarSimulator:
         self._noise = Reseedable()  # the receiver's noise streams (region_rng's), seeded per batch
         self._region_time_s: float | None = None  # simulated time the regions were last stepped to
 
+    @classmethod
+    def of_world(cls, world, *, backend: str | None = None, regions: list[tuple[str, Region]] | None = None,
+                 seed: int | None = None, **options) -> "LidarSimulator":  # fmt: skip
+        """The simulator of a :class:`~lidar_weather_sim.scenario.world.World`: its profile, scene and shared
+        caster on ``backend``, with the scenario's settings (:func:`scenario_settings`); ``regions``
+        (default: the scenario's), ``seed`` and ``options`` (e.g. ``sun_irradiance_w_m2``) override them."""
+        settings = {**scenario_settings(world.scenario), **({} if seed is None else {"seed": seed}), **options}
+        return cls(world.profile, world.scene, caster=world.caster(backend),
+                   regions=world.regions() if regions is None else regions, **settings)  # fmt: skip
+
     # -- receiver ----------------------------------------------------------------
     def threshold(self) -> Threshold:
         """Noise mean and sigma raised by background light (sun irradiance, W/m^2)."""
-        d = self.profile.detection
-        e = self.sun_irradiance_w_m2
-        return Threshold(
-            d.noise_mean + d.sun_noise_per_w_m2 * e, d.noise_sigma + d.sun_sigma_per_w_m2 * e, d.threshold_sigma
-        )
+        return Threshold.under_sun(self.profile.detection, self.sun_irradiance_w_m2)
 
     def dark_threshold(self) -> float:
-        d = self.profile.detection
-        return d.noise_mean + d.threshold_sigma * d.noise_sigma
+        return dark_level(self.profile.detection)
 
     # -- time ----------------------------------------------------------------------
     def restart(self, *, regions: list[tuple[str, Region]] | None = None, sun_irradiance_w_m2: float | None = None,
@@ -212,59 +237,78 @@ class LidarSimulator:
         points = acc.points[: acc.count] if acc.points is not None else empty_points(0, self.ground_truth)
         return Frame(acc.index, acc.start_s, points, acc.rays)
 
-    # -- one batch -------------------------------------------------------------------
+    # -- one batch: the pipeline ---------------------------------------------------------
     def _cast(self, acc: _FrameAccumulator, columns: np.ndarray, times: np.ndarray, translation: np.ndarray,
               rotation: np.ndarray, actor_poses: dict[int, np.ndarray]) -> None:  # fmt: skip
         """Cast ``columns`` (a run) of frame ``acc`` fired at ``times`` (s) from the sensor poses
-        (translations (C, 3), rotation matrices (C, 3, 3)) with the actors at ``actor_poses``."""
-        profile, pattern = self.profile, self.pattern
-        first = int(columns[0])
-        table = pattern.direction_table(acc.index)
-        if columns[-1] - first + 1 == len(columns):  # a run of columns (always, from advance): a view
-            directions = table[first : first + len(columns)]
-        else:
-            directions = table[columns]
-        n_cols, n_beams, n_sub = directions.shape[:3]
-        n = n_cols * n_beams
-        origins32, dirs32, dirs64 = _world_rays(directions, rotation, translation, bool(self.regions), self._scratch)
-        # regions get the hits in the ray batch and may keep them: then the caster's arrays must be new;
-        # without regions the LIDAR-equation kernel gathers the static hits' attributes itself
-        hits = self.caster.cast(origins32, dirs32, actor_poses, profile.range.max_m, reuse=not self.regions,
-                                gather=bool(self.regions))  # fmt: skip
-        shape = (n, n_sub)
-        ray_batch = effect = None
-        if self.regions:
-            material = hits.material.reshape(shape)
-            label = self._material_label[material]
-            actor = hits.hit_actor.reshape(shape)
-            if (actor >= 0).any():
-                label = np.where(actor >= 0, self._actor_label[np.maximum(actor, 0)], label)
-            ray_batch = RayBatch(
-                frame_index=acc.index,
-                origins=np.repeat(translation, n_beams, axis=0),
-                directions=dirs64.reshape(n, n_sub, 3),
-                sensor_directions=directions.reshape(n, n_sub, 3),
-                channel=np.tile(pattern.active_channels(acc.index), n_cols),
-                time_s=np.repeat(times, n_beams),
-                weights=pattern.subray_weight,
-                distance=hits.distance.reshape(shape).astype(np.float64),
-                normal=hits.normal.reshape(n, n_sub, 3),
-                material=material,
-                object_id=hits.object_id.reshape(shape),
-                label=label,
-            )
-            batch_time = float(times.mean())  # regions advance in simulated time before they are sampled
-            previous = self._region_time_s
-            for _, region in self.regions:
-                region.step(batch_time if previous is None else previous, batch_time)
-            self._region_time_s = batch_time
-            effects = [
-                region.apply(ray_batch, region_rng(self.seed, acc.index, name, first)) for name, region in self.regions
-            ]
-            effect = combine(effects, shape)
+        (translations (C, 3) m, rotation matrices (C, 3, 3), map frame) with the actors at ``actor_poses``."""
+        directions = self._directions(acc.index, columns)
+        origins32, dirs32, dirs64 = world_rays(directions, rotation, translation, bool(self.regions), self._scratch)
+        hits = self._cast_rays(origins32, dirs32, actor_poses)
+        ray_batch, effect = self._regions(acc.index, columns, times, translation, directions, dirs64, hits)
         candidates, segments = self._candidates(hits, directions, rotation, ray_batch, effect)
-        candidates, segments = self._add_false_alarms(candidates, segments, n, acc.index, first)
-        echoes = detect_echoes(
+        candidates, segments = self._add_false_alarms(candidates, segments, len(columns) * directions.shape[1],
+                                                      acc.index, int(columns[0]))  # fmt: skip
+        echoes = self._echoes(candidates, segments)
+        self._points(echoes, columns, directions.shape[1], acc, int(columns[0]))
+        acc.rays += directions.shape[0] * directions.shape[1] * directions.shape[2]
+
+    def _directions(self, frame_index: int, columns: np.ndarray) -> np.ndarray:
+        """Sensor-frame unit sub-ray directions (C, B, S, 3) of ``columns`` in frame ``frame_index``'s pattern."""
+        table = self.pattern.direction_table(frame_index)
+        first = int(columns[0])
+        if columns[-1] - first + 1 == len(columns):  # a run of columns (always, from advance): a view
+            return table[first : first + len(columns)]
+        return table[columns]
+
+    def _cast_rays(self, origins32: np.ndarray, dirs32: np.ndarray, actor_poses: dict[int, np.ndarray]):
+        """The caster's nearest hits of the map-frame rays. Regions get the hits in the ray batch and may
+        keep them: then the caster's arrays must be new; without regions the LIDAR-equation kernel
+        gathers the static hits' attributes itself."""
+        return self.caster.cast(origins32, dirs32, actor_poses, self.profile.range.max_m, reuse=not self.regions,
+                                gather=bool(self.regions))  # fmt: skip
+
+    def _regions(self, frame_index: int, columns: np.ndarray, times: np.ndarray, translation: np.ndarray,
+                 directions: np.ndarray, dirs64: np.ndarray, hits) -> tuple[RayBatch | None, RegionEffect | None]:  # fmt: skip
+        """The ray batch the regions see and their combined effect on it (None, None without regions).
+        The regions step in simulated time to the batch's mean firing time before they are sampled."""
+        if not self.regions:
+            return None, None
+        pattern = self.pattern
+        n_cols, n_beams, n_sub = directions.shape[:3]
+        n, shape = n_cols * n_beams, (n_cols * n_beams, n_sub)
+        material = hits.material.reshape(shape)
+        label = self._material_label[material]
+        actor = hits.hit_actor.reshape(shape)
+        if (actor >= 0).any():
+            label = np.where(actor >= 0, self._actor_label[np.maximum(actor, 0)], label)
+        ray_batch = RayBatch(
+            frame_index=frame_index,
+            origins=np.repeat(translation, n_beams, axis=0),
+            directions=dirs64.reshape(n, n_sub, 3),
+            sensor_directions=directions.reshape(n, n_sub, 3),
+            channel=np.tile(pattern.active_channels(frame_index), n_cols),
+            time_s=np.repeat(times, n_beams),
+            weights=pattern.subray_weight,
+            distance=hits.distance.reshape(shape).astype(np.float64),
+            normal=hits.normal.reshape(n, n_sub, 3),
+            material=material,
+            object_id=hits.object_id.reshape(shape),
+            label=label,
+        )
+        batch_time = float(times.mean())
+        previous = self._region_time_s
+        for _, region in self.regions:
+            region.step(batch_time if previous is None else previous, batch_time)
+        self._region_time_s = batch_time
+        first = int(columns[0])
+        effects = [region.apply(ray_batch, region_rng(self.seed, frame_index, name, first)) for name, region in self.regions]
+        return ray_batch, combine(effects, shape)
+
+    def _echoes(self, candidates, segments) -> Echoes:
+        """The threshold decision on each beam's waveform (:func:`~lidar_weather_sim.sensor.echo.detect_echoes`)."""
+        profile = self.profile
+        return detect_echoes(
             *candidates,
             threshold=self.threshold(),
             fwhm_m=profile.pulse.fwhm_m,
@@ -273,12 +317,10 @@ class LidarSimulator:
             segments=segments,
             scratch=self._scratch,
         )
-        self._points(echoes, columns, n_beams, acc, first)
-        acc.rays += n * n_sub
 
     def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect):
         """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers,
-        and the runs of those arrays that hold them (see :func:`_surface_returns`; None: all).
+        and the runs of those arrays that hold them (see :func:`surface_returns`; None: all).
 
         ``rays`` and ``effect`` are None without regions (no scaling, offset or losses)."""
         profile = self.profile
@@ -298,7 +340,7 @@ class LidarSimulator:
             t2 = np.ascontiguousarray(np.broadcast_to(t2, (n, n_sub)), np.float64)
         else:
             scale = offset = t2 = np.zeros((1, 1))
-        beam, rng_m, amp, label, obj, segments = _surface_returns(
+        beam, rng_m, amp, label, obj, segments = surface_returns(
             (hits.distance, hits.triangle, hits.normal, hits.material, hits.hit_actor, hits.object_id),
             self.caster.static_tables, directions, rotation, self._reflectivity, self._retro, self._material_label,
             self._actor_label, self.pattern.subray_weight, float(C), float(optics.overlap_start_m),
@@ -318,18 +360,24 @@ class LidarSimulator:
             overlap = np.where(sc.bypass_overlap, 1.0, overlap)
         sc_amp = peak_amplitude(C, rays.weights[s], sc.reflectance, sc.range_m, t2, overlap)
         extra = [b, s, sc.range_m, sc_amp, sc.label, sc.object_id, sc.occlusion]
-        cols = [np.concatenate([a, e]) for a, e in zip(cols, extra)]
-        cols[3] = _occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6], n * n_sub)
+        return self._occlusion([np.concatenate([a, e]) for a, e in zip(cols, extra)], n * n_sub, n_sub), None
+
+    @staticmethod
+    def _occlusion(cols: list[np.ndarray], n_keys: int, n_sub: int) -> tuple[np.ndarray, ...]:
+        """Candidates ``cols`` (beam, sub-ray, range, amplitude, label, object id, occlusion) with each
+        amplitude scaled by the two-way light the candidates in front of it on its sub-ray leave; those
+        left with light, as (beam, range, amplitude, label, object id)."""
+        cols[3] = occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6], n_keys)
         beam, _, rng_m, amp, label, obj, _ = cols
         keep = amp > 0
-        return (beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)), None
+        return beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)
 
     def _add_false_alarms(self, candidates, segments, n_beams: int, frame: int, first_column: int):
         rate = self.profile.detection.false_alarms_per_beam
         if rate <= 0:
             return candidates, segments
         if segments is not None:
-            candidates = _compact_candidates(candidates, segments)
+            candidates = compact_candidates(candidates, segments)
         rng = self._noise.seed(region_entropy(self.seed, frame, "noise_floor", first_column))
         count = rng.poisson(rate, n_beams)
         beam = np.repeat(np.arange(n_beams), count)
@@ -349,8 +397,8 @@ class LidarSimulator:
         # where the echoes are: their ranges with noise; of those kept, the indices and amplitude ratios
         ranges, kept, log_ratio = (self._scratch.get(name, len(echoes.range_m), dtype) for name, dtype in
                                    (("noisy_range", np.float64), ("kept", np.int64), ("log_ratio", np.float64)))  # fmt: skip
-        noise = _range_noise(rng, float(profile.range.noise_sigma_m), int(counts.sum()), self._scratch)
-        count = _kept_echoes(noise, echoes.range_m, echoes.amplitude, starts, counts, max(profile.range.min_m, 0.0),
+        noise = range_noise(rng, float(profile.range.noise_sigma_m), int(counts.sum()), self._scratch)
+        count = kept_echoes(noise, echoes.range_m, echoes.amplitude, starts, counts, max(profile.range.min_m, 0.0),
                              self.dark_threshold(), ranges, kept, log_ratio)  # fmt: skip
         kept, log_ratio = kept[:count], log_ratio[:count]
         if acc.points is None:
@@ -364,10 +412,10 @@ class LidarSimulator:
         span = np.log(profile.detection.intensity_dynamic_range)
         np.log(log_ratio, out=log_ratio)
         geo = self._point_tables()
-        _fill_points(
+        fill_points(
             points, kept, ranges, echoes.beam, echoes.echo, echoes.epw_m, log_ratio, float(span),
             np.ascontiguousarray(columns, np.int64), self.pattern.active_channels(acc.index), n_beams, *geo,
-            echoes.label, echoes.object_id, self.ground_truth, _padding_bytes(points.dtype),
+            echoes.label, echoes.object_id, self.ground_truth, padding_bytes(points.dtype),
         )  # fmt: skip
 
     def _point_tables(self) -> tuple[np.ndarray, ...]:
@@ -395,327 +443,3 @@ def _poses(poses: PoseSource, times: np.ndarray, actor_times: list[float]):
         actors = many(actor_times) if many is not None else [poses.actor_poses(t) for t in actor_times]
     translation = np.ascontiguousarray(translation, dtype=np.float64)
     return translation, quaternion_matrices(np.asarray(quaternion, dtype=np.float64)), actors
-
-
-def _occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray,
-             n_keys: int) -> np.ndarray:  # fmt: skip
-    """Scale each candidate by the two-way light left after the candidates in front of it on the
-    same sub-ray (``key``, 0..n_keys - 1): prod over nearer ones of (1 - occlusion)^2."""
-    order = _sub_ray_order(key, range_m, n_keys)
-    k, occ = key[order], np.clip(occlusion[order], 0.0, 1.0)
-    log_t = 2.0 * np.log(np.maximum(1.0 - occ, 1e-30))
-    cum = np.cumsum(log_t)
-    start = np.ones(len(k), bool)
-    start[1:] = k[1:] != k[:-1]
-    group_base = np.maximum.accumulate(np.where(start, np.arange(len(k)), 0))
-    before = cum - log_t - (cum[group_base] - log_t[group_base])  # exclusive sum within the group
-    out = np.empty_like(amplitude)
-    out[order] = amplitude[order] * np.exp(before)
-    return out
-
-
-@numba.njit(cache=True)
-def _sub_ray_order(key, range_m, n_keys):
-    """``np.lexsort((range_m, key))`` for keys 0..n_keys - 1 with few candidates each: a counting
-    sort by key, then an insertion sort by range per key (both stable; NaN last, as numpy)."""
-    start = np.zeros(n_keys + 1, np.int64)
-    for k in key:
-        start[k + 1] += 1
-    for k in range(n_keys):
-        start[k + 1] += start[k]
-    fill = start[:-1].copy()
-    order = np.empty(len(key), np.int64)
-    for i in range(len(key)):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
-    for k in range(n_keys):
-        for q in range(start[k] + 1, start[k + 1]):
-            i = order[q]
-            r = range_m[i]
-            p = q
-            while p > start[k]:
-                before = range_m[order[p - 1]]
-                if not (before > r or (np.isnan(before) and not np.isnan(r))):
-                    break
-                order[p] = order[p - 1]
-                p -= 1
-            order[p] = i
-    return order
-
-
-# -- kernels ---------------------------------------------------------------------------
-# They reproduce the numpy expressions they replace operation for operation (numpy's
-# einsum adds three products as (p0 + p2) + p1), so the clouds are bit for bit the same.
-
-
-#: Rays per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.core.workers`).
-CHUNK_RAYS = 32768
-
-
-def _world_rays(directions, rotation, translation, want64, scratch=None):
-    """Sensor-frame sub-ray directions (C, B, S, 3) rotated by each column's rotation (C, 3, 3):
-    float32 origins and directions (C*B*S, 3) for the caster, column-major (transposes of
-    (3, C*B*S) arrays, which Mitsuba takes without a copy; in ``scratch`` if given), and the
-    float64 directions (C*B*S, 3) if ``want64`` (else an empty array)."""
-    n_cols, n_beams, n_sub = directions.shape[:3]
-    m = n_cols * n_beams * n_sub
-    new = workers.allocator(scratch)
-    o32 = new("origins32", (3, m), np.float32).T
-    d32 = new("directions32", (3, m), np.float32).T
-    d64 = np.empty((m if want64 else 0, 3))
-    cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
-    workers.run_chunks(lambda c: _world_rays_run(directions, rotation, translation, cuts[c], cuts[c + 1], want64,
-                                                 o32, d32, d64), len(cuts) - 1)  # fmt: skip
-    return o32, d32, d64
-
-
-@numba.njit(cache=True, nogil=True)
-def _world_rays_run(directions, rotation, translation, c0, c1, want64, o32, d32, d64):
-    """Columns c0..c1 of :func:`_world_rays`."""
-    n_beams, n_sub = directions.shape[1:3]
-    k = c0 * n_beams * n_sub
-    for c in range(c0, c1):
-        r = rotation[c]
-        tx, ty, tz = np.float32(translation[c, 0]), np.float32(translation[c, 1]), np.float32(translation[c, 2])
-        for b in range(n_beams):
-            for s in range(n_sub):
-                x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
-                wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
-                wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
-                wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
-                o32[k, 0], o32[k, 1], o32[k, 2] = tx, ty, tz
-                d32[k, 0], d32[k, 1], d32[k, 2] = wx, wy, wz
-                if want64:
-                    d64[k, 0], d64[k, 1], d64[k, 2] = wx, wy, wz
-                k += 1
-
-
-def _surface_returns(hits, static, directions, rotation, reflectivity, retro, material_label, actor_label, weights,
-                     power, overlap_start, overlap_full, effects, scale, offset, two_way, compact,
-                     scratch=None):  # fmt: skip
-    """Range and peak amplitude (LIDAR equation) of every sub-ray's scene hit.
-
-    ``hits``: the caster's distance, triangle, normal, material, actor and object id per
-    sub-ray (:class:`~lidar_weather_sim.scene.raycast.scene_caster.Hits`); ``static``: the static
-    mesh's normal, material and object id per triangle, which a static hit's are read from
-    (the per-ray ones only for actor hits).
-
-    ``compact``: the candidates with amplitude > 0 as (beam, range, amplitude, label,
-    object id), beam-major (in ``scratch`` if given), each chunk's from its first ray's
-    index on, and these runs as (starts, counts): the echo stage reads them where they
-    are. Else range (inf for a miss) and amplitude (0 for a miss) of every sub-ray, flat
-    (the other outputs empty; runs None). With ``effects`` the regions' reflectance
-    scale, range offset and two-way transmission (N, S) apply.
-    """
-    n_cols, n_beams, n_sub = directions.shape[:3]
-    m = n_cols * n_beams * n_sub
-    size = m if compact else 0
-    new = workers.allocator(scratch if compact else None)
-    out = (new("cand_beam", size, np.int64), new("cand_range", m, np.float64), new("cand_amp", m, np.float64),
-           new("cand_label", size, np.uint8), new("cand_obj", size, np.uint32))  # fmt: skip
-    cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
-    counts = workers.run_chunks(
-        lambda c: _surface_returns_run(
-            *hits, *static, directions, rotation, reflectivity, retro, material_label, actor_label, weights, power,
-            overlap_start, overlap_full, effects, scale, offset, two_way, compact, cuts[c], cuts[c + 1], *out,
-        ),
-        len(cuts) - 1,
-    )  # fmt: skip
-    if not compact:
-        return *out, None
-    return *out, (cuts[:-1] * (n_beams * n_sub), np.array(counts, np.int64))
-
-
-def _compact_candidates(candidates, segments):
-    """The candidates of ``segments`` (starts, counts) moved together (in place): flat arrays."""
-    count = _compact_run(tuple(candidates), *segments)
-    return tuple(x[:count] for x in candidates)
-
-
-@numba.njit(cache=True)
-def _compact_run(out, starts, counts):
-    beam, rng, amp, label, obj = out
-    count = 0
-    for c in range(len(counts)):
-        src = starts[c]
-        if src != count:
-            for k in range(counts[c]):
-                beam[count + k], rng[count + k], amp[count + k] = beam[src + k], rng[src + k], amp[src + k]
-                label[count + k], obj[count + k] = label[src + k], obj[src + k]
-        count += counts[c]
-    return count
-
-
-@numba.njit(cache=True, nogil=True)
-def _surface_returns_run(distance, triangle, normal, material, actor, object_id, static_normal, static_material,
-                         static_object_id, directions, rotation, reflectivity, retro, material_label, actor_label,
-                         weights, power, overlap_start, overlap_full, effects, scale, offset, two_way, compact, c0, c1,
-                         out_beam, out_rng, out_amp, out_label, out_obj):  # fmt: skip
-    """Columns c0..c1 of :func:`_surface_returns`; compact candidates are written from the chunk's
-    first ray index on. Returns how many."""
-    n_beams, n_sub = directions.shape[1:3]
-    no_material = len(reflectivity) - 1
-    smooth = overlap_full > overlap_start
-    width = overlap_full - overlap_start
-    k = c0 * n_beams * n_sub
-    count = k
-    for c in range(c0, c1):
-        r = rotation[c]
-        for b in range(n_beams):
-            beam = c * n_beams + b
-            for s in range(n_sub):
-                dist = np.float64(distance[k])
-                if not np.isfinite(dist):
-                    if not compact:
-                        out_rng[k] = np.inf
-                        out_amp[k] = 0.0
-                    k += 1
-                    continue
-                t = triangle[k]
-                if t >= 0:  # the static triangle's normal, unflipped: |cos| is the same
-                    a = -1
-                    n0, n1, n2 = static_normal[t, 0], static_normal[t, 1], static_normal[t, 2]
-                    mat, obj = static_material[t], static_object_id[t]
-                else:  # an actor's hit
-                    a = actor[k]
-                    n0, n1, n2, mat, obj = normal[k, 0], normal[k, 1], normal[k, 2], material[k], object_id[k]
-                x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
-                wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
-                wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
-                wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
-                cos_inc = abs((np.float64(n0) * wx + np.float64(n2) * wz) + np.float64(n1) * wy)
-                cos_inc = min(max(cos_inc, 0.0), 1.0)
-                mat = mat if mat >= 0 else no_material
-                refl = reflectivity[mat] * ((1.0 - retro[mat]) * cos_inc + retro[mat] * RETRO_GAIN)
-                rng = dist
-                if effects:
-                    refl = refl * scale[beam, s]
-                    rng = dist + offset[beam, s]
-                rr = max(rng, MIN_RANGE_M)
-                amp = power * weights[s] * refl / (rr * rr)
-                if effects:
-                    amp = amp * two_way[beam, s]
-                if smooth:
-                    u = min(max((rng - overlap_start) / width, 0.0), 1.0)
-                    amp = amp * (u * u * (3.0 - 2.0 * u))
-                else:
-                    amp = amp * (1.0 if rng >= overlap_start else 0.0)
-                if not compact:
-                    out_rng[k] = rng
-                    out_amp[k] = amp
-                elif amp > 0:
-                    out_beam[count] = beam
-                    out_rng[count] = rng
-                    out_amp[count] = amp
-                    out_label[count] = actor_label[a] if a >= 0 else material_label[mat]
-                    out_obj[count] = obj
-                    count += 1
-                k += 1
-    return count - c0 * n_beams * n_sub
-
-
-#: Below this many draws numpy's ``normal`` is faster (numba's unboxing of a new generator costs ~15 us).
-NUMBA_NORMAL_MIN = 2048
-
-
-def _range_noise(rng: np.random.Generator, sigma: float, n: int, scratch) -> np.ndarray:
-    """``rng.normal(0, sigma, n)`` (m): the same values, drawn by numba's port of numpy's
-    generator (3x faster) into ``scratch`` when there are many."""
-    if n < NUMBA_NORMAL_MIN:
-        return rng.normal(0.0, sigma, n)
-    out = scratch.get("range_noise", n, np.float64)
-    _normal(rng, sigma, out)
-    return out
-
-
-@numba.njit(cache=True)
-def _normal(rng, sigma, out):
-    for k in range(len(out)):
-        out[k] = rng.normal(0.0, sigma)
-
-
-@numba.njit(cache=True)
-def _kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio):
-    """The echoes in the runs (starts, counts) in order: ``ranges`` (where the echoes are) gets
-    each one's range plus its ``noise``; those at or beyond ``min_range`` get their index
-    into ``kept`` and their peak amplitude (at least 1e-12) over ``dark`` into ``ratio``, as
-    numpy's sum, flatnonzero, maximum and division. Returns how many were kept."""
-    j = count = 0
-    for c in range(len(counts)):
-        for i in range(starts[c], starts[c] + counts[c]):
-            ranges[i] = noise[j] + range_m[i]
-            j += 1
-            if ranges[i] >= min_range:
-                a = amplitude[i]
-                kept[count] = i
-                ratio[count] = (a if not a < 1e-12 else 1e-12) / dark
-                count += 1
-    return count
-
-
-@functools.cache
-def _padding_bytes(dtype: np.dtype) -> np.ndarray:
-    """Offsets of the bytes of a point that belong to no field (written as zeros)."""
-    used = np.zeros(dtype.itemsize, bool)
-    for base, offset in (dtype.fields[name][:2] for name in dtype.names):
-        used[offset : offset + base.itemsize] = True
-    return np.flatnonzero(~used)
-
-
-def _fill_points(points, kept, *args):
-    """Points of the echoes ``kept`` (ascending) in the sensor frame at their firing time; every
-    byte of ``points`` is written (padding as zeros), so it may come from ``np.empty``."""
-    raw = points.view(np.uint8).reshape(len(points), points.dtype.itemsize)
-    *args, label, object_id, ground_truth, padding = args
-    cuts = workers.bounds(len(kept), CHUNK_RAYS // 4)
-
-    def run(c):
-        _fill_points_run(points, raw, kept, cuts[c], cuts[c + 1], *args, padding)
-        if ground_truth:  # a kernel of its own: numba types every branch, the other layout has no such fields
-            _fill_ground_truth_run(points, kept, cuts[c], cuts[c + 1], label, object_id)
-
-    workers.run_chunks(run, len(cuts) - 1)
-
-
-@numba.njit(cache=True, nogil=True)
-def _fill_ground_truth_run(points, kept, j0, j1, label, object_id):
-    for j in range(j0, j1):
-        p = points[j]
-        p["label"] = label[kept[j]]
-        p["object_id"] = object_id[kept[j]]
-
-
-@numba.njit(cache=True, nogil=True)
-def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_ratio, span, columns, channels, n_beams,
-                     cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, padding):  # fmt: skip
-    """Points j0..j1 of :func:`_fill_points` (``raw``: the same memory as bytes, (N, itemsize))."""
-    first = -n_beams  # first beam of the current column (none yet): divisions only where it changes
-    col = 0
-    for j in range(j0, j1):
-        for b in padding:
-            raw[j, b] = 0
-        i = kept[j]
-        bm = beam[i]
-        if not first <= bm < first + n_beams:
-            col = columns[bm // n_beams]
-            first = bm // n_beams * n_beams
-        ch = channels[bm - first]
-        r = ranges[i]
-        p = points[j]
-        p["x"] = r * cos_el[ch] * cos_az[col, ch]
-        p["y"] = r * cos_el[ch] * sin_az[col, ch]
-        p["z"] = r * sin_el[ch]
-        p["azimuth"] = azimuth[col, ch]
-        p["elevation"] = elevation[ch]
-        p["distance"] = r
-        p["channel"] = ch
-        p["time_stamp"] = stamp[col]
-        p["echo"] = echo[i]
-        p["epw"] = epw[i]
-        p["intensity"] = np.uint8(min(max(np.rint(255.0 * (log_ratio[j] / span)), 0.0), 255.0))
-        # Nebula return type: IDENTICAL when alone, else FIRST / SECOND / LAST (among the kept echoes)
-        last = j + 1 == len(kept) or beam[kept[j + 1]] != bm
-        if echo[i] == 1:
-            p["return_type"] = RETURN_IDENTICAL if last else RETURN_FIRST
-        else:
-            p["return_type"] = RETURN_LAST if last else RETURN_SECOND

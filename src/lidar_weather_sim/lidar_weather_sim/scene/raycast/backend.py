@@ -23,8 +23,10 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from lidar_weather_sim.core.registry import Registry
+
+#: The backends, fastest first (the order ``default_backend()`` tries them in).
 DEFAULT_ORDER: tuple[str, ...] = ("mitsuba", "open3d", "embree")
-_MODULES = {name: f"{__package__}.backend_{name}" for name in DEFAULT_ORDER}
 
 
 @runtime_checkable
@@ -43,6 +45,13 @@ class MeshCaster(Protocol):
 
 class BackendUnavailableError(ValueError):
     """Unknown backend name, or a backend whose library cannot be used here."""
+
+
+#: Backend name -> its module (``check()`` and ``Caster``), imported on first use.
+BACKENDS: Registry[str] = Registry("ray casting backend", error=BackendUnavailableError)
+for backend_name in DEFAULT_ORDER:
+    BACKENDS.register(backend_name, f"{__package__}.backend_{backend_name}")
+del backend_name
 
 
 class CasterBase(ABC):
@@ -74,7 +83,7 @@ class _EmptyCaster(CasterBase):
 def _probe(name: str) -> str | None:
     """None if backend ``name`` works here, else the reason it does not."""
     try:
-        importlib.import_module(_MODULES[name]).check()
+        importlib.import_module(BACKENDS.get(name)).check()
     except Exception as exc:  # noqa: BLE001 - any failure means "not usable", reported verbatim
         return f"{type(exc).__name__}: {exc}"
     return None
@@ -105,10 +114,10 @@ def default_backend() -> str:
 
 def make_caster(name: str, vertices: np.ndarray, triangles: np.ndarray) -> MeshCaster:
     """Build backend ``name``'s caster for vertices (V, 3) m and triangles (T, 3) vertex indices."""
-    if name not in _MODULES or _probe(name) is not None:
-        why = "unknown" if name not in _MODULES else f"unavailable ({_probe(name)})"
+    module = BACKENDS.get(name)
+    if (reason := _probe(name)) is not None:
         raise BackendUnavailableError(
-            f"ray casting backend '{name}' is {why}; available backends: {', '.join(available_backends())}"
+            f"ray casting backend '{name}' is unavailable ({reason}); available backends: {', '.join(available_backends())}"
         )
     v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64).reshape(-1, 3).astype(np.float32))
     t = np.ascontiguousarray(np.asarray(triangles).reshape(-1, 3), dtype=np.uint32)
@@ -116,4 +125,4 @@ def make_caster(name: str, vertices: np.ndarray, triangles: np.ndarray) -> MeshC
         raise ValueError(f"triangle indices outside 0..{len(v) - 1}")
     if not len(t):
         return _EmptyCaster()
-    return importlib.import_module(_MODULES[name]).Caster(v, t)
+    return importlib.import_module(module).Caster(v, t)

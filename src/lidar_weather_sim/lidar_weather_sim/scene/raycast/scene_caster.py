@@ -25,6 +25,9 @@ ray) are numba kernels that reproduce the numpy expressions bit for bit. With
 the Mitsuba backend the rays of every backend call are padded to one of a few
 sizes per octave (far misses): Dr.Jit compiles one kernel per ray count (~12 ms
 each), and culled actor batches would otherwise have a new count on every cast.
+
+Why one module of ~510 lines: it is the one place that knows how actors are instanced, culled and
+padded for every backend; the pieces share its instance tables and make sense only together.
 """
 
 from __future__ import annotations

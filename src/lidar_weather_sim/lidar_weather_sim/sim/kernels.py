@@ -1,0 +1,330 @@
+"""The numba kernels of the frame pipeline (:mod:`lidar_weather_sim.sim.simulator`) and their wrappers.
+
+Each kernel reproduces the numpy expression it replaces operation for operation (numpy's einsum adds
+three products as (p0 + p2) + p1), so the clouds are bit for bit the same
+(``src/lidar_weather_sim/test/test_sim_kernels.py`` checks each against its numpy form). A wrapper
+splits its batch into chunks of :data:`CHUNK_RAYS` rays run on all cores
+(:mod:`lidar_weather_sim.core.workers`) and takes its large temporaries from a reused scratch store,
+so the pipeline itself reads without buffer bookkeeping.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numba
+import numpy as np
+
+from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.points import ReturnType
+from lidar_weather_sim.sensor.radiometry import intensity_byte, overlap_at, peak_amplitude_at, surface_reflectance_at
+
+_LAST, _FIRST, _IDENTICAL, _SECOND = (int(r) for r in (ReturnType.LAST, ReturnType.FIRST, ReturnType.IDENTICAL,
+                                                       ReturnType.SECOND))  # fmt: skip
+#: Rays per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.core.workers`).
+CHUNK_RAYS = 32768
+
+
+def occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray,
+             n_keys: int) -> np.ndarray:  # fmt: skip
+    """Scale each candidate by the two-way light left after the candidates in front of it on the
+    same sub-ray (``key``, 0..n_keys - 1): prod over nearer ones of (1 - occlusion)^2."""
+    order = sub_ray_order(key, range_m, n_keys)
+    k, occ = key[order], np.clip(occlusion[order], 0.0, 1.0)
+    log_t = 2.0 * np.log(np.maximum(1.0 - occ, 1e-30))
+    cum = np.cumsum(log_t)
+    start = np.ones(len(k), bool)
+    start[1:] = k[1:] != k[:-1]
+    group_base = np.maximum.accumulate(np.where(start, np.arange(len(k)), 0))
+    before = cum - log_t - (cum[group_base] - log_t[group_base])  # exclusive sum within the group
+    out = np.empty_like(amplitude)
+    out[order] = amplitude[order] * np.exp(before)
+    return out
+
+
+@numba.njit(cache=True)
+def sub_ray_order(key, range_m, n_keys):
+    """``np.lexsort((range_m, key))`` for keys 0..n_keys - 1 with few candidates each: a counting
+    sort by key, then an insertion sort by range per key (both stable; NaN last, as numpy)."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for k in key:
+        start[k + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    for k in range(n_keys):
+        for q in range(start[k] + 1, start[k + 1]):
+            i = order[q]
+            r = range_m[i]
+            p = q
+            while p > start[k]:
+                before = range_m[order[p - 1]]
+                if not (before > r or (np.isnan(before) and not np.isnan(r))):
+                    break
+                order[p] = order[p - 1]
+                p -= 1
+            order[p] = i
+    return order
+
+
+def world_rays(directions, rotation, translation, want64, scratch=None):
+    """Sensor-frame sub-ray directions (C, B, S, 3) rotated by each column's rotation (C, 3, 3):
+    float32 origins and directions (C*B*S, 3) for the caster, column-major (transposes of
+    (3, C*B*S) arrays, which Mitsuba takes without a copy; in ``scratch`` if given), and the
+    float64 directions (C*B*S, 3) if ``want64`` (else an empty array)."""
+    n_cols, n_beams, n_sub = directions.shape[:3]
+    m = n_cols * n_beams * n_sub
+    new = workers.allocator(scratch)
+    o32 = new("origins32", (3, m), np.float32).T
+    d32 = new("directions32", (3, m), np.float32).T
+    d64 = np.empty((m if want64 else 0, 3))
+    cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
+    workers.run_chunks(lambda c: _world_rays_run(directions, rotation, translation, cuts[c], cuts[c + 1], want64,
+                                                 o32, d32, d64), len(cuts) - 1)  # fmt: skip
+    return o32, d32, d64
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_rays_run(directions, rotation, translation, c0, c1, want64, o32, d32, d64):
+    """Columns c0..c1 of :func:`world_rays`."""
+    n_beams, n_sub = directions.shape[1:3]
+    k = c0 * n_beams * n_sub
+    for c in range(c0, c1):
+        r = rotation[c]
+        tx, ty, tz = np.float32(translation[c, 0]), np.float32(translation[c, 1]), np.float32(translation[c, 2])
+        for b in range(n_beams):
+            for s in range(n_sub):
+                x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
+                wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
+                wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
+                wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
+                o32[k, 0], o32[k, 1], o32[k, 2] = tx, ty, tz
+                d32[k, 0], d32[k, 1], d32[k, 2] = wx, wy, wz
+                if want64:
+                    d64[k, 0], d64[k, 1], d64[k, 2] = wx, wy, wz
+                k += 1
+
+
+def surface_returns(hits, static, directions, rotation, reflectivity, retro, material_label, actor_label, weights,
+                     power, overlap_start, overlap_full, effects, scale, offset, two_way, compact,
+                     scratch=None):  # fmt: skip
+    """Range and peak amplitude (LIDAR equation) of every sub-ray's scene hit.
+
+    ``hits``: the caster's distance, triangle, normal, material, actor and object id per
+    sub-ray (:class:`~lidar_weather_sim.scene.raycast.scene_caster.Hits`); ``static``: the static
+    mesh's normal, material and object id per triangle, which a static hit's are read from
+    (the per-ray ones only for actor hits).
+
+    ``compact``: the candidates with amplitude > 0 as (beam, range, amplitude, label,
+    object id), beam-major (in ``scratch`` if given), each chunk's from its first ray's
+    index on, and these runs as (starts, counts): the echo stage reads them where they
+    are. Else range (inf for a miss) and amplitude (0 for a miss) of every sub-ray, flat
+    (the other outputs empty; runs None). With ``effects`` the regions' reflectance
+    scale, range offset and two-way transmission (N, S) apply.
+    """
+    n_cols, n_beams, n_sub = directions.shape[:3]
+    m = n_cols * n_beams * n_sub
+    size = m if compact else 0
+    new = workers.allocator(scratch if compact else None)
+    out = (new("cand_beam", size, np.int64), new("cand_range", m, np.float64), new("cand_amp", m, np.float64),
+           new("cand_label", size, np.uint8), new("cand_obj", size, np.uint32))  # fmt: skip
+    cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
+    counts = workers.run_chunks(
+        lambda c: _surface_returns_run(
+            *hits, *static, directions, rotation, reflectivity, retro, material_label, actor_label, weights, power,
+            overlap_start, overlap_full, effects, scale, offset, two_way, compact, cuts[c], cuts[c + 1], *out,
+        ),
+        len(cuts) - 1,
+    )  # fmt: skip
+    if not compact:
+        return *out, None
+    return *out, (cuts[:-1] * (n_beams * n_sub), np.array(counts, np.int64))
+
+
+def compact_candidates(candidates, segments):
+    """The candidates of ``segments`` (starts, counts) moved together (in place): flat arrays."""
+    count = _compact_run(tuple(candidates), *segments)
+    return tuple(x[:count] for x in candidates)
+
+
+@numba.njit(cache=True)
+def _compact_run(out, starts, counts):
+    beam, rng, amp, label, obj = out
+    count = 0
+    for c in range(len(counts)):
+        src = starts[c]
+        if src != count:
+            for k in range(counts[c]):
+                beam[count + k], rng[count + k], amp[count + k] = beam[src + k], rng[src + k], amp[src + k]
+                label[count + k], obj[count + k] = label[src + k], obj[src + k]
+        count += counts[c]
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _surface_returns_run(distance, triangle, normal, material, actor, object_id, static_normal, static_material,
+                         static_object_id, directions, rotation, reflectivity, retro, material_label, actor_label,
+                         weights, power, overlap_start, overlap_full, effects, scale, offset, two_way, compact, c0, c1,
+                         out_beam, out_rng, out_amp, out_label, out_obj):  # fmt: skip
+    """Columns c0..c1 of :func:`surface_returns`; compact candidates are written from the chunk's
+    first ray index on. Returns how many."""
+    n_beams, n_sub = directions.shape[1:3]
+    no_material = len(reflectivity) - 1
+    k = c0 * n_beams * n_sub
+    count = k
+    for c in range(c0, c1):
+        r = rotation[c]
+        for b in range(n_beams):
+            beam = c * n_beams + b
+            for s in range(n_sub):
+                dist = np.float64(distance[k])
+                if not np.isfinite(dist):
+                    if not compact:
+                        out_rng[k] = np.inf
+                        out_amp[k] = 0.0
+                    k += 1
+                    continue
+                t = triangle[k]
+                if t >= 0:  # the static triangle's normal, unflipped: |cos| is the same
+                    a = -1
+                    n0, n1, n2 = static_normal[t, 0], static_normal[t, 1], static_normal[t, 2]
+                    mat, obj = static_material[t], static_object_id[t]
+                else:  # an actor's hit
+                    a = actor[k]
+                    n0, n1, n2, mat, obj = normal[k, 0], normal[k, 1], normal[k, 2], material[k], object_id[k]
+                x, y, z = directions[c, b, s, 0], directions[c, b, s, 1], directions[c, b, s, 2]
+                wx = (r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y
+                wy = (r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y
+                wz = (r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y
+                cos_inc = abs((np.float64(n0) * wx + np.float64(n2) * wz) + np.float64(n1) * wy)
+                mat = mat if mat >= 0 else no_material
+                refl = surface_reflectance_at(reflectivity[mat], retro[mat], cos_inc)
+                rng = dist
+                if effects:
+                    refl = refl * scale[beam, s]
+                    rng = dist + offset[beam, s]
+                amp = peak_amplitude_at(power, weights[s], refl, rng, two_way[beam, s] if effects else 1.0,
+                                        overlap_at(rng, overlap_start, overlap_full))  # fmt: skip
+                if not compact:
+                    out_rng[k] = rng
+                    out_amp[k] = amp
+                elif amp > 0:
+                    out_beam[count] = beam
+                    out_rng[count] = rng
+                    out_amp[count] = amp
+                    out_label[count] = actor_label[a] if a >= 0 else material_label[mat]
+                    out_obj[count] = obj
+                    count += 1
+                k += 1
+    return count - c0 * n_beams * n_sub
+
+
+#: Below this many draws numpy's ``normal`` is faster (numba's unboxing of a new generator costs ~15 us).
+NUMBA_NORMAL_MIN = 2048
+
+
+def range_noise(rng: np.random.Generator, sigma: float, n: int, scratch) -> np.ndarray:
+    """``rng.normal(0, sigma, n)`` (m): the same values, drawn by numba's port of numpy's
+    generator (3x faster) into ``scratch`` when there are many."""
+    if n < NUMBA_NORMAL_MIN:
+        return rng.normal(0.0, sigma, n)
+    out = scratch.get("range_noise", n, np.float64)
+    _normal(rng, sigma, out)
+    return out
+
+
+@numba.njit(cache=True)
+def _normal(rng, sigma, out):
+    for k in range(len(out)):
+        out[k] = rng.normal(0.0, sigma)
+
+
+@numba.njit(cache=True)
+def kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio):
+    """The echoes in the runs (starts, counts) in order: ``ranges`` (where the echoes are) gets
+    each one's range plus its ``noise``; those at or beyond ``min_range`` get their index
+    into ``kept`` and their peak amplitude (at least 1e-12) over ``dark`` into ``ratio``, as
+    numpy's sum, flatnonzero, maximum and division. Returns how many were kept."""
+    j = count = 0
+    for c in range(len(counts)):
+        for i in range(starts[c], starts[c] + counts[c]):
+            ranges[i] = noise[j] + range_m[i]
+            j += 1
+            if ranges[i] >= min_range:
+                a = amplitude[i]
+                kept[count] = i
+                ratio[count] = (a if not a < 1e-12 else 1e-12) / dark
+                count += 1
+    return count
+
+
+@functools.cache
+def padding_bytes(dtype: np.dtype) -> np.ndarray:
+    """Offsets of the bytes of a point that belong to no field (written as zeros)."""
+    used = np.zeros(dtype.itemsize, bool)
+    for base, offset in (dtype.fields[name][:2] for name in dtype.names):
+        used[offset : offset + base.itemsize] = True
+    return np.flatnonzero(~used)
+
+
+def fill_points(points, kept, *args):
+    """Points of the echoes ``kept`` (ascending) in the sensor frame at their firing time; every
+    byte of ``points`` is written (padding as zeros), so it may come from ``np.empty``."""
+    raw = points.view(np.uint8).reshape(len(points), points.dtype.itemsize)
+    *args, label, object_id, ground_truth, padding = args
+    cuts = workers.bounds(len(kept), CHUNK_RAYS // 4)
+
+    def run(c):
+        _fill_points_run(points, raw, kept, cuts[c], cuts[c + 1], *args, padding)
+        if ground_truth:  # a kernel of its own: numba types every branch, the other layout has no such fields
+            _fill_ground_truth_run(points, kept, cuts[c], cuts[c + 1], label, object_id)
+
+    workers.run_chunks(run, len(cuts) - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_ground_truth_run(points, kept, j0, j1, label, object_id):
+    for j in range(j0, j1):
+        p = points[j]
+        p["label"] = label[kept[j]]
+        p["object_id"] = object_id[kept[j]]
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_ratio, span, columns, channels, n_beams,
+                     cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, padding):  # fmt: skip
+    """Points j0..j1 of :func:`fill_points` (``raw``: the same memory as bytes, (N, itemsize))."""
+    first = -n_beams  # first beam of the current column (none yet): divisions only where it changes
+    col = 0
+    for j in range(j0, j1):
+        for b in padding:
+            raw[j, b] = 0
+        i = kept[j]
+        bm = beam[i]
+        if not first <= bm < first + n_beams:
+            col = columns[bm // n_beams]
+            first = bm // n_beams * n_beams
+        ch = channels[bm - first]
+        r = ranges[i]
+        p = points[j]
+        p["x"] = r * cos_el[ch] * cos_az[col, ch]
+        p["y"] = r * cos_el[ch] * sin_az[col, ch]
+        p["z"] = r * sin_el[ch]
+        p["azimuth"] = azimuth[col, ch]
+        p["elevation"] = elevation[ch]
+        p["distance"] = r
+        p["channel"] = ch
+        p["time_stamp"] = stamp[col]
+        p["echo"] = echo[i]
+        p["epw"] = epw[i]
+        p["intensity"] = intensity_byte(log_ratio[j], span)
+        # Nebula return type: IDENTICAL when alone, else FIRST / SECOND / LAST (among the kept echoes)
+        last = j + 1 == len(kept) or beam[kept[j + 1]] != bm
+        if echo[i] == 1:
+            p["return_type"] = _IDENTICAL if last else _FIRST
+        else:
+            p["return_type"] = _LAST if last else _SECOND
