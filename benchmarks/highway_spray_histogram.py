@@ -9,7 +9,7 @@ steeply with distance (line 2180). This script runs the scenario (default ``high
 2 mm/h, every region on) at each speed and water film and prints, per case, the per-frame counts of
 label-14 points with x > 5 m in the sensor frame: mean, share of frames with 0-1, median, p95, max,
 the share of them beyond 10 m, and where the car ahead's nearest points lie (2nd percentile of x
-of object 100, m).
+of object 100's vehicle points, m).
 
     python benchmarks/highway_spray_histogram.py [--scenario NAME_OR_YAML] [--frames N] [--warmup S]
         [--speeds-kmh 89,120] [--films-mm 0.3,0.7,1.1] [--seed 0]
@@ -59,7 +59,7 @@ def run_case(scenario, frames: int, warmup_s: float, seed: int) -> dict:
             spray = p[(p["label"] == Label.SPRAY) & (p["x"] > NEAR_M)]
             counts.append(len(spray))
             far.append(int(np.count_nonzero(spray["x"] > 10.0)))
-            car = p[p["object_id"] == LEAD_ID]
+            car = p[(p["object_id"] == LEAD_ID) & (p["label"] == Label.VEHICLE)]  # its spray carries its id too
             if len(car):
                 lead_x.append(float(np.percentile(car["x"], 2)))
     c = np.array(counts)

@@ -49,15 +49,28 @@ def test_example_scenario_uses_every_key():
 
 
 def test_highway_clear_is_the_thesis_highway_setup():
+    """Paper 3: the car ahead's rear middle (17.5 +- 0.3, 3.7 +- 0.1) m from the ego's LiDAR (thesis
+    lines 2176, 2868): in its ground-truth pose and in the points the sensor returns from it."""
+    from lidar_weather_sim.core.geometry import quaternion_matrices
+    from lidar_weather_sim.scenario.world import World
+    from lidar_weather_sim.sim.simulator import LidarSimulator
+
     s = load_scenario("highway_clear")
     assert s.ego.speed_m_s * 3.6 == pytest.approx(89.0, abs=0.1)
     lead = s.actors[0]
-    network = RoadNetwork.from_xodr(maps_dir() / s.map)
-    player = ScenarioPlayer(s, network)
-    ego_xy = player.base_link_poses(np.array([0.0]))[0][0]
-    lead_xy = player.actor_poses(0.0)[lead.id][:3, 3]
-    assert lead_xy[0] - ego_xy[0] == pytest.approx(17.5, abs=0.01)
-    assert lead_xy[1] - ego_xy[1] == pytest.approx(3.75, abs=0.01)  # one lane to the left (thesis: ~3.6 m)
+    assert (lead.id, lead.lead_gap_m, lead.lead_offset_y_m) == (100, 17.5, 3.7)
+    world = World.build(s)
+    translation, quaternion = world.player.sensor_poses(np.array([0.0]))
+    sensor = np.eye(4)
+    sensor[:3, :3], sensor[:3, 3] = quaternion_matrices(quaternion)[0], translation[0]
+    pose = np.linalg.inv(sensor) @ world.player.actor_poses(0.0)[lead.id]  # the car in the sensor frame
+    rear_middle = pose @ [-0.5 * lead.size.length_m, 0.0, 0.0, 1.0]
+    assert rear_middle[0] == pytest.approx(17.5, abs=0.1) and rear_middle[1] == pytest.approx(3.7, abs=0.1)
+    sim = LidarSimulator.of_world(world, regions=[])
+    frames = sim.advance(0.0, world.player) + sim.advance(sim.profile.period_s, world.player)
+    car = frames[0].points[frames[0].points["object_id"] == lead.id]
+    assert len(car) > 50
+    assert np.percentile(car["x"], 2) == pytest.approx(17.5, abs=0.3)
 
 
 def test_a_lead_gap_resolves_to_the_lane_and_position_of_the_rear_middle():

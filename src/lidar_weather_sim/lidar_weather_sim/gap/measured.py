@@ -5,7 +5,9 @@ nuisance that no effect of the model explains, so that a perfect diagnosis still
 residual gap:
 
 - another seed than the scenario's (default: the scenario's seed + 1000);
-- extra range noise: Gaussian, ``extra_range_noise_m`` (default 0.02 m) along the beam;
+- extra range noise: Gaussian, ``extra_range_noise_m`` (default 0.02 m) along the beam (the
+  model has one way to explain it: the lightest thesis dirt sample, 1u at T 0.995, raises the
+  range sigma by 26.7 %; ``gap`` may name ``cover.dirt`` near 0.995 for it);
 - dropped frames: each frame is lost with probability ``drop_fraction`` (default 0.02).
 
 The bag looks like a real recording: ``/clock``, ``/tf``, ``/tf_static`` and the cloud

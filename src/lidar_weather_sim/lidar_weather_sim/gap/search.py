@@ -20,6 +20,9 @@
    still meets that rule on the held-out frames (otherwise its gain was fitting noise that
    the joint fit takes back); rounds repeat until no candidate qualifies. The other
    candidates of the last round are reported as rejected with their held-out gap.
+5. Backward elimination (:meth:`GapSearch.prune`): each accepted effect must still be worth
+   that margin with all the others in place; one that is not (a weak effect accepted early,
+   made redundant by a later one) is dropped and the rest refitted.
 
 Cost: the budgets do not grow with the recording, so a diagnosis casts about
 ``(candidates x (grid x screen_frames + heldout_frames) + refine x 10 x fit_frames)``
@@ -225,8 +228,31 @@ class GapSearch:
             diag.accepted.append((best, current))
             current = best.heldout_gap
             diag.rejected = [c for c in fitted if c is not best]
-        diag.gap_after = current
+        diag.gap_after = self.prune(diag, current)
         return diag
+
+    def prune(self, diag: Diagnosis, current: float) -> float:
+        """Backward elimination: an accepted effect stays only if the held-out gap without it (the
+        others as fitted) is worse by the margin a new effect must win (``min_gain`` and
+        ``min_abs_gain``); else it is dropped, reported as rejected, and the rest refitted. A small
+        effect accepted early can become redundant once a later one explains the same residual.
+        Returns the held-out gap of what stays."""
+        while len(diag.accepted) > 1:
+            effects = diag.effects
+            without = [self.gap(effects[:i] + effects[i + 1 :], "heldout") for i in range(len(effects))]
+            worth = [current <= min(w * (1.0 - self.min_gain), w - self.min_abs_gain) for w in without]
+            if all(worth):
+                break
+            i = min((k for k in range(len(effects)) if not worth[k]), key=lambda k: without[k])
+            dropped, _ = diag.accepted.pop(i)
+            diag.rejected.append(Candidate(dropped.effect, dropped.fit_gap, current, dropped.evaluations))
+            refitted = self.refit(diag.effects)
+            current = self.gap(refitted, "heldout")
+            self.progress(f"dropped {dropped.effect.label()} (held-out gap without it {without[i]:.4f}); "
+                          f"refitted: {', '.join(e.label() for e in refitted)}: held-out gap {current:.4f}")  # fmt: skip
+            diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
+                             for e, (c, g) in zip(refitted, diag.accepted)]  # fmt: skip
+        return current
 
 
 def _same(a: Effect, b: Effect) -> bool:
