@@ -1,0 +1,65 @@
+"""The gap search's decision rules on a known gap landscape (no simulation: the held-out gap of
+every effect set is given), so each rule is checked by itself."""
+
+import pytest
+
+from lidar_weather_sim.gap.effects import parse_effect
+from lidar_weather_sim.gap.search import MIN_ABS_GAIN, MIN_GAIN, Candidate, Diagnosis, GapSearch
+
+FOG, SUN, DIRT = (parse_effect(text) for text in ("atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400",
+                                                  "cover.dirt:transmission=0.995"))  # fmt: skip
+
+
+class LandscapeSearch(GapSearch):
+    """A GapSearch whose held-out gap is looked up by the names of the effect set; refit keeps values."""
+
+    def __init__(self, landscape: dict[frozenset, float]) -> None:
+        self.landscape, self.min_gain, self.min_abs_gain = landscape, MIN_GAIN, MIN_ABS_GAIN
+        self.log: list[str] = []
+        self.progress = self.log.append
+
+    def gap(self, effects, split):
+        return self.landscape[frozenset(e.name for e in effects)]
+
+    def refit(self, effects, passes=2):
+        return list(effects)
+
+
+def _diagnosis(order, gaps_before):
+    accepted = [(Candidate(e, 0.0, 0.0, 1), g) for e, g in zip(order, gaps_before)]
+    return Diagnosis(gaps_before[0], 0.0, accepted=accepted)
+
+
+def _set(*effects):
+    return frozenset(e.name for e in effects)
+
+
+def test_an_effect_made_redundant_by_a_later_one_is_dropped():
+    landscape = {_set(FOG, DIRT, SUN): 0.0050, _set(FOG, SUN): 0.0052, _set(DIRT, SUN): 0.30, _set(FOG, DIRT): 0.20,
+                 _set(FOG): 0.20, _set(SUN): 0.43}  # fmt: skip
+    search = LandscapeSearch(landscape)
+    diag = _diagnosis([FOG, DIRT, SUN], [0.43, 0.22, 0.20])
+    assert search.prune(diag, 0.0050) == pytest.approx(0.0052)
+    assert [e.name for e in diag.effects] == ["atmosphere.fog", "sensor.sun"]
+    assert [c.effect.name for c in diag.rejected] == ["cover.dirt"] and diag.rejected[0].heldout_gap == 0.0050
+    assert [g for _, g in diag.accepted] == [0.43, 0.20]  # each kept effect's gap before it is unchanged
+    assert any("dropped cover.dirt" in line for line in search.log)
+
+
+def test_effects_that_each_earn_the_margin_all_stay():
+    # the case test_gap meets on the thesis geometry: dirt 0.995 takes 0.0075 to 0.0013
+    landscape = {_set(FOG, SUN, DIRT): 0.0013, _set(FOG, SUN): 0.0075, _set(FOG, DIRT): 0.21, _set(SUN, DIRT): 0.43}
+    diag = _diagnosis([FOG, SUN, DIRT], [0.43, 0.21, 0.0075])
+    assert LandscapeSearch(landscape).prune(diag, 0.0013) == 0.0013
+    assert [e.name for e in diag.effects] == ["atmosphere.fog", "sensor.sun", "cover.dirt"] and diag.rejected == []
+
+
+@pytest.mark.parametrize("without, kept", [(0.0013 + MIN_ABS_GAIN * 0.99, False), (0.0013 + MIN_ABS_GAIN * 1.01, True),
+                                           (0.05 / (1 - MIN_GAIN) * 0.99, False), (0.05 / (1 - MIN_GAIN) * 1.01, True)])  # fmt: skip
+def test_the_margin_is_the_acceptance_rule_both_ways(without, kept):
+    current = 0.0013 if without < 0.01 else 0.05
+    landscape = {_set(FOG, SUN): current, _set(FOG): without, _set(SUN): 1.0}
+    diag = _diagnosis([FOG, SUN], [0.4, 0.3])
+    search = LandscapeSearch(landscape)
+    search.prune(diag, current)
+    assert ("sensor.sun" in [e.name for e in diag.effects]) is kept
