@@ -1,4 +1,4 @@
-"""Spray benchmarks: particle-system step time, ray-sphere time, and highway_spray frame time.
+"""Spray benchmarks: particle-system step time and ray-sphere time.
 
 1. Step time: a system holding ~N particles (default 20 000, spread over the 10 m behind
    a car at 89 km/h, both populations) advanced by one Scala frame (40 ms = 4 ticks of
@@ -6,9 +6,10 @@
 2. Ray-sphere: the same N particles against one full frame of a 64 x 2048 grid of rays
    (the os1_128_2048 profile's first 64 channels are not needed: a synthetic grid of
    64 elevations over +-11 deg x 2048 azimuths), median ms.
-3. Frame time of the scenario ``highway_spray`` with scala4 and os1_128_2048, with and
-   without the spray region (advance called every 10 ms of simulated time), median ms
-   per frame after 1 s of warm-up.
+
+The spray region's share of a frame (region step and apply, and what its scatterers cost the
+echo stages) at 16, 32 and 64 drop packets per wheel per tick, next to the clear frame, is in
+``benchmarks/weather_frame_time.py`` (rows ``spray 16`` .. ``spray 64`` and ``target``).
 
     python benchmarks/spray_step_time.py [--particles N] [--frames K]
 """
@@ -20,9 +21,6 @@ import time
 
 import numpy as np
 
-from lidar_weather_sim.scenario.schema import load_scenario
-from lidar_weather_sim.scenario.world import World
-from lidar_weather_sim.sim.simulator import LidarSimulator
 from spray_particles.constants import load_constants
 from spray_particles.emitter import vehicle_emitter
 from spray_particles.forces import drag_rates
@@ -87,28 +85,6 @@ def bench_rays(n: int, repeats: int = 5) -> None:
           f"{len(hits.ray)} hits")
 
 
-def bench_frames(profile: str, frames: int, spray: bool) -> None:
-    world = World.build(load_scenario("highway_spray"), profile)
-    regions = [r for r in world.regions() if spray or r[0] != "spray"]
-    sim = LidarSimulator(world.profile, world.scene, regions=regions, seed=0)
-    period = world.profile.period_s
-    t, times, points = 0.0, [], []
-    while len(times) < frames:
-        t0 = time.perf_counter()
-        done = []
-        for k in range(max(1, int(round(period / 0.01)))):
-            t += min(0.01, period)
-            done += sim.advance(t, world.player)
-        dt = time.perf_counter() - t0
-        if t > 1.0:
-            times.append(dt)
-            points.append(sum(int((f.points["label"] == 14).sum()) for f in done))
-    spray_region = dict(regions).get("spray")
-    n = len(spray_region.system.particles) if spray_region else 0
-    print(f"highway_spray {profile:13s} regions {','.join(r[0] for r in regions):18s} median "
-          f"{1e3 * np.median(times):7.1f} ms per frame period; spray points/frame {np.mean(points):.1f}; particles {n}")
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--particles", type=int, default=20000)
@@ -116,9 +92,6 @@ def main() -> None:
     args = ap.parse_args()
     bench_step(args.particles, args.frames)
     bench_rays(args.particles)
-    for profile in ("scala4", "os1_128_2048"):
-        for spray in (False, True):
-            bench_frames(profile, args.frames, spray)
 
 
 if __name__ == "__main__":

@@ -89,6 +89,37 @@ def test_textures_blend_over_time():
     assert mid.mean == pytest.approx(0.5 * (1.0 + region.textures[1].mean), rel=1e-3)
 
 
+@pytest.mark.parametrize("profile_name", ["scala4", "vlp16"])
+def test_the_pattern_table_gives_the_texture_of_each_direction(profile_name):
+    """The transmission read from the scan-pattern table by column and channel is the texture sampled
+    at the batch's own directions, bit for bit, for every layer of a layered pattern (scala4) and both
+    textures of a blend."""
+    from lidar_weather_sim.regions.base import RayBatch
+    from lidar_weather_sim.sensor.profile import load_profile
+    from lidar_weather_sim.sensor.scan import ScanPattern
+
+    profile = load_profile(profile_name)
+    region = REGISTRY.create("cover", {"texture": "3l", "target_texture": "5u", "texture_seed": 4},
+                             RegionContext(profile))  # fmt: skip
+    pattern = ScanPattern(profile)
+    rng = np.random.default_rng(2)
+    for frame in (0, 1):
+        columns = np.sort(rng.choice(pattern.n_columns, 40, replace=False))
+        channels = pattern.active_channels(frame)
+        dirs = pattern.direction_table(frame)[columns].reshape(-1, pattern.n_subrays, 3)
+        n = len(dirs)
+        batch = RayBatch(frame, np.zeros((n, 3)), dirs, dirs, np.tile(channels, len(columns)), np.zeros(n),
+                         pattern.subray_weight, np.full(dirs.shape[:2], 10.0), np.zeros(dirs.shape),
+                         np.zeros(dirs.shape[:2], np.int64), np.zeros(dirs.shape[:2], np.uint32),
+                         np.zeros(dirs.shape[:2], np.uint8))  # fmt: skip
+        direct = region.texture_samples(batch)
+        batch.column = np.repeat(columns, len(channels))
+        tabled = region.texture_samples(batch)
+        assert len(direct) == 2 and direct[0].std() > 0
+        for a, b in zip(direct, tabled):
+            assert a.tobytes() == b.tobytes()
+
+
 def test_forward_scattering_widens_the_beam_and_keeps_its_energy():
     w = np.array([0.25, 0.5, 0.25])
     f = _forward_scatter_factors(w, 0.3)

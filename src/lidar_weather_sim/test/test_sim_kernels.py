@@ -13,10 +13,17 @@ from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
 from lidar_weather_sim.scene.raycast import SceneCaster, available_backends
 from lidar_weather_sim.scene.raycast.scene_caster import _padded_size
 from lidar_weather_sim.scene.scene import Scene
-from lidar_weather_sim.sensor.echo import _beam_order
+from lidar_weather_sim.sensor.echo import _beam_order, beam_groups
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import overlap_factor, peak_amplitude, surface_reflectance
-from lidar_weather_sim.sim.kernels import compact_candidates, range_noise, sub_ray_order, surface_returns, world_rays
+from lidar_weather_sim.sim import kernels
+from lidar_weather_sim.sim.kernels import (
+    compact_candidates,
+    occluded_candidates,
+    range_noise,
+    surface_returns,
+    world_rays,
+)
 from lidar_weather_sim.sim.simulator import LidarSimulator
 
 MATERIALS = MaterialTable.default()
@@ -115,19 +122,70 @@ def test_world_rays_match_numpy_rotation():
     assert o32.tobytes() == np.repeat(translation, 15, axis=0).astype(np.float32).tobytes()
 
 
-def test_sub_ray_and_beam_orders_match_numpy_sorts():
-    """Counting sorts of the occlusion and echo stages: the same order as numpy's stable sorts,
-    with ties, misses (inf), NaN, empty keys and keys in any order."""
+def test_beam_order_matches_numpy_stable_sort():
+    """The echo stage's counting sort: numpy's stable order, with empty beams and beams in any order."""
     rng = np.random.default_rng(4)
-    n_keys = 500
-    key = np.concatenate([np.arange(n_keys), rng.integers(0, n_keys, 700)])
-    key[:n_keys] = key[:n_keys][rng.permutation(n_keys)]
-    key = key[key % 7 != 3]  # keys without candidates
-    r = rng.uniform(0, 50, len(key))
-    for value, share in ((np.inf, 0.2), (np.nan, 0.05), (5.0, 0.1)):
-        r[rng.random(len(r)) < share] = value
-    assert np.array_equal(sub_ray_order(key, r, n_keys), np.lexsort((r, key)))
-    assert np.array_equal(_beam_order(key), np.argsort(key, kind="stable"))
+    beam = rng.integers(0, 500, 1200)
+    beam = beam[beam % 7 != 3]
+    assert np.array_equal(_beam_order(beam), np.argsort(beam, kind="stable"))
+    order, first = beam_groups(beam, 500)
+    assert np.array_equal(order, np.argsort(beam, kind="stable"))
+    assert np.array_equal(first, np.searchsorted(np.sort(beam), np.arange(501)))
+
+
+def occluded_reference(surface, scatterers, n_beams, n_sub):
+    """Slow form of the occlusion: per sub-ray, candidates in range order (stable; NaN last), each
+    scaled by the product of (1 - occlusion)^2 of those before it (scene hits opaque); then per beam
+    its sub-rays' hits in sub-ray order and its scatterers as given, those with amplitude > 0."""
+    s_range, s_amp, s_label, s_obj = surface
+    b, sub, r, a, lab, obj, occ = scatterers
+    rows = []  # (beam, position within the beam, range, amplitude, label, object id)
+    for beam in range(n_beams):
+        mine = np.flatnonzero(b == beam)
+        for s in range(n_sub):
+            k = beam * n_sub + s
+            cand = [(s_range[k], s_amp[k], 1.0, s, s_label[k], s_obj[k])]
+            cand += [(r[i], a[i], occ[i], n_sub + q, lab[i], obj[i]) for q, i in enumerate(mine) if sub[i] == s]
+            ranked = sorted(range(len(cand)), key=lambda j: (np.isnan(cand[j][0]), cand[j][0], cand[j][3]))
+            light = 1.0
+            for j in ranked:
+                rng_m, amp, o, pos, label, oid = cand[j]
+                rows.append((beam, pos, rng_m, amp * light, label, oid))
+                light *= max(1.0 - min(max(o, 0.0), 1.0), 1e-30) ** 2
+    rows = sorted((row for row in rows if row[3] > 0), key=lambda row: (row[0], row[1]))
+    return tuple(np.array([row[k] for row in rows]) for k in (0, 2, 3, 4, 5))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_occluded_candidates_match_a_per_sub_ray_reference(threads, monkeypatch):
+    """Occlusion by what lies in front on the same sub-ray, against a slow per-sub-ray loop: ties,
+    misses, NaN, transparent and opaque scatterers, scatterers behind the scene hit, beams without
+    scatterers; grouped by beam in the order the echo stage's merging depends on."""
+    monkeypatch.setattr(workers, "THREADS", threads)
+    monkeypatch.setattr(kernels, "CHUNK_RAYS", 16)
+    rng = np.random.default_rng(11)
+    n_beams, n_sub, m = 60, 3, 150
+    s_range = rng.uniform(2, 40, n_beams * n_sub)
+    s_range[rng.random(len(s_range)) < 0.2] = np.inf
+    s_amp = np.where(np.isfinite(s_range), rng.uniform(0.5, 5, len(s_range)), 0.0)
+    s_amp[rng.random(len(s_amp)) < 0.05] = 0.0  # a hit too weak to count
+    surface = (s_range, s_amp, rng.integers(0, 5, len(s_range)).astype(np.uint8),
+               rng.integers(0, 9, len(s_range)).astype(np.uint32))  # fmt: skip
+    b = rng.integers(0, n_beams // 2, m) * 2  # odd beams: no scatterers
+    r = rng.uniform(0, 45, m)
+    r[:10] = 7.0  # ties
+    r[10:13] = np.nan
+    occ = rng.choice([0.0, 0.3, 1.0, 1.4, -0.2], m)
+    scatterers = (b, rng.integers(0, n_sub, m), r, rng.uniform(0.1, 3, m), rng.integers(10, 15, m).astype(np.uint8),
+                  rng.integers(100, 110, m).astype(np.uint32), occ)  # fmt: skip
+    *got, (starts, counts) = occluded_candidates(surface, scatterers, n_beams, n_sub)
+    got = tuple(np.concatenate([x[a : a + c] for a, c in zip(starts, counts)]) for x in got)
+    want = occluded_reference(surface, scatterers, n_beams, n_sub)
+    assert len(starts) > 1 or threads == 1
+    for g, w in zip(got, want):
+        assert g.dtype.kind == w.dtype.kind or g.dtype.kind in "iu"
+        np.testing.assert_allclose(g.astype(np.float64), w.astype(np.float64), rtol=1e-12)
+    assert (got[2] < 1e-50).sum() > 0  # scatterers behind a scene hit keep their (vanishing) light
 
 
 @pytest.mark.parametrize("effects", [False, True])

@@ -66,7 +66,9 @@ class RayBatch:
     (N, S, 3) unit in the sensor frame; ``channel`` (N,); ``time_s`` (N,) absolute
     simulated firing time (s); ``weights`` (S,) beam energy share; scene hits:
     ``distance`` (N, S) m (inf = miss), ``normal`` (N, S, 3), ``material`` (N, S)
-    index (-1 miss), ``object_id`` (N, S), ``label`` (N, S).
+    index (-1 miss), ``object_id`` (N, S), ``label`` (N, S); ``column`` (N,) the scan column of
+    each beam (:class:`~lidar_weather_sim.sensor.scan.ScanPattern`; None when the rays are not
+    from the pattern): with ``channel`` it indexes per-direction tables a region may keep.
     """
 
     frame_index: int
@@ -81,6 +83,7 @@ class RayBatch:
     material: np.ndarray
     object_id: np.ndarray
     label: np.ndarray
+    column: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:

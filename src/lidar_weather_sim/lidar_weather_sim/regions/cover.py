@@ -27,6 +27,7 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect
 from lidar_weather_sim.regions.cover_textures import CoverTexture, make_texture, with_mean
 from lidar_weather_sim.regions.near_field import NearFieldModel, sample_near_field
+from lidar_weather_sim.sensor.scan import ScanPattern
 
 
 class CoverParams(ConfigModel):
@@ -62,6 +63,7 @@ class CoverRegion:
         self._el = np.deg2rad([min(beams) - half, max(beams) + half])
         scan = self.profile.scan
         self._az = np.deg2rad([scan.azimuth_min_deg, scan.azimuth_max_deg])
+        self._tables: list[np.ndarray] | None = None  # see _pattern_samples
 
     def step(self, t0_s: float, t1_s: float) -> None:
         """Stateless in time: the blend weight is a function of each beam's firing time."""
@@ -83,12 +85,35 @@ class CoverRegion:
         v = (el - self._el[0]) / span if span > 1e-9 else np.full_like(el, 0.5)  # one flat beam: mid-texture
         return (az - self._az[0]) / (self._az[1] - self._az[0]), v
 
+    def texture_samples(self, batch: RayBatch) -> list[np.ndarray]:
+        """Each texture's transmission (N, S) on the batch's sub-rays; from the scan pattern's table
+        (:meth:`_pattern_samples`, the same values) when the batch says its columns."""
+        if batch.column is None:
+            u, v = self.uv(batch.sensor_directions)
+            return [t.sample(u, v) for t in self.textures]
+        return [table[batch.column, batch.channel] for table in self._pattern_samples()]
+
+    def _pattern_samples(self) -> list[np.ndarray]:
+        """Each texture sampled at every sub-ray direction of the profile's scan pattern, (columns,
+        channels, sub-rays), built on first use: the cover is fixed to the sensor, so a direction always
+        meets the same spot."""
+        if self._tables is None:
+            pattern = ScanPattern(self.profile)
+            tables = [np.zeros((pattern.n_columns, pattern.n_channels, pattern.n_subrays)) for _ in self.textures]
+            for layer in range(len(self.profile.scan.layer_schedule or [None])):
+                channels = pattern.active_channels(layer)
+                u, v = self.uv(pattern.direction_table(layer))
+                for table, texture in zip(tables, self.textures):
+                    table[:, channels] = texture.sample(u, v)
+            self._tables = tables
+        return self._tables
+
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, s = batch.shape
-        u, v = self.uv(batch.sensor_directions)
         w = self.blend_weight(np.asarray(batch.time_s, dtype=np.float64))[:, None]
         tex = self.textures
-        t = tex[0].sample(u, v) if len(tex) == 1 else (1 - w) * tex[0].sample(u, v) + w * tex[1].sample(u, v)
+        samples = self.texture_samples(batch)
+        t = samples[0] if len(tex) == 1 else (1 - w) * samples[0] + w * samples[1]
         wm = float(w.mean())
         mix = lambda attr: getattr(tex[0], attr) * (1 - wm) + (getattr(tex[1], attr) * wm if len(tex) > 1 else 0.0)  # noqa: E731
         t = t * _forward_scatter_factors(np.asarray(batch.weights, dtype=np.float64), mix("forward_share"))[None, :]

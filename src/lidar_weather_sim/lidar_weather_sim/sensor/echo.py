@@ -102,18 +102,26 @@ def _ascending(beam):
 
 
 @numba.njit(cache=True)
-def _beam_order(beam):
-    """``np.argsort(beam, kind="stable")`` of beam indices >= 0: a counting sort."""
-    start = np.zeros(beam.max() + 2, np.int64)
+def beam_groups(beam, n_beams):
+    """A stable counting sort of ``beam`` (0..n_beams - 1): the order, and each beam's first
+    position in it (n_beams + 1,)."""
+    first = np.zeros(n_beams + 1, np.int64)
     for b in beam:
-        start[b + 1] += 1
-    for b in range(len(start) - 1):
-        start[b + 1] += start[b]
+        first[b + 1] += 1
+    for b in range(n_beams):
+        first[b + 1] += first[b]
+    fill = first[:-1].copy()
     order = np.empty(len(beam), np.int64)
     for i in range(len(beam)):
-        order[start[beam[i]]] = i
-        start[beam[i]] += 1
-    return order
+        order[fill[beam[i]]] = i
+        fill[beam[i]] += 1
+    return order, first
+
+
+@numba.njit(cache=True)
+def _beam_order(beam):
+    """``np.argsort(beam, kind="stable")`` of beam indices >= 0: a counting sort."""
+    return beam_groups(beam, beam.max() + 1)[0]
 
 
 @numba.njit(cache=True, inline="always")

@@ -2,7 +2,9 @@
 
 Each kernel reproduces the numpy expression it replaces operation for operation (numpy's einsum adds
 three products as (p0 + p2) + p1), so the clouds are bit for bit the same
-(``src/lidar_weather_sim/test/test_sim_kernels.py`` checks each against its numpy form). A wrapper
+(``src/lidar_weather_sim/test/test_sim_kernels.py`` checks each against its numpy form); the
+occlusion (:func:`occluded_candidates`) sums each sub-ray's log transmissions on their own, not as
+differences of one running sum over the batch, and is checked against a per-sub-ray loop. A wrapper
 splits its batch into chunks of :data:`CHUNK_RAYS` rays run on all cores
 (:mod:`lidar_weather_sim.core.workers`) and takes its large temporaries from a reused scratch store,
 so the pipeline itself reads without buffer bookkeeping.
@@ -17,6 +19,7 @@ import numpy as np
 
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.points import ReturnType
+from lidar_weather_sim.sensor.echo import beam_groups
 from lidar_weather_sim.sensor.radiometry import intensity_byte, overlap_at, peak_amplitude_at, surface_reflectance_at
 
 _LAST, _FIRST, _IDENTICAL, _SECOND = (int(r) for r in (ReturnType.LAST, ReturnType.FIRST, ReturnType.IDENTICAL,
@@ -25,50 +28,86 @@ _LAST, _FIRST, _IDENTICAL, _SECOND = (int(r) for r in (ReturnType.LAST, ReturnTy
 CHUNK_RAYS = 32768
 
 
-def occlude(key: np.ndarray, range_m: np.ndarray, amplitude: np.ndarray, occlusion: np.ndarray,
-             n_keys: int) -> np.ndarray:  # fmt: skip
-    """Scale each candidate by the two-way light left after the candidates in front of it on the
-    same sub-ray (``key``, 0..n_keys - 1): prod over nearer ones of (1 - occlusion)^2."""
-    order = sub_ray_order(key, range_m, n_keys)
-    k, occ = key[order], np.clip(occlusion[order], 0.0, 1.0)
-    log_t = 2.0 * np.log(np.maximum(1.0 - occ, 1e-30))
-    cum = np.cumsum(log_t)
-    start = np.ones(len(k), bool)
-    start[1:] = k[1:] != k[:-1]
-    group_base = np.maximum.accumulate(np.where(start, np.arange(len(k)), 0))
-    before = cum - log_t - (cum[group_base] - log_t[group_base])  # exclusive sum within the group
-    out = np.empty_like(amplitude)
-    out[order] = amplitude[order] * np.exp(before)
-    return out
+def occluded_candidates(surface, scatterers, n_beams, n_sub, scratch=None):
+    """Every beam's candidates, grouped by beam, with each amplitude scaled by the two-way light the
+    candidates in front of it on the same sub-ray leave: prod over nearer ones of (1 - occlusion)^2.
+
+    ``surface``: the scene hit of every sub-ray as (range m (inf: a miss), amplitude (0: none), label,
+    object id), flat (beam-major, ``n_sub`` per beam); it blocks its whole sub-ray behind it.
+    ``scatterers``: (beam, sub-ray, range m, amplitude, label, object id, occlusion 0-1), any order.
+    Within a beam the candidates keep their order (its sub-rays' hits in sub-ray order, then its
+    scatterers as given); ties in range count the earlier one as in front. Returns (beam, range,
+    amplitude, label, object id) of those left with light (amplitude > 0), beam-major, each chunk's
+    from its first candidate's index on, and those runs as (starts, counts)."""
+    sc_beam = np.ascontiguousarray(scatterers[0], np.int64)
+    order, first = beam_groups(sc_beam, n_beams)
+    size = n_beams * n_sub + len(sc_beam)
+    new = workers.allocator(scratch)
+    out = (new("occ_beam", size, np.int64), new("occ_range", size, np.float64), new("occ_amp", size, np.float64),
+           new("occ_label", size, np.uint8), new("occ_obj", size, np.uint32))  # fmt: skip
+    sc = (np.ascontiguousarray(scatterers[1], np.int64), *(np.ascontiguousarray(x, t) for x, t in
+          zip(scatterers[2:], (np.float64, np.float64, np.uint8, np.uint32, np.float64))))  # fmt: skip
+    cuts = workers.bounds(n_beams, CHUNK_RAYS // max(n_sub, 1))
+    counts = workers.run_chunks(
+        lambda c: _occluded_run(*surface, order, first, *sc, n_sub, cuts[c], cuts[c + 1], *out), len(cuts) - 1)
+    starts = cuts[:-1] * n_sub + first[cuts[:-1]]
+    return *out, (starts, np.array(counts, np.int64))
 
 
-@numba.njit(cache=True)
-def sub_ray_order(key, range_m, n_keys):
-    """``np.lexsort((range_m, key))`` for keys 0..n_keys - 1 with few candidates each: a counting
-    sort by key, then an insertion sort by range per key (both stable; NaN last, as numpy)."""
-    start = np.zeros(n_keys + 1, np.int64)
-    for k in key:
-        start[k + 1] += 1
-    for k in range(n_keys):
-        start[k + 1] += start[k]
-    fill = start[:-1].copy()
-    order = np.empty(len(key), np.int64)
-    for i in range(len(key)):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
-    for k in range(n_keys):
-        for q in range(start[k] + 1, start[k + 1]):
-            i = order[q]
-            r = range_m[i]
-            p = q
-            while p > start[k]:
-                before = range_m[order[p - 1]]
-                if not (before > r or (np.isnan(before) and not np.isnan(r))):
-                    break
-                order[p] = order[p - 1]
-                p -= 1
-            order[p] = i
-    return order
+@numba.njit(cache=True, nogil=True)
+def _occluded_run(s_range, s_amp, s_label, s_obj, order, first, sc_sub, sc_range, sc_amp, sc_label, sc_obj, sc_occ,
+                  n_sub, b0, b1, out_beam, out_range, out_amp, out_label, out_obj):  # fmt: skip
+    """Beams b0..b1 of :func:`occluded_candidates`; returns how many candidates were written."""
+    most = n_sub
+    for b in range(b0, b1):
+        most = max(most, n_sub + first[b + 1] - first[b])
+    rng = np.empty(most)
+    amp = np.empty(most)
+    log_t = np.empty(most)
+    sub = np.empty(most, np.int64)
+    idx = np.empty(most, np.int64)
+    start = b0 * n_sub + first[b0]
+    count = start
+    for b in range(b0, b1):
+        m = n_sub + first[b + 1] - first[b]
+        for s in range(n_sub):  # the sub-rays' scene hits: opaque
+            k = b * n_sub + s
+            rng[s], amp[s], sub[s], log_t[s] = s_range[k], s_amp[k], s, 2.0 * np.log(1e-30)
+        for q in range(n_sub, m):
+            i = order[first[b] + q - n_sub]
+            occ = min(max(sc_occ[i], 0.0), 1.0)
+            rng[q], amp[q], sub[q], log_t[q] = sc_range[i], sc_amp[i], sc_sub[i], 2.0 * np.log(max(1.0 - occ, 1e-30))
+        if m > n_sub:  # scatterers: order by (sub-ray, range), stable, NaN last, and scale by what is in front
+            for q in range(m):
+                p = q
+                while p > 0:
+                    j = idx[p - 1]
+                    if sub[j] < sub[q] or (sub[j] == sub[q] and not (rng[j] > rng[q] or (np.isnan(rng[j])
+                                                                                          and not np.isnan(rng[q])))):
+                        break
+                    idx[p] = j
+                    p -= 1
+                idx[p] = q
+            before = 0.0
+            for p in range(m):
+                q = idx[p]
+                if p > 0 and sub[idx[p - 1]] != sub[q]:
+                    before = 0.0
+                if before != 0.0:
+                    amp[q] = amp[q] * np.exp(before)
+                before += log_t[q]
+        for q in range(m):
+            if amp[q] > 0:
+                out_beam[count] = b
+                out_range[count] = rng[q]
+                out_amp[count] = amp[q]
+                if q < n_sub:
+                    out_label[count], out_obj[count] = s_label[b * n_sub + q], s_obj[b * n_sub + q]
+                else:
+                    i = order[first[b] + q - n_sub]
+                    out_label[count], out_obj[count] = sc_label[i], sc_obj[i]
+                count += 1
+    return count - start
 
 
 def world_rays(directions, rotation, translation, want64, scratch=None):

@@ -15,13 +15,14 @@ which reads as the data path::
   (:mod:`lidar_weather_sim.regions.base`);
 - **candidates**: every scene hit and scatterer with its LIDAR-equation amplitude
   (:mod:`lidar_weather_sim.sensor.radiometry`); **occlusion**: each scaled by the light the
-  scatterers in front of it leave;
+  candidates in front of it on its sub-ray leave, grouped by beam for the echo stage;
 - **echoes**: the threshold decision on each beam's waveform (:mod:`lidar_weather_sim.sensor.echo`);
 - **points**: range noise, intensity, points in the sensor frame at their firing time, appended to the
   frame; a frame is returned when its sweep is complete (stamp: the scan start; ``time_stamp``: ns after).
 
-The numba kernels behind the stages live in :mod:`lidar_weather_sim.sim.kernels`; they reproduce the
-numpy expressions bit for bit and run in chunks on all cores. Speed: ``benchmarks/sim_frame_time.py``.
+The numba kernels behind the stages live in :mod:`lidar_weather_sim.sim.kernels` and run in chunks on
+all cores. Speed: ``benchmarks/sim_frame_time.py`` (clear), ``benchmarks/weather_frame_time.py`` (every
+region, per stage).
 
 Why one module of ~440 lines: it is the frame pipeline, read top to bottom in one pass; the numba
 kernels it calls are already in kernels.py.
@@ -48,7 +49,7 @@ from lidar_weather_sim.sim.kernels import (
     compact_candidates,
     fill_points,
     kept_echoes,
-    occlude,
+    occluded_candidates,
     padding_bytes,
     range_noise,
     surface_returns,
@@ -295,6 +296,7 @@ class LidarSimulator:
             material=material,
             object_id=hits.object_id.reshape(shape),
             label=label,
+            column=np.repeat(columns, n_beams),
         )
         batch_time = float(times.mean())
         previous = self._region_time_s
@@ -348,29 +350,21 @@ class LidarSimulator:
         )  # fmt: skip
         if sc is None:
             return (beam, rng_m, amp, label, obj), segments
-        # scatterers: every sub-ray stays a candidate until the occlusion is applied
-        beam = np.broadcast_to(np.arange(n)[:, None], shape=(n, n_sub))
-        subray = np.broadcast_to(np.arange(n_sub)[None, :], shape=(n, n_sub))
-        cols = [beam.ravel(), subray.ravel(), rng_m, amp, rays.label.ravel(), rays.object_id.ravel(),
-                np.ones(n * n_sub)]  # fmt: skip
         b, s = sc.beam, sc.subray
         t2 = one_way[b, s] ** 2 * np.exp(-2.0 * alpha[b, s] * sc.range_m)
         overlap = overlap_factor(sc.range_m, optics.overlap_start_m, optics.overlap_full_m)
         if sc.bypass_overlap is not None:
             overlap = np.where(sc.bypass_overlap, 1.0, overlap)
         sc_amp = peak_amplitude(C, rays.weights[s], sc.reflectance, sc.range_m, t2, overlap)
-        extra = [b, s, sc.range_m, sc_amp, sc.label, sc.object_id, sc.occlusion]
-        return self._occlusion([np.concatenate([a, e]) for a, e in zip(cols, extra)], n * n_sub, n_sub), None
+        return self._occlusion((rng_m, amp, rays.label.ravel(), rays.object_id.ravel()),
+                               (b, s, sc.range_m, sc_amp, sc.label, sc.object_id, sc.occlusion), n, n_sub)
 
-    @staticmethod
-    def _occlusion(cols: list[np.ndarray], n_keys: int, n_sub: int) -> tuple[np.ndarray, ...]:
-        """Candidates ``cols`` (beam, sub-ray, range, amplitude, label, object id, occlusion) with each
-        amplitude scaled by the two-way light the candidates in front of it on its sub-ray leave; those
-        left with light, as (beam, range, amplitude, label, object id)."""
-        cols[3] = occlude(cols[0] * n_sub + cols[1], cols[2], cols[3], cols[6], n_keys)
-        beam, _, rng_m, amp, label, obj, _ = cols
-        keep = amp > 0
-        return beam[keep], rng_m[keep], amp[keep], label[keep].astype(np.uint8), obj[keep].astype(np.uint32)
+    def _occlusion(self, surface, scatterers, n_beams: int, n_sub: int):
+        """Scene hits (every sub-ray's) and scatterers of the batch as candidates grouped by beam, each
+        scaled by the two-way light the candidates in front of it on its sub-ray leave
+        (:func:`~lidar_weather_sim.sim.kernels.occluded_candidates`): those left with light, and their runs."""
+        *candidates, segments = occluded_candidates(surface, scatterers, n_beams, n_sub, self._scratch)
+        return tuple(candidates), segments
 
     def _add_false_alarms(self, candidates, segments, n_beams: int, frame: int, first_column: int):
         rate = self.profile.detection.false_alarms_per_beam
