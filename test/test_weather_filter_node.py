@@ -85,3 +85,40 @@ def test_node_skips_malformed_clouds_and_falls_back_without_echo_fields(processe
     out = processes.output(node)
     assert out.count("skipped malformed cloud: data length") == 1, out
     assert "using geometry-only 'dror'" in out
+
+
+def test_learned_node_survives_clouds_the_decoder_accepts_but_no_filter_can_use(processes, ros):
+    """The reported crashers, each a valid PointCloud2: an INT32 channel of -2e9 (segfaulted the learned
+    filter), a channel of 2e7 (a 1.5 GB range image), a FLOAT64 x of 1e300 and half the cloud at the
+    origin. The node keeps running: the channels are skipped with a reason naming the field, the far
+    point and the placeholders are removed and counted, and every cloud after them is filtered."""
+    node = processes.start(*NODE, "--ros-args", "-p", "method:=learned")
+    got, pub = _wire(ros)
+    frame = highway_frame("rain", seed=6)
+    descr = [(n, np.int32 if n == "channel" else np.float64 if n in "xyz" else frame.dtype.fields[n][0])
+             for n in frame.dtype.names]  # fmt: skip
+    wide = np.zeros(len(frame), descr)
+    for n in frame.dtype.names:
+        wide[n] = frame[n]
+    negative, huge, far = wide.copy(), wide.copy(), wide.copy()
+    negative["channel"][10] = -2_000_000_000
+    huge["channel"][10] = 20_000_000
+    far["x"][10] = 1e300
+    placeholders = np.concatenate([wide, np.zeros(len(wide), descr)])
+    msgs = [cloud_to_msg(c, stamp_ns=k + 1, frame_id="lidar")[0] for k, c in enumerate((negative, huge, far, placeholders))]
+    by_stamp = lambda: {d.header.stamp.nanosec: d.status[0] for d in got["diag"]}  # noqa: E731
+    for k, msg in enumerate(msgs, start=1):  # one at a time (best-effort input; a new field type compiles first)
+        assert _publish_until(ros, pub, [msg], lambda k=k: k in by_stamp(), tries=300), (k, processes.output(node))
+    assert node.poll() is None, processes.output(node)
+    status = by_stamp()
+    assert status[1].level == ERROR and "field 'channel': value -2000000000 outside 0..1023" in status[1].message
+    assert status[2].level == ERROR and "field 'channel': value 20000000 outside 0..1023" in status[2].message
+    for stamp, set_aside in ((3, 1), (4, len(wide))):
+        values = {kv.key: kv.value for kv in status[stamp].values}
+        assert status[stamp].level == OK and values["points_set_aside"] == str(set_aside), (stamp, values)
+    filtered = {m.header.stamp.nanosec: msg_to_cloud(m).points for m in got["filtered"]}
+    kept = filtered[4]  # the placeholders removed, the frame's rain mostly too, its road and cars kept
+    assert not ((kept["x"] == 0) & (kept["y"] == 0) & (kept["z"] == 0)).any()
+    solid = np.isin(wide["label"], [Label.STATIC, Label.VEHICLE])
+    assert 0.95 * solid.sum() <= len(kept) < len(wide), (len(kept), solid.sum(), len(wide))
+    assert "Traceback" not in processes.output(node)

@@ -20,6 +20,7 @@ from typing import Iterable
 import numpy as np
 
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS, Label
+from weather_filter.cloud_check import CloudFieldError
 from weather_filter.filters import FallbackFilter, PointFilter
 
 ROI_HALF_WIDTH_M = 1.75
@@ -110,8 +111,11 @@ def evaluate_frames(filt: PointFilter, frames: Iterable[np.ndarray], method: str
     acc = Accumulator(method or filt.name)
     filt.reset()
     fallback_frames = 0
-    for points in frames:
-        result = filt(points)
+    for k, points in enumerate(frames):
+        try:
+            result = filt(points)
+        except CloudFieldError as exc:
+            raise CloudFieldError(f"frame {k}: {exc}") from None
         acc.add(points, result.remove, result.elapsed_s)
         fallback_frames += isinstance(filt, FallbackFilter) and filt.last_used != filt.primary.name
     out = acc.result()
@@ -127,4 +131,7 @@ def evaluate_bag(bag: str, method: str, topic: str, fallback: str = "dror", **fi
     from weather_filter.filters import make_filter_with_fallback
 
     filt = make_filter_with_fallback(method, fallback, **filter_params)
-    return evaluate_frames(filt, (frame.points for frame in read_clouds(bag, topic)), method)
+    try:
+        return evaluate_frames(filt, (frame.points for frame in read_clouds(bag, topic)), method)
+    except CloudFieldError as exc:
+        raise CloudFieldError(f"{bag}: {exc}") from None

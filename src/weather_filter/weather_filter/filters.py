@@ -1,7 +1,9 @@
 """Weather-detection filters: structured point array in, boolean *remove* mask out.
 
 Every filter derives from :class:`PointFilter`, which checks the fields a
-filter needs and times it; a filter implements only :meth:`PointFilter.remove_mask`
+filter needs, sets aside the points no filter can use (:mod:`weather_filter.cloud_check`:
+non-finite or out-of-reach coordinates, (0, 0, 0) placeholders; removed and counted) and times
+it; a filter implements only :meth:`PointFilter.remove_mask` on the usable points
 (array in, mask out, True = weather/artefact to remove). No ROS import here:
 message conversion lives in :mod:`weather_filter.ros.weather_filter_node`.
 
@@ -38,9 +40,12 @@ from scipy.spatial import cKDTree
 
 from lidar_weather_sim.core.config import ConfigModel, validate
 from lidar_weather_sim.core.registry import Registry
+from weather_filter.cloud_check import usable_points
 from weather_filter.scan_geometry import angular_resolution_rad
 
 GEOMETRY_FIELDS = frozenset({"x", "y", "z"})
+#: Fields a filter reads when the cloud has them (the scan geometry's channel and angles, the shot time).
+OPTIONAL_FIELDS = frozenset({"channel", "echo", "azimuth", "elevation", "time_stamp"})
 
 
 class MissingFieldsError(ValueError):
@@ -49,10 +54,12 @@ class MissingFieldsError(ValueError):
 
 @dataclass(frozen=True)
 class FilterResult:
-    """``remove``: True for points the filter removes; ``elapsed_s``: wall time of the filter."""
+    """``remove``: True for points the filter removes (the set-aside ones included); ``elapsed_s``:
+    wall time of the filter; ``set_aside``: points no filter could use (see :mod:`weather_filter.cloud_check`)."""
 
     remove: np.ndarray
     elapsed_s: float
+    set_aside: int = 0
 
 
 class PointFilter(ABC):
@@ -65,13 +72,26 @@ class PointFilter(ABC):
         names = set(points.dtype.names or ())
         return sorted(self.required_fields - names)
 
+    def fields_read(self, points: np.ndarray) -> frozenset[str]:
+        """The fields this filter reads of ``points`` (checked before it runs)."""
+        return self.required_fields
+
     def __call__(self, points: np.ndarray) -> FilterResult:
+        """The remove mask of ``points``; raises :class:`MissingFieldsError` for a missing field and
+        :class:`~weather_filter.cloud_check.CloudFieldError` for a field it cannot use (both name it)."""
         missing = self.missing_fields(points)
         if missing:
             raise MissingFieldsError(f"filter '{self.name}' needs field(s) {', '.join(missing)}")
         start = time.perf_counter()
-        remove = np.zeros(0, bool) if len(points) == 0 else np.asarray(self.remove_mask(points), dtype=bool)
-        return FilterResult(remove, time.perf_counter() - start)
+        readable, usable = usable_points(points, self.fields_read(points), OPTIONAL_FIELDS)
+        if usable.set_aside == 0:
+            remove = np.zeros(0, bool) if len(points) == 0 else np.asarray(self.remove_mask(readable), dtype=bool)
+        else:
+            remove = np.ones(len(points), bool)
+            kept = readable[usable.keep]
+            if len(kept):
+                remove[usable.keep] = np.asarray(self.remove_mask(kept), dtype=bool)
+        return FilterResult(remove, time.perf_counter() - start, usable.set_aside)
 
     @abstractmethod
     def remove_mask(self, points: np.ndarray) -> np.ndarray:
@@ -361,6 +381,10 @@ class FallbackFilter(PointFilter):
                 warnings.warn(fallback_message(self.primary.name, list(missing), self.fallback.name), GeometryFallbackWarning, stacklevel=3)
         self.last_used = filt.name
         return filt.remove_mask(points)
+
+    def fields_read(self, points: np.ndarray) -> frozenset[str]:
+        """The primary's fields where the cloud has them all, else the fallback's."""
+        return self.fallback.required_fields if self.primary.missing_fields(points) else self.primary.required_fields
 
     def reset(self) -> None:
         self.primary.reset()

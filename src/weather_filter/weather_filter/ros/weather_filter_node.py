@@ -6,7 +6,10 @@ and ``/lidar/points/removed`` (same fields as the input, SensorDataQoS) and a
 per label when the cloud has ``label``, filter time, method, and ``weather`` /
 ``weather_confidence`` from the shipped per-frame KNN when the cloud has x, echo and EPW, and the count of
 clouds skipped so far). A malformed cloud is skipped: logged once per cause, and reported every time on
-``/diagnostics`` with level ERROR, its reason and the counts. A cloud lacking the fields of ``method`` (EPW, echo...) is
+``/diagnostics`` with level ERROR, its reason and the counts; so is a cloud with a field the filter
+cannot use (``weather_filter.cloud_check``: an array field, a float or out-of-range channel or echo).
+Points no filter can use (non-finite or out-of-reach coordinates, (0, 0, 0) placeholders) are removed
+and counted (``points_set_aside``). A cloud lacking the fields of ``method`` (EPW, echo...) is
 filtered with ``fallback_method`` (geometry only, with
 ``weather_filter.filters.FALLBACK_PARAMS``), with a warning once.
 
@@ -27,6 +30,7 @@ from lidar_weather_sim.core.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TO
 from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
+from weather_filter.cloud_check import CloudFieldError, usable_points
 from weather_filter.filters import GEOMETRY_METHODS, METHODS, fallback_message, make_fallback_filter, make_filter
 
 DIAGNOSTIC_NAME = "weather_filter_node: filter"
@@ -107,6 +111,9 @@ class WeatherFilterNode(Node):
                 return
         try:
             result = filt(points)
+        except CloudFieldError as exc:  # a field no filter can use (names it)
+            self._skip(msg, "field:" + str(exc).split(":")[0].split(";")[0], f"skipped cloud: {exc}")
+            return
         except Exception as exc:  # never crash on one frame
             self._skip(msg, f"error:{type(exc).__name__}", f"filter '{filt.name}' failed, frame skipped: {exc!r}")
             return
@@ -124,7 +131,11 @@ class WeatherFilterNode(Node):
         if not {"x", "echo", "epw"} <= set(points.dtype.names or ()):
             self._once("noweatherfields", "cloud lacks x, echo or epw: no per-frame weather class", "info")
             return []
-        estimate = self._weather.classify(points)
+        try:
+            estimate = self._weather.classify(points[usable_points(points, frozenset(("echo",)))[1].keep])
+        except Exception as exc:  # the class is an extra: never lose the filtered cloud for it
+            self._once(f"weathererror:{type(exc).__name__}", f"no weather class for this cloud: {exc!r}")
+            return []
         return [KeyValue(key="weather", value=estimate.weather), KeyValue(key="weather_confidence", value=f"{estimate.confidence:.3f}")]
 
     def _diagnostics(self, msg: PointCloud2, points: np.ndarray, result, name: str) -> DiagnosticArray:
@@ -134,6 +145,7 @@ class WeatherFilterNode(Node):
             KeyValue(key="points_out", value=str(int((~result.remove).sum()))),
             KeyValue(key="points_removed", value=str(int(result.remove.sum()))),
             KeyValue(key="time_ms", value=f"{result.elapsed_s * 1e3:.3f}"),
+            KeyValue(key="points_set_aside", value=str(result.set_aside)),  # unusable coordinates, (0, 0, 0) placeholders
             KeyValue(key="clouds_skipped", value=str(self.skipped)),  # malformed clouds so far (see _skip)
         ]
         if "label" in points.dtype.names:
