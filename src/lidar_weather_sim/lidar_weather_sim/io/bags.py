@@ -11,10 +11,16 @@ stamp* (``stamp_ns``) is the time inside the message (``header.stamp``).
 Damaged bags: an MCAP whose writer was SIGKILLed has no summary or footer, and
 its directory may lack ``metadata.yaml``. The reading functions read such bags
 transparently by scanning the MCAP records in file order up to the truncated
-tail; :func:`recover` rewrites them as a valid, indexed bag. rosbags' MCAP
-writer buffers messages in chunks of about 1 MiB, so the messages of the
-chunk being filled when the writer died are lost. rosbags' sqlite3 writer
-commits only on close, so a killed sqlite3 recording holds no messages.
+tail; :func:`recover` rewrites them as a valid, indexed bag. Our MCAP chunks
+hold at most 0.5 s of log time (or 1 MiB) and are flushed when closed, so a
+killed writer loses at most the last 0.5 s (:mod:`lidar_weather_sim.io.mcap_checks`).
+rosbags' sqlite3 writer commits only on close, so a killed sqlite3 recording
+holds no messages.
+
+Checksums: every chunk carries the CRC-32 of its records and the footer that of
+the summary; readers check both, and any error reading a bag (a flipped length,
+an undecodable string) becomes one BagError naming the file and, where a walk of
+its records finds it, the offset of the first broken record.
 
 Why one module of ~500 lines: reading, writing and recovering rosbag2 files share the open-bag
 helpers and the crash-safety rules above (a recording is never left without its index).
@@ -50,6 +56,7 @@ from lidar_weather_sim.io.cloud_codec import (
     build_message,
     decode_message,
 )
+from lidar_weather_sim.io.mcap_checks import check_summary, checksum_chunks, first_damage, seal
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -167,6 +174,10 @@ def _open_bag(path: str | Path) -> _Bag:
     intact = (path.is_file() or (path / "metadata.yaml").exists()) and all(
         _has_footer(f) for f in files if f.suffix == ".mcap"
     )
+    for file in files if intact and storage == "mcap" else ():
+        problem = check_summary(file)
+        if problem:
+            raise BagError(f"{file}: {problem}")
     return _Bag(path, storage, files, intact)
 
 
@@ -183,7 +194,7 @@ def _scanned_raw(file: Path, topics: set[str] | None) -> Iterator[tuple[str, str
     with file.open("rb") as stream:
         size = stream.seek(0, 2)
         stream.seek(0)
-        records = NonSeekingReader(stream).iter_messages(topics=topics, log_time_order=False)
+        records = NonSeekingReader(stream, validate_crcs=True).iter_messages(topics=topics, log_time_order=False)
         try:
             for schema, channel, message in records:
                 yield channel.topic, schema.name if schema else "", message.log_time, message.data
@@ -201,8 +212,26 @@ def _raw(bag: _Bag, topics: Iterable[str] | None = None) -> Iterator[tuple[str, 
         else:
             for file in bag.files:
                 yield from (_scanned_raw if file.suffix == ".mcap" else _indexed_raw)(file, wanted)
-    except (ReaderError, McapError, OSError) as err:
-        raise BagError(f"cannot read bag {bag.path}: {err}") from err
+    except BagError:
+        raise
+    except READ_ERRORS as err:
+        raise _damaged(bag, err) from err
+
+
+#: What reading a damaged file can raise besides BagError (a flipped length can overflow, a flipped
+#: string fail to decode): each becomes one BagError naming the bag.
+READ_ERRORS = (ReaderError, McapError, OSError, OverflowError, UnicodeDecodeError, struct.error, ValueError,
+               MemoryError, KeyError, IndexError)  # fmt: skip
+
+
+def _damaged(bag: _Bag, err: BaseException) -> BagError:
+    """A BagError for ``err`` while reading ``bag``: the file and offset of the first broken record
+    when a walk of its MCAP records finds one, else the bag and the reader's reason."""
+    for file in bag.files if bag.storage == "mcap" else ():
+        problem = first_damage(file)
+        if problem:
+            return BagError(f"{file}: {problem}")
+    return BagError(f"cannot read bag {bag.path}: {type(err).__name__}: {err}")
 
 
 def _deserialize(bag: _Bag, msgtype: str, data: bytes) -> Any:
@@ -284,8 +313,10 @@ def bag_info(path: str | Path) -> BagInfo:
     bag = _open_bag(path)
     try:
         topics, start, end = (_indexed_stats if bag.intact else _scanned_stats)(bag)
-    except ReaderError as err:
-        raise BagError(f"cannot read bag {bag.path}: {err}") from err
+    except BagError:
+        raise
+    except READ_ERRORS as err:
+        raise _damaged(bag, err) from err
     count = sum(t.count for t in topics)
     return BagInfo(bag.storage, bag.path, start, end, (end - start) / 1e9, count, topics, not bag.intact)
 
@@ -357,6 +388,10 @@ class BagWriter:
             self._writer.open()
         except (WriterError, OSError) as err:
             raise BagError(f"cannot create bag {self.path}: {err}") from err
+        self._mcap: Path | None = None  # the MCAP file, sealed with its summary CRC on close
+        if storage == "mcap":
+            checksum_chunks(self._writer.storage)
+            self._mcap = Path(self._writer.storage.path)
         self._connections: dict[str, Any] = {}
         self._lock = threading.RLock()  # serialises writes and close across threads
         self._owner: int | None = None  # thread inside a write or close
@@ -413,6 +448,8 @@ class BagWriter:
             try:
                 if writer is not None:
                     writer.close()
+                    if self._mcap is not None:
+                        seal(self._mcap)
             finally:
                 self._restore_handlers()
 
