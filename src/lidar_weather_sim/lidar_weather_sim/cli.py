@@ -53,6 +53,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             scenario, out, frames=args.frames, seed=args.seed, profile=args.profile, overwrite=args.overwrite,
             progress=progress,
         )  # fmt: skip
+    if report.stopped:
+        print(f"lidar-weather-sim run: warning: {report.stopped}", file=sys.stderr)
     print(f"wrote {report.frames} frames ({report.points} points, {report.simulated_s:.2f} s simulated) to {report.output}")
     return 0
 

@@ -7,6 +7,8 @@ Every configurable component (sensor profile, scenario, region) defines one
 
 from __future__ import annotations
 
+import types
+import typing
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
@@ -15,15 +17,34 @@ import yaml
 from pydantic_core import PydanticCustomError
 
 
+def _is_number(annotation: Any) -> bool:
+    """The annotation takes int or float (directly, Optional, a union or Annotated) and not bool."""
+    if annotation in (int, float):
+        return True
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _is_number(args[0])
+    return bool(args) and bool not in args and typing.get_origin(annotation) in (typing.Union, types.UnionType) \
+        and any(_is_number(a) for a in args)  # fmt: skip
+
+
 class ConfigModel(pydantic.BaseModel):
-    """Base of all configuration schemas: unknown keys are errors, instances are immutable.
+    """Base of all configuration schemas: unknown keys are errors, instances are immutable, every
+    number is finite (``.inf`` / ``.nan`` are refused) and a boolean is never taken for a number.
 
     ``moved_keys`` maps a key that moved or was removed to where it went; such a key is refused
     with that one line instead of "unknown key".
     """
 
-    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     moved_keys: ClassVar[dict[str, str]] = {}
+
+    @pydantic.field_validator("*", mode="before")
+    @classmethod
+    def _refuse_bool_for_number(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
+        if isinstance(value, bool) and info.field_name and _is_number(cls.model_fields[info.field_name].annotation):
+            raise PydanticCustomError("bool_number", "a boolean is not a number")
+        return value
 
     @pydantic.model_validator(mode="before")
     @classmethod
@@ -68,7 +89,9 @@ def format_validation_error(source: str, error: pydantic.ValidationError, data: 
         elif item["type"] == "missing":
             lines.append(f"{source}: missing key '{key}'")
         elif not loc:  # a model-level check: its message names the keys
-            lines.append(f"{source}: {item['msg']}")
+            lines.append(f"{source}: {item['msg'].removeprefix('Value error, ')}")
+        elif isinstance(_lookup(data, loc), (dict, list)):  # a check of a whole block: the reason, not the block
+            lines.append(f"{source}: key '{key}': {item['msg'].removeprefix('Value error, ')}")
         else:
             lines.append(f"{source}: key '{key}': value {_lookup(data, loc)!r}: {item['msg']}")
     return "\n".join(lines)
@@ -95,9 +118,14 @@ def load_yaml(path: str | Path, model: type[M]) -> M:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         raise ConfigError(f"{path}:{where}: invalid YAML: {getattr(exc, 'problem', exc)}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: invalid YAML: nested too deeply") from None
     if data is None:
         data = {}
-    return validate(data, model, str(path))
+    try:
+        return validate(data, model, str(path))
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply for a {model.__name__}") from None
 
 
 def load_named(name_or_path: str | Path, directory: Path, model: type[M], kind: str) -> M:

@@ -38,7 +38,7 @@ class CoverParams(ConfigModel):
     target_texture: str | None = Field(None, description="Texture blended in over time (same names), none = static")
     blend_start_s: float = Field(0.0, ge=0, description="Simulated time the blend starts (s)")
     blend_duration_s: float = Field(0.0, ge=0, description="Duration of the blend (s); 0 = switch at blend_start_s")
-    texture_seed: int = Field(0, description="Seed of the texture realisation (hierarchical random field)")
+    texture_seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of the texture realisation (hierarchical random field)")
     near_field_scale_m: float = Field(0.1, gt=0, description="Exponential range scale of cover returns (m)")
     near_field_amplitude: float = Field(3.0, gt=0, description="Median cover-return peak over the dark threshold")
     near_field_sigma_ln: float = Field(0.8, ge=0, description="Log-sd of the cover-return peak amplitude")

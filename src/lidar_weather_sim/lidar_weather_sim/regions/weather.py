@@ -16,7 +16,7 @@ from lidar_weather_sim.core.config import ConfigModel
 
 
 class Fog(ConfigModel):
-    visual_range_m: float = Field(100000.0, gt=0, description="Meteorological visual range (m)")
+    visual_range_m: float = Field(100000.0, gt=0, le=1.0e6, description="Meteorological visual range (m)")
 
 
 class Precipitation(ConfigModel):
@@ -42,7 +42,7 @@ class Sun(ConfigModel):
 
 
 class Wind(ConfigModel):
-    speed_m_s: float = Field(0.0, ge=0, description="Wind speed (m/s)")
+    speed_m_s: float = Field(0.0, ge=0, le=120, description="Wind speed (m/s; <= 120)")
     direction_deg: float = Field(0.0, ge=0, le=360, description="Direction the wind blows from, from north (deg)")
 
 
@@ -55,7 +55,7 @@ class Road(ConfigModel):
     water_film_mm: float | None = Field(
         None, ge=0, le=10, description="Water film depth h on the road (mm); null: each reader's default "
         "(atmosphere: the weather class's fitted wetness; spray: eq. 1 from the rain intensity)")
-    texture_depth_mm: float = Field(1.5, gt=0, description="Mean texture depth T_s of the road (mm; thesis Table IV)")
+    texture_depth_mm: float = Field(1.5, gt=0, le=50, description="Mean texture depth T_s of the road (mm; thesis Table IV)")
     snow_depth_m: float | None = Field(None, ge=0, le=1, description="Snow cover on up-facing surfaces (m); "
                                        "null: the atmosphere's fitted depth of the weather class")
 

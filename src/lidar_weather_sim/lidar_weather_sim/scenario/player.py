@@ -15,6 +15,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.geometry import matrix_quaternion, rpy_matrix, yaw_quaternions
 from lidar_weather_sim.scenario.placement import place_lead
 from lidar_weather_sim.scenario.schema import Mount, Mover, Scenario
@@ -33,13 +34,26 @@ class MoverTrack:
     """Position of one mover along its road over time (s in m, t in s)."""
 
     def __init__(self, mover: Mover, network: RoadNetwork) -> None:
+        """Raises ConfigError naming the key when the road, the start lane or a lane change's target lane
+        is not on the map where the mover is (lanes are resolved here, before anything runs)."""
         self.mover = mover
         self.network = network
-        self.length = network.road_length(mover.road)
-        # lanes driven against the reference line (left lanes in right-hand traffic) move to smaller s
-        along = network.lane_pose(mover.road, mover.lane, mover.s_m)[3]
-        reference = network.lane_pose(mover.road, mover.lane, mover.s_m, along_reference=True)[3]
+        who = f"actor {mover.id}" if hasattr(mover, "id") else "ego"
+        try:
+            self.length = network.road_length(mover.road)
+            # lanes driven against the reference line (left lanes in right-hand traffic) move to smaller s
+            along = network.lane_pose(mover.road, mover.lane, mover.s_m)[3]
+            reference = network.lane_pose(mover.road, mover.lane, mover.s_m, along_reference=True)[3]
+        except KeyError as err:
+            raise ConfigError(f"{who}: road {mover.road!r}, lane {mover.lane}: {err.args[0]}") from None
         self.direction = 1.0 if np.cos(along - reference) > 0 else -1.0
+        for i, change in enumerate(mover.lane_changes):  # where the change starts and ends at the scenario speed
+            times = np.array([change.at_s, change.at_s + change.duration_s])
+            s = np.clip(mover.s_m + self.direction * mover.speed_m_s * times, 0.0, self.length)
+            try:
+                network.lane_pose(mover.road, change.to_lane, s)
+            except KeyError as err:
+                raise ConfigError(f"{who}: key 'lane_changes.{i}.to_lane': value {change.to_lane}: {err.args[0]}") from None
         # speed segments (start time s, start position m, speed m/s); commands append segments
         self._segments = [(0.0, mover.s_m, mover.speed_m_s)]
         self._table: np.ndarray | None = None  # the segments as an array, rebuilt after a command
@@ -66,6 +80,12 @@ class MoverTrack:
         else:
             t0, s0, v = self._segment_at(times)
         return np.minimum(np.maximum(s0 + self.direction * v * (times - t0), 0.0), self.length)
+
+    def at_road_end(self, time_s: float) -> bool:
+        """Moving, and stopped by the end of its road at ``time_s`` (s): it would leave the map."""
+        t = np.array([float(time_s)])
+        speed, s = float(self.speeds(t)[0]), float(self.s(t)[0])
+        return speed > 0 and (s >= self.length if self.direction > 0 else s <= 0.0)
 
     def speeds(self, times: np.ndarray) -> np.ndarray:
         """Speed (m/s) at ``times`` (s)."""

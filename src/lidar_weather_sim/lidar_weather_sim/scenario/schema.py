@@ -24,23 +24,30 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.weather import Weather
 
 
+#: Physical bounds of scenario values: a value outside is refused naming its key.
+MAX_SPEED_M_S = 150.0  # 540 km/h
+MAX_TIME_S = 86_400.0  # a day of simulated time
+MAX_S_M = 1.0e6  # along a road (m)
+MAX_MOUNT_M = 20.0  # sensor from base_link (m)
+
+
 class LaneChange(ConfigModel):
-    at_s: float = Field(ge=0, description="Simulated time the lane change starts (s)")
+    at_s: float = Field(ge=0, le=MAX_TIME_S, description="Simulated time the lane change starts (s)")
     to_lane: int = Field(description="Target OpenDRIVE lane id")
-    duration_s: float = Field(4.0, gt=0, description="Duration of the lateral move (s)")
+    duration_s: float = Field(4.0, gt=0, le=60, description="Duration of the lateral move (s)")
 
 
 class Size(ConfigModel):
-    length_m: float = Field(4.7, gt=0)
-    width_m: float = Field(1.85, gt=0)
-    height_m: float = Field(1.45, gt=0)
+    length_m: float = Field(4.7, gt=0, le=50, description="m (<= 50: a road train)")
+    width_m: float = Field(1.85, gt=0, le=10, description="m")
+    height_m: float = Field(1.45, gt=0, le=10, description="m")
 
 
 class Mover(ConfigModel):
     road: str = Field("1", description="OpenDRIVE road id")
     lane: int = Field(description="OpenDRIVE lane id at the start")
-    s_m: float = Field(0.0, ge=0, description="Start position along the road (m)")
-    speed_m_s: float = Field(0.0, ge=0, description="Speed along the lane (m/s)")
+    s_m: float = Field(0.0, ge=0, le=MAX_S_M, description="Start position along the road (m)")
+    speed_m_s: float = Field(0.0, ge=0, le=MAX_SPEED_M_S, description="Speed along the lane (m/s; <= 150)")
     lane_changes: list[LaneChange] = Field(default_factory=list)
     size: Size = Field(default_factory=Size)
 
@@ -52,17 +59,17 @@ class Actor(Mover):
 
     id: int = Field(ge=100, le=2**31, description="Object id of its points (ids below 100 belong to the map)")
     lane: int | None = Field(None, description="OpenDRIVE lane id at the start (not with lead_gap_m)")
-    s_m: float | None = Field(None, ge=0, description="Start position of its footprint centre along the road (m; "
+    s_m: float | None = Field(None, ge=0, le=MAX_S_M, description="Start position of its footprint centre along the road (m; "
                               "default 0; not with lead_gap_m)")
     type: Literal["vehicle", "box"] = "vehicle"
     label: Literal["vehicle", "obstacle"] = "vehicle"
-    appear_s: float = Field(0.0, ge=0, description="Present from this simulated time on (s)")
+    appear_s: float = Field(0.0, ge=0, le=MAX_TIME_S, description="Present from this simulated time on (s)")
     emits_spray: bool = Field(False, description="Wheels throw spray (spray region)")
     lead_gap_m: float | None = Field(
-        None, gt=0, description="Gap from the ego's sensor to the middle of this actor's rear, along the ego's "
+        None, gt=0, le=1000, description="Gap from the ego's sensor to the middle of this actor's rear, along the ego's "
         "x axis at time 0 (m; thesis paper 3: 17.5, Fig. 13: 15.5-32.6); sets lane and s_m")
     lead_offset_y_m: float | None = Field(
-        None, description="With lead_gap_m: that point's offset to the left of the sensor (m; default the "
+        None, ge=-100, le=100, description="With lead_gap_m: that point's offset to the left of the sensor (m; default the "
         "thesis' 3.7); the actor drives the lane whose centre is nearest")
 
     @model_validator(mode="before")
@@ -90,12 +97,12 @@ class Actor(Mover):
 class Mount(ConfigModel):
     """Sensor pose in base_link (m, deg; REP-103, base_link on the ground below the rear axle)."""
 
-    x_m: float = 3.7
-    y_m: float = 0.0
-    z_m: float = 0.5
-    roll_deg: float = 0.0
-    pitch_deg: float = 0.0
-    yaw_deg: float = 0.0
+    x_m: float = Field(3.7, ge=-MAX_MOUNT_M, le=MAX_MOUNT_M, description="m")
+    y_m: float = Field(0.0, ge=-MAX_MOUNT_M, le=MAX_MOUNT_M, description="m")
+    z_m: float = Field(0.5, ge=-MAX_MOUNT_M, le=MAX_MOUNT_M, description="m")
+    roll_deg: float = Field(0.0, ge=-360, le=360, description="deg")
+    pitch_deg: float = Field(0.0, ge=-360, le=360, description="deg")
+    yaw_deg: float = Field(0.0, ge=-360, le=360, description="deg")
 
 
 class SensorSetup(ConfigModel):
@@ -111,8 +118,8 @@ class Scenario(ConfigModel):
         default_factory=list,
         description="Extra meshes (glTF/OBJ/PLY): names in maps/, paths, or 'cache:<path>' in the workspace's .venv/cache",
     )
-    duration_s: float = Field(10.0, gt=0, description="Length of `lidar-weather-sim run` (s)")
-    seed: int = 0
+    duration_s: float = Field(10.0, gt=0, le=MAX_TIME_S, description="Length of `lidar-weather-sim run` (s)")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of every random process (as --seed)")
     ego: Mover | None = Field(None, description="The sensor's vehicle; required with a map, absent without one")
     sensor: SensorSetup = Field(default_factory=SensorSetup)
     actors: list[Actor] = Field(default_factory=list)

@@ -33,6 +33,7 @@ class RunReport:
     points: int
     simulated_s: float
     dropped: int = 0  # frames the postprocess dropped (not in the bag)
+    stopped: str | None = None  # why the run ended before its frames (the ego reached the end of its road)
 
 
 def run_scenario(
@@ -62,9 +63,14 @@ def run_scenario(
     player = world.player
     done = points = dropped = 0
     t = 0.0
+    stopped = None
     with BagWriter(output, overwrite=overwrite) as bag:
         bag.write(TOPIC_TF_STATIC, tf_message(0, static_transforms(player)), 0)
         while done < total:
+            if player.ego.at_road_end(t):
+                stopped = (f"the ego reached the end of road {scenario.ego.road!r} at {t:.2f} s (it would leave the "
+                           f"map): stopped after {done} of {total} frames")  # fmt: skip
+                break
             ns = int(round(t * 1e9))
             bag.write(TOPIC_CLOCK, clock_message(ns), ns)
             bag.write(TOPIC_TF, tf_message(ns, moving_transforms(player, t)), ns)
@@ -82,4 +88,4 @@ def run_scenario(
                 if progress:
                     progress(done, total)
             t = round(t + POSE_STEP_S, 9)
-    return RunReport(Path(output), done, points, t, dropped)
+    return RunReport(Path(output), done, points, t, dropped, stopped)
