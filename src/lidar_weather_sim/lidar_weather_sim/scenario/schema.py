@@ -23,7 +23,6 @@ from lidar_weather_sim.core.config import ConfigError, ConfigModel, load_yaml
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.weather import Weather
 
-
 #: Physical bounds of scenario values: a value outside is refused naming its key.
 MAX_SPEED_M_S = 150.0  # 540 km/h
 MAX_TIME_S = 86_400.0  # a day of simulated time
