@@ -17,6 +17,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from lidar_weather_sim.io.bags import message_types
+from lidar_weather_sim.io.cloud_codec import CloudFormatError, build_message, decode_message
 from weather_filter.cloud_check import MAX_CHANNELS, CloudFieldError, usable_points
 from weather_filter.filters import METHODS, MissingFieldsError, make_filter
 from weather_filter.synthetic import highway_frame
@@ -138,13 +140,21 @@ _DTYPES = ("i1", "u1", "i2", "u2", "i4", "u4", "i8", "f4", "f8", ("f4", 3), ("i4
 @given(name=st.sampled_from(_FIELDS), dtype=st.sampled_from(_DTYPES), seed=st.integers(0, 2**32 - 1),
        share=st.floats(0.0, 1.0))  # fmt: skip
 def test_fuzz_corrupted_fields_filter_or_are_refused_naming_the_field(frame, filters, name, dtype, seed, share):
-    """A field retyped and a share of its values replaced by random bits of that type: every method
+    """A field retyped and a share of its values replaced by random bits of that type, sent through the
+    PointCloud2 encoder and decoder the node uses (where the type has a PointField datatype): every method
     either filters (a mask per point) or raises CloudFieldError / MissingFieldsError naming a field."""
     pts = with_field(frame, name, dtype)
     rng = np.random.default_rng(seed)
     hit = rng.random(len(pts)) < share
     raw = rng.integers(0, 256, (int(hit.sum()), pts.dtype.fields[name][0].itemsize), dtype=np.uint8)
     pts[name][hit] = raw.view(pts.dtype.fields[name][0].base).reshape(pts[name][hit].shape)
+    if pts.dtype.fields[name][0].base.itemsize < 8 or pts.dtype.fields[name][0].base.kind == "f":  # no INT64 datatype
+        try:
+            msg, _ = build_message(pts, stamp_ns=0, frame_id="lidar", types=message_types())
+            pts = decode_message(msg).points
+        except CloudFormatError as exc:
+            assert f"'{name}'" in str(exc) or "field" in str(exc), str(exc)
+            return
     for method, filt in filters.items():
         try:
             with np.errstate(all="ignore"):

@@ -209,6 +209,8 @@ def encode(points: np.ndarray, drop_nonfinite: bool = True) -> EncodedCloud:
     for axis in ("x", "y", "z"):
         if axis not in points.dtype.names:
             raise CloudFormatError(f"missing field '{axis}'")
+        if points.dtype.fields[axis][0].shape:
+            raise CloudFormatError(f"field '{axis}' holds {points.dtype.fields[axis][0].shape} values per point, not one")
     little = points.dtype.newbyteorder("<")
     if little != points.dtype:
         points = points.astype(little)

@@ -8,7 +8,8 @@ below. Same seed, same messages.
 PointCloud2 kinds: random field tables (unknown datatypes, zero counts,
 offsets past ``point_step``, duplicated or missing x/y/z, vector x), truncated
 or padded data, NaN/inf coordinates, absurd sizes (width, height, point_step,
-row_step near 2^32), big-endian flag. Odometry kinds: NaN or infinite pose,
+row_step near 2^32), big-endian flag; and clouds the decoder accepts but no filter can use: a
+channel turned signed and negative or beyond any ring count, a point 3e38 m away. Odometry kinds: NaN or infinite pose,
 zero quaternion, wrong frame ids, stamps far in the future or the past, a
 position kilometres away.
 """
@@ -21,7 +22,8 @@ import numpy as np
 
 from lidar_weather_sim.io.cloud_codec import DATATYPE_TO_DTYPE
 
-CLOUD_KINDS = ("field_table", "truncated", "padded", "nonfinite", "absurd_size", "big_endian", "vector_xyz")
+CLOUD_KINDS = ("field_table", "truncated", "padded", "nonfinite", "absurd_size", "big_endian", "vector_xyz",
+               "bad_channel", "far_point")  # fmt: skip
 ODOMETRY_KINDS = ("nan_pose", "inf_orientation", "zero_quaternion", "wrong_frame", "future_stamp", "past_stamp",
                   "teleport")  # fmt: skip
 U32_MAX = 2**32 - 1
@@ -71,6 +73,21 @@ def malformed_cloud(good: Any, rng: np.random.Generator, copy: Callable[[Any], A
     elif kind == "vector_xyz":
         x = next(f for f in msg.fields if f.name == "x")
         x.count = 3
+    elif kind in ("bad_channel", "far_point"):
+        name = "channel" if kind == "bad_channel" else "x"
+        field = next((f for f in msg.fields if f.name == name), None)
+        n = int(good.width) * int(good.height)
+        if field is not None and n:
+            if kind == "bad_channel" and DATATYPE_TO_DTYPE[int(field.datatype)].kind == "u":
+                field.datatype = int(field.datatype) - 1  # the signed type of the same size: high values turn negative
+            dtype = DATATYPE_TO_DTYPE[int(field.datatype)]
+            value = np.array(-1 if kind == "bad_channel" and dtype.kind == "i" else
+                             np.iinfo(dtype).max if dtype.kind in "iu" else 3e38, dtype=dtype)  # fmt: skip
+            points = np.frombuffer(data, dtype=np.uint8).copy()
+            for row in rng.choice(n, size=max(1, n // 100), replace=False):
+                start = int(row) * int(good.point_step) + int(field.offset)
+                points[start : start + dtype.itemsize] = np.frombuffer(value.tobytes(), dtype=np.uint8)
+            msg.data = points.tobytes()
     else:
         raise ValueError(f"unknown malformed cloud kind {kind!r}; kinds: {', '.join(CLOUD_KINDS)}")
     return kind, msg
