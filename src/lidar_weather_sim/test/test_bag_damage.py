@@ -138,6 +138,10 @@ def test_a_truncated_bag_is_read_up_to_its_last_whole_chunk(recorded, tmp_path):
     info = bag_info(copy)
     assert info.damaged and 0 < info.message_count < len(intact)
     assert _records(copy) == intact[: info.message_count]
+    mcap.write_bytes(mcap.read_bytes()[: chunks[0] + 100])  # not even one whole chunk
+    with pytest.raises(BagError, match=r"has no sensor_msgs/msg/PointCloud2 topic /lidar/points in its readable part "
+                                       r"\(the bag is damaged"):  # fmt: skip
+        list(read_clouds(copy))
 
 
 _KILLED_WRITER = """

@@ -259,7 +259,8 @@ def read_clouds(path: str | Path, topic: str = TOPIC_POINTS, nan_policy: NanPoli
     types = {t.name: t.msgtype for t in info.topics}
     if types.get(topic) != POINTCLOUD2:
         found = ", ".join(f"{name} ({msgtype})" for name, msgtype in types.items()) or "none"
-        raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}; topics: {found}")
+        damaged = " in its readable part (the bag is damaged: no index; `lidar-weather-sim recover` it)" if info.damaged else ""
+        raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}{damaged}; topics: {found}")
     return _clouds(path, topic, nan_policy)
 
 
