@@ -37,6 +37,18 @@ def filters():
     return {method: make_filter(method) for method in METHODS}
 
 
+@pytest.fixture(scope="module")
+def small_frame(frame) -> np.ndarray:
+    """Every third point of the frame (~2500): the fuzzed clouds, three times faster per case."""
+    return frame[::3].copy()
+
+
+@pytest.fixture(scope="module")
+def clean_masks(small_frame, filters):
+    """Each method's decisions on the clean small frame (every filter is deterministic after reset)."""
+    return {method: _decide(filt, small_frame).remove for method, filt in filters.items()}
+
+
 def _decide(filt, points):
     filt.reset()
     return filt(points)
@@ -110,7 +122,7 @@ _coordinate = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32)
 @settings(max_examples=CASES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(garbage=st.lists(st.tuples(_coordinate, _coordinate, _coordinate), min_size=1, max_size=40),
        at=st.integers(0, 10**6))  # fmt: skip
-def test_fuzz_garbage_points_never_change_a_good_points_decision(frame, filters, garbage, at):
+def test_fuzz_garbage_points_never_change_a_good_points_decision(small_frame, filters, clean_masks, garbage, at):
     """Any points with a non-finite, out-of-reach or all-zero position, inserted anywhere: each method
     decides every good point as on the clean frame."""
     xyz = np.array(garbage, dtype=np.float64)
@@ -119,17 +131,16 @@ def test_fuzz_garbage_points_never_change_a_good_points_decision(frame, filters,
     bad = ~np.isfinite(xyz32).all(axis=1) | (np.abs(xyz32) > 1e4).any(axis=1) | (xyz32 == 0).all(axis=1)
     if not bad.any():
         return
-    junk = np.repeat(frame[:1], int(bad.sum()))
+    junk = np.repeat(small_frame[:1], int(bad.sum()))
     junk["x"], junk["y"], junk["z"] = xyz32[bad].T
-    k = at % (len(frame) + 1)
-    mixed = np.concatenate([frame[:k], junk, frame[k:]])
+    k = at % (len(small_frame) + 1)
+    mixed = np.concatenate([small_frame[:k], junk, small_frame[k:]])
     is_junk = np.zeros(len(mixed), bool)
     is_junk[k : k + len(junk)] = True
     for method, filt in filters.items():
-        clean = _decide(filt, frame).remove
         result = _decide(filt, mixed)
         assert result.remove[is_junk].all() and result.set_aside == len(junk), method
-        np.testing.assert_array_equal(result.remove[~is_junk], clean, err_msg=method)
+        np.testing.assert_array_equal(result.remove[~is_junk], clean_masks[method], err_msg=method)
 
 
 _FIELDS = ("x", "y", "z", "intensity", "channel", "echo", "epw")
@@ -139,11 +150,11 @@ _DTYPES = ("i1", "u1", "i2", "u2", "i4", "u4", "i8", "f4", "f8", ("f4", 3), ("i4
 @settings(max_examples=CASES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(name=st.sampled_from(_FIELDS), dtype=st.sampled_from(_DTYPES), seed=st.integers(0, 2**32 - 1),
        share=st.floats(0.0, 1.0))  # fmt: skip
-def test_fuzz_corrupted_fields_filter_or_are_refused_naming_the_field(frame, filters, name, dtype, seed, share):
+def test_fuzz_corrupted_fields_filter_or_are_refused_naming_the_field(small_frame, filters, name, dtype, seed, share):
     """A field retyped and a share of its values replaced by random bits of that type, sent through the
     PointCloud2 encoder and decoder the node uses (where the type has a PointField datatype): every method
     either filters (a mask per point) or raises CloudFieldError / MissingFieldsError naming a field."""
-    pts = with_field(frame, name, dtype)
+    pts = with_field(small_frame, name, dtype)
     rng = np.random.default_rng(seed)
     hit = rng.random(len(pts)) < share
     raw = rng.integers(0, 256, (int(hit.sum()), pts.dtype.fields[name][0].itemsize), dtype=np.uint8)
