@@ -198,3 +198,13 @@ def test_eval_refuses_a_bag_with_an_unusable_field_in_one_line(tmp_path, frame):
     assert proc.stderr.strip().splitlines() == [
         f"weather-filter eval: error: {bag}: frame 1: field 'channel': value -5 outside 0..{MAX_CHANNELS - 1}"]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("dtype, match", [((np.uint8, 2), "field 'label' holds 2 values per point"),
+                                          (np.float32, "field 'label' is float32; a filter needs integers")])
+def test_eval_refuses_a_label_it_cannot_score_by(frame, dtype, match):
+    """The label is what eval scores by: an array or float label is named, not scored into nonsense."""
+    from weather_filter.evaluate import evaluate_frames
+
+    with pytest.raises(CloudFieldError, match=rf"frame 1: {match}"):
+        evaluate_frames(make_filter("dror"), [frame, with_field(frame, "label", dtype)])

@@ -29,8 +29,9 @@ MAX_COORDINATE_M = 1.0e4
 MAX_CHANNELS = 1024
 #: Largest echo (return) number a filter accepts.
 MAX_ECHO = 255
-#: Fields that hold small non-negative integers, with their largest value.
-INTEGER_FIELDS = {"channel": MAX_CHANNELS - 1, "echo": MAX_ECHO}
+#: Fields that hold small non-negative integers, with their largest value (``label``: the ground-truth
+#: code ``weather-filter eval`` scores by).
+INTEGER_FIELDS = {"channel": MAX_CHANNELS - 1, "echo": MAX_ECHO, "label": 255}
 
 
 class CloudFieldError(ValueError):

@@ -20,7 +20,7 @@ from typing import Iterable
 import numpy as np
 
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS, Label
-from weather_filter.cloud_check import CloudFieldError
+from weather_filter.cloud_check import CloudFieldError, field_problem
 from weather_filter.filters import FallbackFilter, PointFilter
 
 ROI_HALF_WIDTH_M = 1.75
@@ -62,6 +62,9 @@ class Accumulator:
         if "label" not in (points.dtype.names or ()):
             self.labelled = False
             return
+        problem = field_problem(points, "label")
+        if problem:
+            raise CloudFieldError(problem)
         label = points["label"]
         weather = np.isin(label, _WEATHER)
         solid = np.isin(label, _SOLID)
@@ -114,9 +117,9 @@ def evaluate_frames(filt: PointFilter, frames: Iterable[np.ndarray], method: str
     for k, points in enumerate(frames):
         try:
             result = filt(points)
+            acc.add(points, result.remove, result.elapsed_s)
         except CloudFieldError as exc:
             raise CloudFieldError(f"frame {k}: {exc}") from None
-        acc.add(points, result.remove, result.elapsed_s)
         fallback_frames += isinstance(filt, FallbackFilter) and filt.last_used != filt.primary.name
     out = acc.result()
     if fallback_frames:
