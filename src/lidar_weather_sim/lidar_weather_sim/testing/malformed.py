@@ -24,6 +24,8 @@ from lidar_weather_sim.io.cloud_codec import DATATYPE_TO_DTYPE
 
 CLOUD_KINDS = ("field_table", "truncated", "padded", "nonfinite", "absurd_size", "big_endian", "vector_xyz",
                "bad_channel", "far_point")  # fmt: skip
+#: Kinds the decoder accepts (valid PointCloud2) that the filters must refuse or set aside.
+DECODABLE_KINDS = ("bad_channel", "far_point")
 ODOMETRY_KINDS = ("nan_pose", "inf_orientation", "zero_quaternion", "wrong_frame", "future_stamp", "past_stamp",
                   "teleport")  # fmt: skip
 U32_MAX = 2**32 - 1
