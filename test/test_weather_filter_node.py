@@ -55,7 +55,7 @@ def test_node_splits_a_labelled_cloud_and_reports_diagnostics(processes, ros):
 
 
 def test_node_skips_malformed_clouds_and_falls_back_without_echo_fields(processes, ros):
-    node = processes.start(*NODE, "--ros-args", "-p", "method:=echo")
+    node = processes.start(*NODE)  # the defaults: the learned filter, DROR for clouds without its fields
     got, pub = _wire(ros)
     bad, _ = cloud_to_msg(highway_frame("rain"), stamp_ns=1, frame_id="lidar")
     bad.data = bytes(bad.data)[:-3]
@@ -84,7 +84,7 @@ def test_node_skips_malformed_clouds_and_falls_back_without_echo_fields(processe
     assert all(count == seen for count, seen in pairs), pairs
     out = processes.output(node)
     assert out.count("skipped malformed cloud: data length") == 1, out
-    assert "using geometry-only 'dror'" in out
+    assert "(needed by 'learned'): using geometry-only 'dror'" in out
 
 
 def test_learned_node_survives_clouds_the_decoder_accepts_but_no_filter_can_use(processes, ros):

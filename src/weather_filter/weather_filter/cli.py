@@ -19,7 +19,7 @@ import sys
 
 from lidar_weather_sim.core.argtypes import number_in
 from lidar_weather_sim.core.names import TOPIC_POINTS
-from weather_filter.filters import GEOMETRY_METHODS, METHODS
+from weather_filter.filters import DEFAULT_METHOD, GEOMETRY_METHODS, METHOD_HELP, METHODS
 
 
 def _parse_params(items: list[str]) -> dict:
@@ -175,7 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = commands.add_parser("eval", help="precision/recall of removing weather points on a labelled bag (JSON)")
     ev.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
-    ev.add_argument("--method", default="echo", choices=METHODS, help="filter (default echo)")
+    ev.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS, metavar="METHOD",
+                    help="filter (default %(default)s): " + "; ".join(f"{m}: {METHOD_HELP[m]}" for m in METHODS))  # fmt: skip
     ev.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     ev.add_argument("--out", help="also write the JSON to this file")
     ev.add_argument("--fallback", default="dror", choices=GEOMETRY_METHODS,

@@ -440,3 +440,14 @@ FILTERS.register("lior", partial(_with_params, LIORFilter, LIORParams))
 FILTERS.register("echo", partial(_with_params, EchoAwareFilter, EchoParams))
 FILTERS.register("learned", _learned)
 METHODS = tuple(FILTERS.names())
+#: What a user who names no method gets: the best weather F1 at object recall >= 0.995 on the held-out runs
+#: of every shipped profile (src/weather_filter/README.md, `benchmarks/weather_filter_eval.py`).
+DEFAULT_METHOD = "learned"
+#: One line per method for ``--help`` and the node's parameter description.
+METHOD_HELP = {
+    "learned": "per-point MLP on echo, EPW, intensity and neighbourhood features; the best on every shipped profile",
+    "echo": "weak, short, sparsely surrounded first echoes of multi-echo beams, plus a LIOR stage",
+    "lior": "weak (low intensity, short EPW) points that are also isolated (Park et al. 2020)",
+    "dror": "too few neighbours within a range-scaled radius (geometry only: clouds without intensity/EPW)",
+    "dsor": "mean neighbour distance above the frame's mean + k std (geometry only)",
+}

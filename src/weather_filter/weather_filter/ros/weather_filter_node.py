@@ -13,7 +13,7 @@ and counted (``points_set_aside``). A cloud lacking the fields of ``method`` (EP
 filtered with ``fallback_method`` (geometry only, with
 ``weather_filter.filters.FALLBACK_PARAMS``), with a warning once.
 
-Parameters: ``method`` (dror|dsor|lior|echo|learned), ``fallback_method``
+Parameters: ``method`` (dror|dsor|lior|echo|learned; default learned), ``fallback_method``
 (dror|dsor), ``model_path`` (learned filter; empty = packaged model).
 """
 
@@ -31,7 +31,15 @@ from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
 from weather_filter.cloud_check import CloudFieldError, usable_points
-from weather_filter.filters import GEOMETRY_METHODS, METHODS, fallback_message, make_fallback_filter, make_filter
+from weather_filter.filters import (
+    DEFAULT_METHOD,
+    GEOMETRY_METHODS,
+    METHOD_HELP,
+    METHODS,
+    fallback_message,
+    make_fallback_filter,
+    make_filter,
+)
 
 DIAGNOSTIC_NAME = "weather_filter_node: filter"
 
@@ -40,7 +48,8 @@ class WeatherFilterNode(Node):
     def __init__(self) -> None:
         super().__init__("weather_filter_node")
         ro = dict(read_only=True)
-        self.declare_parameter("method", "echo", ParameterDescriptor(description=f"filter: {'|'.join(METHODS)}", **ro))
+        described = "; ".join(f"{m}: {METHOD_HELP[m]}" for m in METHODS)
+        self.declare_parameter("method", DEFAULT_METHOD, ParameterDescriptor(description=f"filter: {described}", **ro))
         self.declare_parameter(
             "fallback_method", "dror",
             ParameterDescriptor(description=f"geometry-only filter for clouds without the method's fields: {'|'.join(GEOMETRY_METHODS)}", **ro),
