@@ -1,6 +1,7 @@
 """``foxglove_bridge_node``: the live view in Foxglove (app or web) without rviz2, over Foxglove's WebSocket protocol.
 
-Serves, on a ``foxglove-sdk`` WebSocket server (``ws://HOST:PORT``, subprotocol ``foxglove.websocket.v1``):
+Serves, on a ``foxglove-sdk`` WebSocket server (``ws://HOST:PORT``; foxglove-sdk 0.30.3 negotiates the
+subprotocol ``foxglove.sdk.v1``, the successor of ``foxglove.websocket.v1`` with the same framing):
 
 - each topic of ``cloud_topics`` (sensor_msgs/PointCloud2, SensorDataQoS) as a ``foxglove.PointCloud``
   channel of the same name (advertised from the start; a topic nobody publishes stays empty): every

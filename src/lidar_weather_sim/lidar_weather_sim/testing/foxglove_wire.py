@@ -1,7 +1,8 @@
 """Reading what a Foxglove WebSocket server sends, for tests: no Foxglove code, only the published formats.
 
-- :func:`message_data`: a binary server frame of the ``foxglove.websocket.v1`` protocol, opcode 0x01
-  "Message Data": subscription id (uint32 LE), log time (uint64 LE, ns), payload.
+- :func:`message_data`: a binary server frame of Foxglove's WebSocket protocol (``foxglove.websocket.v1``;
+  foxglove-sdk 0.30.3 negotiates ``foxglove.sdk.v1``, same framing), opcode 0x01 "Message Data":
+  subscription id (uint32 LE), log time (uint64 LE, ns), payload.
 - :func:`protobuf_fields`: a protobuf message's fields by number (the wire format: varint, 64-bit,
   length-delimited, 32-bit), enough to read Foxglove's schemas without their descriptors.
 - :func:`decode_point_cloud`: a ``foxglove.PointCloud`` (protobuf; field numbers of
