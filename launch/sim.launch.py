@@ -2,6 +2,7 @@
 
     ros2 launch lidar_weather_sim sim.launch.py scenario:=highway_clear
     ros2 launch lidar_weather_sim sim.launch.py pose_source:=tf use_sim_time:=true regions:="[cover, atmosphere]" filter:=true
+    ros2 launch lidar_weather_sim sim.launch.py foxglove:=true     # + foxglove_bridge_node: Foxglove at ws://127.0.0.1:8765
 
 Here (no `launch`): lidar-weather-sim up sim scenario:=highway_clear ...
 

@@ -69,7 +69,8 @@ def test_every_graph_has_a_launch_file_and_every_launch_file_a_graph(fake_launch
 @pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
 @pytest.mark.parametrize("variant", ["defaults", "options"])
 def test_launch_file_starts_what_up_starts(fake_launch, path, variant):
-    options = {"filter": "true", "regions": "[cover, atmosphere]", "scenario": "highway_spray", "rate_hz": "20"}
+    options = {"filter": "true", "regions": "[cover, atmosphere]", "scenario": "highway_spray", "rate_hz": "20",
+               "foxglove": "true", "foxglove_port": "9000"}  # fmt: skip
     graph_name = path.name.split(".")[0]
     graph = load_graph(graph_name)
     given = {**REQUIRED_ARGS.get(graph_name, {})}
@@ -124,6 +125,12 @@ def test_resolve_types_conditions_and_errors():
     assert node.parameters["max_frames"] == 7 and node.parameters["regions"] == ["cover"]
     assert node.parameters["use_sim_time"] is True and "profile" not in node.parameters  # empty: node default
     assert [p.name for p in resolve(sim, {"filter": "true"})] == ["lidar_sim_node", "weather_filter_node"]
+    *_, bridge = resolve(sim, {"foxglove": "true", "use_sim_time": "true"})
+    assert bridge.name == "foxglove_bridge_node" and bridge.module == "lidar_weather_sim.ros.foxglove_bridge_node"
+    assert bridge.parameters == {"host": "127.0.0.1", "port": 8765, "scenario": "highway_clear", "use_sim_time": True}
+    for graph in ("closed_loop", "pattern"):  # the graphs that offer the live view
+        assert resolve(load_graph(graph), {"foxglove": "true"})[-1].name == "foxglove_bridge_node"
+        assert "foxglove_bridge_node" not in [p.name for p in resolve(load_graph(graph))]
     loop = {p.name: p for p in resolve(load_graph("closed_loop"), {"filter": "false"})}
     assert list(loop) == ["lidar_sim_node", "ego_controller_node"] and loop["ego_controller_node"].parameters["cloud_topic"] == "/lidar/points"
     for bad, match in (({"nope": "1"}, "has no argument nope"), ({"pose_source": "gps"}, "not one of"),

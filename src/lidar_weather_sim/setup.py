@@ -43,6 +43,7 @@ setup(
             "bag_player_node = lidar_weather_sim.ros.bag_player_node:main",
             "recorder_node = lidar_weather_sim.ros.recorder_node:main",
             "ego_controller_node = lidar_weather_sim.ros.ego_controller_node:main",
+            "foxglove_bridge_node = lidar_weather_sim.ros.foxglove_bridge_node:main",
         ],
         "lidar_weather_sim.regions": [
             "cover = lidar_weather_sim.regions.cover:CoverRegion",

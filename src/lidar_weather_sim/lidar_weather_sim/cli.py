@@ -10,7 +10,14 @@ import argparse
 import os
 import sys
 
-from lidar_weather_sim.core.argtypes import count_int, non_negative_float, positive_float, positive_int, seed_int
+from lidar_weather_sim.core.argtypes import (
+    count_int,
+    non_negative_float,
+    port_int,
+    positive_float,
+    positive_int,
+    seed_int,
+)
 from lidar_weather_sim.core.names import TOPIC_POINTS
 
 
@@ -132,6 +139,8 @@ def _node_args(pairs: list[tuple[str, object]]) -> list[str]:
 
 
 def _cmd_play(args: argparse.Namespace) -> int:
+    if args.foxglove:
+        return _play_with_foxglove(args)
     from lidar_weather_sim.ros.bag_player_node import main as player_main
 
     topics = f"[{', '.join(args.topics)}]" if args.topics else "['']"
@@ -139,6 +148,27 @@ def _cmd_play(args: argparse.Namespace) -> int:
     player_main(_node_args([("bag", args.bag), ("rate", float(args.rate)), ("publish_clock", not args.no_clock),
                             ("topics", topics), ("wait_for_topics", wait), ("wait_timeout_s", float(args.wait_timeout))]))  # fmt: skip
     return 0
+
+
+def _play_with_foxglove(args: argparse.Namespace) -> int:
+    """bag_player_node and foxglove_bridge_node as two processes (as `up` starts a graph); the player's end ends both."""
+    import tempfile
+    from pathlib import Path
+
+    from lidar_weather_sim.ros.graph import NodePlan, run
+
+    player = {"bag": str(Path(args.bag).resolve()), "rate": float(args.rate), "publish_clock": not args.no_clock,
+              "wait_timeout_s": float(args.wait_timeout)}  # fmt: skip
+    if args.topics:
+        player["topics"] = list(args.topics)
+    if args.wait_for:
+        player["wait_for_topics"] = list(args.wait_for)
+    bridge = {"port": int(args.foxglove_port), "host": args.foxglove_host, "use_sim_time": not args.no_clock}
+    plans = [NodePlan("bag_player_node", "lidar_weather_sim", "bag_player_node", "lidar_weather_sim.ros.bag_player_node",
+                      (), player, (), True),
+             NodePlan("foxglove_bridge_node", "lidar_weather_sim", "foxglove_bridge_node",
+                      "lidar_weather_sim.ros.foxglove_bridge_node", (), bridge, (), False)]  # fmt: skip
+    return run(plans, Path(tempfile.mkdtemp(prefix="lws_play_")), emit=lambda line: print(line, flush=True))
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -330,6 +360,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help="start only once each of these topics has a subscriber, e.g. a recorder's (/clock stands "
                            "at the bag's start meanwhile)")  # fmt: skip
     play.add_argument("--wait-timeout", type=positive_float, default=30.0, help="start anyway after this many seconds")
+    play.add_argument("--foxglove", action="store_true",
+                      help="also run foxglove_bridge_node: watch the bag live in Foxglove at ws://127.0.0.1:8765")  # fmt: skip
+    play.add_argument("--foxglove-port", type=port_int, default=8765, help="its WebSocket port (0: any free port, logged)")
+    play.add_argument("--foxglove-host", default="127.0.0.1",
+                      help="address it binds (default 127.0.0.1: this machine only; 0.0.0.0: every network, no authentication)")  # fmt: skip
     play.set_defaults(func=_cmd_play)
 
     record = commands.add_parser("record", help="record topics to an MCAP bag until Ctrl-C")
