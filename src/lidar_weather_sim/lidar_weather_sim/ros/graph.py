@@ -288,9 +288,9 @@ def _after_steps(plans: list[NodePlan], nodes: list, steps: list[tuple[str, list
     def node_exit(plan: NodePlan, action):
         def handler(event, context):
             codes[id(action)] = event.returncode
-            running = [other for other in nodes if id(other) not in codes]
             if context.is_shutdown:
                 return None
+            running = [other for other in nodes if id(other) not in codes]
             if running:
                 if not plan.required or signalled:
                     return None
