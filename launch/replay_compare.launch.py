@@ -4,7 +4,8 @@
 
 Here (no `launch`): lidar-weather-sim up replay_compare bag:=/tmp/highway out:=/tmp/replayed
 
-When every node has exited, `lidar-weather-sim compare` writes its report to /tmp/replayed_compare.
+`bag` and `out` are required. When every node has exited cleanly, `lidar-weather-sim compare`
+writes its report to /tmp/replayed_compare; a failed node or compare makes ros2 launch exit with status 1.
 
 The nodes, parameter files, remappings and arguments come from the graph
 description, read by lidar_weather_sim.ros.graph: the same one `lidar-weather-sim up` runs.

@@ -94,26 +94,46 @@ def test_launch_file_starts_what_up_starts(fake_launch, path, variant):
     _check_after_steps(entities, nodes, plans, steps)
 
 
+def _exit(code: int):
+    """(event, context) of launch's OnProcessExit handler for a process that exited with ``code``."""
+    return types.SimpleNamespace(returncode=code), types.SimpleNamespace(is_shutdown=False)
+
+
 def _check_after_steps(entities, nodes, plans, steps):
-    """The launch handlers do what `up` does: the required node's exit SIGINTs the rest; when all exited, the steps."""
+    """The launch handlers do what `up` does: the first required node's exit SIGINTs the rest, once; when all
+    exited cleanly, the steps run in turn (then launch ends: nothing runs); a failed step raises (status 1)."""
     handlers = [e.args[0].kwargs for e in entities if e.kind == "RegisterEventHandler"]
     if not steps:
         assert handlers == []
         return
     on_exit = {id(h["target_action"]): h["on_exit"] for h in handlers}
-    required = next(n for n, p in zip(nodes, plans) if p.required)
-    others = [n for n in nodes if n is not required]
-    signals = on_exit[id(required)](None, None)  # a required node exits first
+    first = next(n for n, p in zip(nodes, plans) if p.required)
+    others = [n for n in nodes if n is not first]
+    signals = on_exit[id(first)](*_exit(0))  # a required node exits first
     assert [e.kwargs["event"].kwargs["process_matcher"] for e in signals] == [("matches", n) for n in others]
     assert all(e.kwargs["event"].kwargs["signal_number"] == signal.SIGINT for e in signals)
-    results = [on_exit[id(n)](None, None) for n in others]  # then the others, stopped by that signal
-    assert results[:-1] == [None] * (len(others) - 1)
-    (first,) = results[-1]  # the last one to exit starts the first step
-    chain = [first]
-    while chain[-1].kind == "ExecuteProcess":
-        (following,) = on_exit[id(chain[-1])]
-        chain.append(following)
-    assert [(e.kwargs["name"], e.kwargs["cmd"]) for e in chain[:-1]] == steps and chain[-1].kind == "Shutdown"
+    results = [on_exit[id(n)](*_exit(-signal.SIGINT)) for n in others]  # then the others, stopped by that signal
+    assert results[:-1] == [None] * (len(others) - 1)  # no second SIGINT from another required node
+    (start,) = results[-1]  # the last one to exit starts the first step
+    chain = [start]
+    while following := on_exit[id(chain[-1])](*_exit(0)):
+        chain += following
+    assert [(e.kind, e.kwargs["name"], e.kwargs["cmd"]) for e in chain] == [("ExecuteProcess", *step) for step in steps]
+    with pytest.raises(RuntimeError, match=f"{steps[-1][0]} failed \\(status 1\\)"):
+        on_exit[id(chain[-1])](*_exit(1))
+
+
+def test_failed_node_stops_the_graph_before_its_steps(fake_launch):
+    """replay_compare under launch: a node that fails (here the bag cannot be read) stops the graph, the steps
+    are not run and launch exits with status 1 (the handler raises), as `up` returns 1."""
+    path = ROOT / "launch" / "replay_compare.launch.py"
+    _, _, entities = _run_launch_file(path, REQUIRED_ARGS["replay_compare"])
+    on_exit = {id(h["target_action"]): h["on_exit"] for h in (e.args[0].kwargs for e in entities if e.kind == "RegisterEventHandler")}
+    recorder, lidar, player = [e for e in entities if e.kind == "Node"]
+    assert len(on_exit[id(player)](*_exit(1))) == 2  # SIGINT to recorder_node and lidar_sim_node
+    assert on_exit[id(lidar)](*_exit(-signal.SIGINT)) is None
+    with pytest.raises(RuntimeError, match=r"^bag_player_node \(status 1\) failed; not running compare$"):
+        on_exit[id(recorder)](*_exit(-signal.SIGINT))
 
 
 def test_resolve_types_conditions_and_errors():
@@ -140,6 +160,8 @@ def test_resolve_types_conditions_and_errors():
             resolve(sim, bad)
     with pytest.raises(ConfigError, match="unknown graph 'simm'"):
         load_graph("simm")
+    with pytest.raises(ConfigError, match=r"graph 'replay_compare' requires out:=\.\.\.$"):
+        resolve(load_graph("replay_compare"), {"bag": "/tmp/bag"})
 
 
 def _logged_stamp_ns(pattern: str, log: str) -> int | None:

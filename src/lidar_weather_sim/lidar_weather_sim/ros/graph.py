@@ -16,12 +16,15 @@ parameter whose argument is empty is left out (the node's default applies).
 Conditions: ``if: NAME`` starts the node only when the argument is true,
 ``unless: NAME`` only when it is false. ``required: true``: when that node
 exits, the whole graph shuts down (launch's ``on_exit=Shutdown()``).
+An argument without ``default`` is required (``ros2 launch`` and ``up`` refuse
+to start without it).
 ``after:`` steps (commands, e.g. ``lidar-weather-sim compare`` on what the
-graph recorded) run one after the other once every node has exited; their
-arguments may contain ``$(arg NAME)`` anywhere. Under ``ros2 launch`` the
-required node's exit then stops the other nodes with SIGINT instead of a
-shutdown, the first step starts when the last node has exited, and the last
-step's exit shuts launch down.
+graph recorded) run one after the other once every node has exited cleanly;
+their arguments may contain ``$(arg NAME)`` anywhere. Under ``ros2 launch`` the
+first required node's exit then stops the other nodes with one SIGINT instead
+of a shutdown, the first step starts when the last node has exited, and
+launch ends when the last step has (nothing is left running); a failed node or
+step makes ``ros2 launch`` exit with status 1, as ``up`` does.
 
 No ROS import at module level: ``launch`` is imported only by :func:`launch_description`.
 """
@@ -29,6 +32,7 @@ No ROS import at module level: ``launch`` is imported only by :func:`launch_desc
 from __future__ import annotations
 
 import re
+import signal
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,7 +50,7 @@ TRUE, FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off", "")
 
 
 class Argument(ConfigModel):
-    default: str = Field("", description="Default value (a string, as on the ros2 launch command line)")
+    default: str | None = Field(None, description="Default value (a string, as on the ros2 launch command line); none: required")
     description: str = Field("", description="Shown by ros2 launch --show-args and lidar-weather-sim up --help")
     choices: list[str] | None = Field(None, description="Allowed values (None: any)")
     type: Literal["auto", "str", "int", "float", "bool", "list"] = Field(
@@ -146,6 +150,9 @@ def argument_values(graph: Graph, given: dict[str, str]) -> dict[str, str]:
     unknown = sorted(set(given) - set(graph.arguments))
     if unknown:
         raise ConfigError(f"graph '{graph.name}' has no argument {', '.join(unknown)}; it takes {', '.join(graph.arguments)}")
+    missing = [name for name, arg in graph.arguments.items() if arg.default is None and name not in given]
+    if missing:
+        raise ConfigError(f"graph '{graph.name}' requires {', '.join(f'{name}:=...' for name in missing)}")
     values = {name: given.get(name, arg.default) for name, arg in graph.arguments.items()}
     for name, arg in graph.arguments.items():
         if arg.choices is not None and values[name] not in arg.choices:
@@ -258,34 +265,65 @@ def launch_description(name: str):
 
 
 def _after_steps(plans: list[NodePlan], nodes: list, steps: list[tuple[str, list[str]]]) -> list:
-    """launch event handlers: a required node's exit SIGINTs the others; when all have exited, the steps run in turn."""
-    import signal
+    """launch event handlers doing what :func:`run` does for a graph with ``after`` steps.
 
-    from launch.actions import EmitEvent, ExecuteProcess, RegisterEventHandler, Shutdown
+    The first required node to exit sends SIGINT once to the nodes still running
+    (a second SIGINT would stop a node at once, e.g. a recorder closing its bag).
+    When every node has exited cleanly (:func:`_exited_cleanly`), the steps run
+    in turn; launch ends once the last one has exited, as nothing runs any more
+    (a launch_testing test marked ``keep_alive`` can still check the outputs). A
+    failed node or step raises: launch shuts down, reports the message and
+    ``ros2 launch`` exits with status 1. Once launch is shutting down (e.g.
+    Ctrl-C), nothing more starts.
+    """
+    from launch.actions import EmitEvent, ExecuteProcess, RegisterEventHandler
     from launch.event_handlers import OnProcessExit
     from launch.events import matches_action
     from launch.events.process import SignalProcess
 
     processes = [ExecuteProcess(cmd=cmd, name=step, output="screen") for step, cmd in steps]
-    exited: set[int] = set()
+    codes: dict[int, int] = {}  # id(node action) -> exit status
+    signalled: set[int] = set()  # id(node action) of the nodes sent SIGINT
 
     def node_exit(plan: NodePlan, action):
         def handler(event, context):
-            exited.add(id(action))
-            if len(exited) == len(nodes):
-                return [processes[0]]
-            if plan.required:
+            codes[id(action)] = event.returncode
+            if context.is_shutdown:
+                return None
+            running = [other for other in nodes if id(other) not in codes]
+            if running:
+                if not plan.required or signalled:
+                    return None
+                signalled.update(map(id, running))
                 return [EmitEvent(event=SignalProcess(signal_number=signal.SIGINT, process_matcher=matches_action(other)))
-                        for other in nodes if id(other) not in exited]  # fmt: skip
-            return None
+                        for other in running]  # fmt: skip
+            failed = [f"{p.name} (status {codes[id(n)]})" for p, n in zip(plans, nodes)
+                      if not _exited_cleanly(codes[id(n)], id(n) in signalled)]  # fmt: skip
+            if failed:
+                raise RuntimeError(f"{', '.join(failed)} failed; not running {', '.join(name for name, _ in steps)}")
+            return [processes[0]]
 
         return RegisterEventHandler(OnProcessExit(target_action=action, on_exit=handler))
 
+    def step_exit(name: str, following):
+        def handler(event, context):
+            if context.is_shutdown:
+                return None
+            if event.returncode != 0:
+                raise RuntimeError(f"{name} failed (status {event.returncode})")
+            return [following] if following else None
+
+        return handler
+
     handlers = [node_exit(plan, action) for plan, action in zip(plans, nodes)]
-    for current, following in zip(processes, [*processes[1:], None]):
-        handlers.append(RegisterEventHandler(OnProcessExit(target_action=current, on_exit=[following or Shutdown()])))
+    for (name, _), current, following in zip(steps, processes, [*processes[1:], None]):
+        handlers.append(RegisterEventHandler(OnProcessExit(target_action=current, on_exit=step_exit(name, following))))
     return handlers
 
+
+def _exited_cleanly(code: int, signalled: bool) -> bool:
+    """Status 0, or (for a node the graph sent SIGINT) the status of that SIGINT."""
+    return code == 0 or (signalled and code in (-signal.SIGINT, 128 + signal.SIGINT))
 
 
 # --- running a graph as separate processes (lidar-weather-sim up) ---------------------------------
@@ -304,7 +342,6 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
     and every step with status 0, otherwise 1.
     """
     import os
-    import signal
     import subprocess
     import threading
     import time
@@ -354,7 +391,7 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
     clean = True
     for plan, proc in procs:
         code = proc.wait()
-        ok = code == 0 or (proc.pid in stopped and code in (-signal.SIGINT, 128 + signal.SIGINT))
+        ok = _exited_cleanly(code, proc.pid in stopped)
         clean &= ok
         emit(f"[up] {plan.name} exited with status {code}{'' if ok else ' (failure)'}")
     for name, cmd in steps if clean and not received else ():
