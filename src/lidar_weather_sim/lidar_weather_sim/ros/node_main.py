@@ -13,7 +13,8 @@ or a second SIGINT, raises ``KeyboardInterrupt`` at once, wherever the node
 is (a long numba compilation of a cold cache in its first cast can take 10 s
 or more on a loaded machine): the escalation of ``ros2 launch`` and
 ``lidar-weather-sim up`` (SIGINT, then SIGTERM after a grace period) ends
-even a busy node. ``finish`` always runs (the recorder closes its bag there).
+even a busy node. ``finish`` always runs (the recorder closes its bag there). Every node starts with the Fast DDS
+profile for dense clouds (:mod:`lidar_weather_sim.ros.dds_profile`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.signals import SignalHandlerOptions
+
+from lidar_weather_sim.ros.dds_profile import use_large_message_profile
 
 N = TypeVar("N")
 POLL_S = 0.1  # longest wait in a spin loop (s): the reaction time to a signal
@@ -53,6 +56,7 @@ def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] = spin
     raised by ``build`` print ``name: reason`` on stderr and exit with status 2.
     """
     node = None
+    use_large_message_profile()
     try:
         with rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO):
             for sig in (signal.SIGINT, signal.SIGTERM):
