@@ -1,12 +1,15 @@
 """Exact ray-sphere intersection for many small spheres against a batch of sub-rays.
 
 Broad phase: each sphere is projected into the angular grid of the rays (azimuth,
-elevation seen from the batch's mean origin); the rays are binned by azimuth (a
-counting sort into ``AZIMUTH_BINS`` bins) and each sphere takes the rays of the bins
-its angular radius (widened by the spread of the ray origins) touches, then those
-within its elevation span. Narrow phase: the perpendicular distance of the sphere
-centre from each candidate ray, in float64 (a float32 ray-sphere test loses
-centimetre spheres at 50 m). All frames are the caller's (world); m.
+elevation seen from the batch's mean origin); the rays are binned by a pseudo-angle of their
+azimuth (:func:`_pseudo_angle`: one division instead of an arctangent, monotone in the azimuth;
+a counting sort into ``AZIMUTH_BINS`` bins) and each sphere takes the rays of the bins its
+angular radius (widened by the spread of the ray origins) touches, then those within its
+elevation span (compared as sines: the rays' z). Narrow phase: the perpendicular distance of
+the sphere centre from each candidate ray, in float64 (a float32 ray-sphere test loses
+centimetre spheres at 50 m). The hits come out ordered by window row, then by the ray's bin of
+``AZIMUTH_BINS`` equal azimuth steps, then by ray (:func:`_in_azimuth_order`), so the order does
+not depend on the binning. All frames are the caller's (world); m.
 """
 
 from __future__ import annotations
@@ -55,13 +58,14 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     span_arcsin = np.arcsin(span_sine)
     az_p = np.arctan2(q[:, 1], q[:, 0])
     el_p = np.arcsin(el_sine)
-    order, bin_start, el_sorted = _bin_rays(directions, AZIMUTH_BINS)
-    ray, sphere, entry, cos_incidence, half_chord = _cast(
-        idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, el_sorted, centres, z_scale, origins, directions,
+    order, bin_start, z_sorted = _bin_rays(directions, AZIMUTH_BINS)
+    row, ray, sphere, entry, cos_incidence, half_chord = _cast(
+        idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, z_sorted, centres, z_scale, origins, directions,
         max_range)  # fmt: skip
     if not len(ray):
         return _empty()
-    return SphereHits(ray, sphere, entry, cos_incidence, half_chord)
+    keep = _in_azimuth_order(row, ray, directions, AZIMUTH_BINS)
+    return SphereHits(ray[keep], sphere[keep], entry[keep], cos_incidence[keep], half_chord[keep])
 
 
 AZIMUTH_BINS = 4096  # 1.5 mrad each
@@ -82,29 +86,66 @@ def _origin_spread(origins):
     return ref, math.sqrt(far)
 
 
+@numba.njit(cache=True, inline="always")
+def _pseudo_angle(x, y):
+    """A monotone stand-in for atan2(y, x) + pi in [0, 4) (the "diamond angle" of (-x, -y)): 0 at
+    azimuth -pi, 2 at 0, rising with the azimuth to 4 at +pi; one division, no arctangent."""
+    u, v = -x, -y
+    if v >= 0.0:
+        return v / (u + v) if u >= 0.0 else 1.0 - u / (v - u)
+    return 2.0 - v / (-u - v) if u < 0.0 else 3.0 + u / (u - v)
+
+
+@numba.njit(cache=True, inline="always")
+def _pseudo_bin(x, y, n_bins):
+    """Bin (0..n_bins-1) of the direction (x, y)'s pseudo-angle."""
+    if x == 0.0 and y == 0.0:
+        return 0
+    return min(max(int(math.floor(_pseudo_angle(x, y) * (n_bins / 4.0))), 0), n_bins - 1)
+
+
 @numba.njit(cache=True)
 def _bin_rays(directions, n_bins):
-    """Counting sort of the rays by azimuth bin: ray order (R,), the first position of each bin in it
-    (n_bins + 1,) and the rays' elevations (rad) in that order."""
+    """Counting sort of the rays by pseudo-angle bin: ray order (R,), the first position of each bin in
+    it (n_bins + 1,) and the rays' z (the sine of their elevation) in that order."""
     n = directions.shape[0]
     ray_bin = np.empty(n, np.int64)
     start = np.zeros(n_bins + 1, np.int64)
     for i in range(n):
-        a = math.atan2(directions[i, 1], directions[i, 0])
-        b = min(max(int(math.floor((a + math.pi) * (n_bins / (2.0 * math.pi)))), 0), n_bins - 1)
+        b = _pseudo_bin(directions[i, 0], directions[i, 1], n_bins)
         ray_bin[i] = b
         start[b + 1] += 1
     for b in range(n_bins):
         start[b + 1] += start[b]
     fill = start[:-1].copy()
     order = np.empty(n, np.int64)
-    el_sorted = np.empty(n)
+    z_sorted = np.empty(n)
     for i in range(n):
         k = fill[ray_bin[i]]
         order[k] = i
-        el_sorted[k] = math.asin(min(1.0, max(-1.0, directions[i, 2])))
+        z_sorted[k] = directions[i, 2]
         fill[ray_bin[i]] += 1
-    return order, start, el_sorted
+    return order, start, z_sorted
+
+
+@numba.njit(cache=True)
+def _azimuth_key(row, ray, directions, n_bins):
+    """Per hit: its window row, then its ray's bin of ``n_bins`` equal azimuth steps over [-pi, pi),
+    then the ray, as one integer (arctangents only for the hits, not for every ray)."""
+    n_rays = directions.shape[0]
+    key = np.empty(row.shape[0], np.int64)
+    for h in range(row.shape[0]):
+        i = ray[h]
+        a = math.atan2(directions[i, 1], directions[i, 0])
+        b = min(max(int(math.floor((a + math.pi) * (n_bins / (2.0 * math.pi)))), 0), n_bins - 1)
+        key[h] = (row[h] * n_bins + b) * n_rays + i
+    return key
+
+
+def _in_azimuth_order(row: np.ndarray, ray: np.ndarray, directions: np.ndarray, n_bins: int) -> np.ndarray:
+    """Indices that put the hits in (row, azimuth bin, ray) order, the order of a scan over rays sorted
+    into equal azimuth bins (stable: a key occurs once per (sphere window, ray))."""
+    return np.argsort(_azimuth_key(row, ray, directions, n_bins), kind="stable")
 
 
 @numba.njit(cache=True)
@@ -134,17 +175,19 @@ def _near_spheres(q, dist, radius, spread, max_range):
 
 @numba.njit(cache=True, inline="always")
 def _azimuth_bin(azimuth, n_bins):
-    """Bin (0..n_bins-1) of an azimuth in [-pi, pi] (rad)."""
-    return min(max(int(math.floor((azimuth + np.pi) * (n_bins / (2.0 * np.pi)))), 0), n_bins - 1)
+    """Pseudo-angle bin (0..n_bins-1, as :func:`_bin_rays`) of an azimuth in [-pi, pi] (rad)."""
+    if azimuth >= np.pi:
+        return n_bins - 1
+    return _pseudo_bin(math.cos(azimuth), math.sin(azimuth), n_bins)
 
 
 @numba.njit(cache=True)
-def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, el_sorted, centres, z_scale, origins,
+def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, z_sorted, centres, z_scale, origins,
           directions, max_range):  # fmt: skip
     """Azimuth windows of the near spheres (their angular radius ``span`` widened by 1e-4 and 1e-9 rad,
     over cos(elevation); windows crossing +-pi split into two rows, listed after all first rows; a
     sphere around the origins gets the full circle once), then the narrow phase over each window's
-    rays (see :func:`_narrow_phase`). Returns (ray, sphere, entry range, cos incidence, half chord)."""
+    rays (see :func:`_narrow_phase`). Returns (window row, ray, sphere, entry range, cos incidence, half chord)."""
     m = idx.shape[0]
     span = np.empty(m)
     lo_a, hi_a = np.empty(m), np.empty(m)
@@ -180,21 +223,21 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, el_sorted, 
         last[r] = first[r] if full[rp[r]] and r >= m else bin_start[_azimuth_bin(hi, n_bins) + 1]
         room += last[r] - first[r]  # a ray is a candidate of a row at most once: room for every hit
     out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
-    n = _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, rad, z_scale, origins, directions,
+    n = _narrow_phase(first, last, rp, order, z_sorted, el_p, span, idx, centres, rad, z_scale, origins, directions,
                       max_range, out)  # fmt: skip
     row, ray, entry, half_chord = out[0][:n], out[1][:n], out[2][:n], out[3][:n]
     sphere, cos_incidence = np.empty(n, np.int64), np.empty(n)
     for h in range(n):
         sphere[h] = idx[rp[row[h]]]
         cos_incidence[h] = half_chord[h] / rad[rp[row[h]]]
-    return ray, sphere, entry, cos_incidence, half_chord
+    return row, ray, sphere, entry, cos_incidence, half_chord
 
 
 @numba.njit(cache=True, inline="always")
-def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, radius, z_scale, origins, directions,
+def _narrow_phase(first, last, rp, order, z_sorted, el_p, span, idx, centres, radius, z_scale, origins, directions,
                   max_range, out):  # fmt: skip
     """For each window row (sphere ``idx[rp[j]]``'s azimuth window over the sorted rays
-    ``order[first:last]``, whose elevations are ``el_sorted[first:last]``): the rays within its
+    ``order[first:last]``, whose z are ``z_sorted[first:last]``): the rays within its
     elevation span that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
     ellipsoids become spheres; rays are solved along their own unit length) with the entry in
     (0, max_range); a ray that starts inside enters at 0 with the chord from its origin to the exit.
@@ -204,9 +247,9 @@ def _narrow_phase(first, last, rp, order, el_sorted, el_p, span, idx, centres, r
         p = rp[j]
         c = idx[p]
         cx, cy, cz, r, s = centres[c, 0], centres[c, 1], centres[c, 2], radius[p], z_scale[c]
-        lo, hi = el_p[p] - span[p], el_p[p] + span[p]
+        lo, hi = math.sin(max(el_p[p] - span[p], -0.5 * np.pi)), math.sin(min(el_p[p] + span[p], 0.5 * np.pi))
         for k in range(first[j], last[j]):
-            if el_sorted[k] < lo or el_sorted[k] > hi:
+            if z_sorted[k] < lo or z_sorted[k] > hi:
                 continue
             i = order[k]
             vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], (cz - origins[i, 2]) * s
