@@ -3,9 +3,9 @@
 Broad phase: each sphere is projected into the angular grid of the rays (azimuth,
 elevation seen from the batch's mean origin); the rays are binned by a pseudo-angle of their
 azimuth (:func:`_pseudo_angle`: one division instead of an arctangent, monotone in the azimuth;
-a counting sort into ``AZIMUTH_BINS`` bins) and each sphere takes the rays of the bins its
-angular radius (widened by the spread of the ray origins) touches, then those within its
-elevation span (compared as sines: the rays' z). Narrow phase: the perpendicular distance of
+a counting sort into ``AZIMUTH_BINS`` x ``Z_BINS`` cells, the second by the ray's z, the sine of
+its elevation) and each sphere takes the rays of the cells its angular radius (widened by the
+spread of the ray origins) touches, then those within its elevation span (compared as sines). Narrow phase: the perpendicular distance of
 the sphere centre from each candidate ray, in float64 (a float32 ray-sphere test loses
 centimetre spheres at 50 m). The hits come out ordered by window row, then by the ray's bin of
 ``AZIMUTH_BINS`` equal azimuth steps, then by ray (:func:`_in_azimuth_order`), so the order does
@@ -58,9 +58,9 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     span_arcsin = np.arcsin(span_sine)
     az_p = np.arctan2(q[:, 1], q[:, 0])
     el_p = np.arcsin(el_sine)
-    order, bin_start, z_sorted = _bin_rays(directions, AZIMUTH_BINS)
+    order, cell_start, z_sorted = _bin_rays(directions, AZIMUTH_BINS, Z_BINS)
     row, ray, sphere, entry, cos_incidence, half_chord = _cast(
-        idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, z_sorted, centres, z_scale, origins, directions,
+        idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, centres, z_scale, origins, directions,
         max_range)  # fmt: skip
     if not len(ray):
         return _empty()
@@ -68,7 +68,8 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     return SphereHits(ray[keep], sphere[keep], entry[keep], cos_incidence[keep], half_chord[keep])
 
 
-AZIMUTH_BINS = 4096  # 1.5 mrad each
+AZIMUTH_BINS = 4096  # 1.5 mrad each (as equal steps; the pseudo-angle's bins are 1-2 mrad)
+Z_BINS = 64  # of the sine of the elevation over [-1, 1]: 1.8 deg at the horizon
 
 
 @numba.njit(cache=True)
@@ -104,27 +105,34 @@ def _pseudo_bin(x, y, n_bins):
     return min(max(int(math.floor(_pseudo_angle(x, y) * (n_bins / 4.0))), 0), n_bins - 1)
 
 
+@numba.njit(cache=True, inline="always")
+def _z_bin(z, n_z):
+    """Bin (0..n_z-1) of a sine of elevation z in [-1, 1]."""
+    return min(max(int(math.floor((z + 1.0) * (0.5 * n_z))), 0), n_z - 1)
+
+
 @numba.njit(cache=True)
-def _bin_rays(directions, n_bins):
-    """Counting sort of the rays by pseudo-angle bin: ray order (R,), the first position of each bin in
-    it (n_bins + 1,) and the rays' z (the sine of their elevation) in that order."""
+def _bin_rays(directions, n_az, n_z):
+    """Counting sort of the rays by cell (pseudo-angle bin x z bin, row-major): ray order (R,), the
+    first position of each cell in it (n_az * n_z + 1,) and the rays' z (the sine of their
+    elevation) in that order."""
     n = directions.shape[0]
-    ray_bin = np.empty(n, np.int64)
-    start = np.zeros(n_bins + 1, np.int64)
+    ray_cell = np.empty(n, np.int64)
+    start = np.zeros(n_az * n_z + 1, np.int64)
     for i in range(n):
-        b = _pseudo_bin(directions[i, 0], directions[i, 1], n_bins)
-        ray_bin[i] = b
-        start[b + 1] += 1
-    for b in range(n_bins):
-        start[b + 1] += start[b]
+        c = _pseudo_bin(directions[i, 0], directions[i, 1], n_az) * n_z + _z_bin(directions[i, 2], n_z)
+        ray_cell[i] = c
+        start[c + 1] += 1
+    for c in range(n_az * n_z):
+        start[c + 1] += start[c]
     fill = start[:-1].copy()
     order = np.empty(n, np.int64)
     z_sorted = np.empty(n)
     for i in range(n):
-        k = fill[ray_bin[i]]
+        k = fill[ray_cell[i]]
         order[k] = i
         z_sorted[k] = directions[i, 2]
-        fill[ray_bin[i]] += 1
+        fill[ray_cell[i]] += 1
     return order, start, z_sorted
 
 
@@ -182,7 +190,7 @@ def _azimuth_bin(azimuth, n_bins):
 
 
 @numba.njit(cache=True)
-def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, z_sorted, centres, z_scale, origins,
+def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, centres, z_scale, origins,
           directions, max_range):  # fmt: skip
     """Azimuth windows of the near spheres (their angular radius ``span`` widened by 1e-4 and 1e-9 rad,
     over cos(elevation); windows crossing +-pi split into two rows, listed after all first rows; a
@@ -214,17 +222,27 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, z_sorted, c
         if hi_a[j] > np.pi:
             rp[r], rlo[r], rhi[r] = j, -np.pi, hi_a[j] - 2 * np.pi
             r += 1
-    n_bins = bin_start.shape[0] - 1
-    first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
+    n_az = AZIMUTH_BINS
+    n_z = (cell_start.shape[0] - 1) // n_az
+    b_first, b_last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
+    z_lo, z_hi = np.empty(m), np.empty(m)
+    zb_first, zb_last = np.empty(m, np.int64), np.empty(m, np.int64)
+    for j in range(m):
+        z_lo[j] = math.sin(max(el_p[j] - span[j], -0.5 * np.pi))
+        z_hi[j] = math.sin(min(el_p[j] + span[j], 0.5 * np.pi))
+        zb_first[j], zb_last[j] = _z_bin(z_lo[j], n_z), _z_bin(z_hi[j], n_z)
     room = 0
     for r in range(n_rows):
-        lo, hi = (-np.pi, np.pi) if full[rp[r]] else (rlo[r], rhi[r])
-        first[r] = bin_start[_azimuth_bin(lo, n_bins)]
-        last[r] = first[r] if full[rp[r]] and r >= m else bin_start[_azimuth_bin(hi, n_bins) + 1]
-        room += last[r] - first[r]  # a ray is a candidate of a row at most once: room for every hit
+        p = rp[r]
+        if full[p]:
+            b_first[r], b_last[r] = (0, n_az - 1) if r < m else (0, -1)
+        else:
+            b_first[r], b_last[r] = _azimuth_bin(rlo[r], n_az), _azimuth_bin(rhi[r], n_az)
+        for b in range(b_first[r], b_last[r] + 1):  # a ray is a candidate of a row at most once: room for every hit
+            room += cell_start[b * n_z + zb_last[p] + 1] - cell_start[b * n_z + zb_first[p]]
     out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
-    n = _narrow_phase(first, last, rp, order, z_sorted, el_p, span, idx, centres, rad, z_scale, origins, directions,
-                      max_range, out)  # fmt: skip
+    n = _narrow_phase(b_first, b_last, zb_first, zb_last, n_z, cell_start, rp, order, z_sorted, z_lo, z_hi, idx,
+                      centres, rad, z_scale, origins, directions, max_range, out)  # fmt: skip
     row, ray, entry, half_chord = out[0][:n], out[1][:n], out[2][:n], out[3][:n]
     sphere, cos_incidence = np.empty(n, np.int64), np.empty(n)
     for h in range(n):
@@ -234,42 +252,43 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, bin_start, z_sorted, c
 
 
 @numba.njit(cache=True, inline="always")
-def _narrow_phase(first, last, rp, order, z_sorted, el_p, span, idx, centres, radius, z_scale, origins, directions,
-                  max_range, out):  # fmt: skip
-    """For each window row (sphere ``idx[rp[j]]``'s azimuth window over the sorted rays
-    ``order[first:last]``, whose z are ``z_sorted[first:last]``): the rays within its
-    elevation span that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
+def _narrow_phase(b_first, b_last, zb_first, zb_last, n_z, cell_start, rp, order, z_sorted, z_lo, z_hi, idx, centres,
+                  radius, z_scale, origins, directions, max_range, out):  # fmt: skip
+    """For each window row (sphere ``idx[rp[j]]``'s azimuth bins ``b_first[j]..b_last[j]`` and its z bins,
+    over the rays sorted into cells, ``order``, whose z are ``z_sorted``): the rays within its z span
+    ``z_lo..z_hi`` that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
     ellipsoids become spheres; rays are solved along their own unit length) with the entry in
     (0, max_range); a ray that starts inside enters at 0 with the chord from its origin to the exit.
     Fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
     n = 0
-    for j in range(len(first)):
+    for j in range(len(b_first)):
         p = rp[j]
         c = idx[p]
         cx, cy, cz, r, s = centres[c, 0], centres[c, 1], centres[c, 2], radius[p], z_scale[c]
-        lo, hi = math.sin(max(el_p[p] - span[p], -0.5 * np.pi)), math.sin(min(el_p[p] + span[p], 0.5 * np.pi))
-        for k in range(first[j], last[j]):
-            if z_sorted[k] < lo or z_sorted[k] > hi:
-                continue
-            i = order[k]
-            vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], (cz - origins[i, 2]) * s
-            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2] * s
-            a = dx * dx + dy * dy + dz * dz
-            t = (vx * dx + vy * dy + vz * dz) / a
-            wx, wy, wz = vx - t * dx, vy - t * dy, vz - t * dz
-            perp2 = wx * wx + wy * wy + wz * wz
-            if perp2 >= r * r:
-                continue
-            half_chord = math.sqrt((r * r - perp2) / a)
-            entry = t - half_chord
-            if entry <= 0.0:  # starts inside (the chord from the origin to the exit) or behind the origin
-                if t + half_chord <= 0.0:
+        lo, hi = z_lo[p], z_hi[p]
+        for b in range(b_first[j], b_last[j] + 1):
+            for k in range(cell_start[b * n_z + zb_first[p]], cell_start[b * n_z + zb_last[p] + 1]):
+                if z_sorted[k] < lo or z_sorted[k] > hi:
                     continue
-                entry, half_chord = 0.0, 0.5 * (t + half_chord)
-            if entry >= max_range[i]:
-                continue
-            out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
-            n += 1
+                i = order[k]
+                vx, vy, vz = cx - origins[i, 0], cy - origins[i, 1], (cz - origins[i, 2]) * s
+                dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2] * s
+                a = dx * dx + dy * dy + dz * dz
+                t = (vx * dx + vy * dy + vz * dz) / a
+                wx, wy, wz = vx - t * dx, vy - t * dy, vz - t * dz
+                perp2 = wx * wx + wy * wy + wz * wz
+                if perp2 >= r * r:
+                    continue
+                half_chord = math.sqrt((r * r - perp2) / a)
+                entry = t - half_chord
+                if entry <= 0.0:  # starts inside (the chord from the origin to the exit) or behind the origin
+                    if t + half_chord <= 0.0:
+                        continue
+                    entry, half_chord = 0.0, 0.5 * (t + half_chord)
+                if entry >= max_range[i]:
+                    continue
+                out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
+                n += 1
     return n
 
 
