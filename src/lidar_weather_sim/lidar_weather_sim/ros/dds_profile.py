@@ -45,6 +45,5 @@ def use_large_message_profile(environ: MutableMapping[str, str] = os.environ) ->
     path = large_message_profile()
     if not path.is_file():
         return None
-    for name in PROFILE_VARIABLES:
-        environ[name] = str(path)
+    environ[PROFILE_VARIABLES[0]] = str(path)  # the older name makes rmw print a deprecation warning
     return path
