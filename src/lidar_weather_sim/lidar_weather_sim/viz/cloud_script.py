@@ -3,7 +3,7 @@
 ``__DATA__`` is replaced by the run's JSON (:func:`lidar_weather_sim.viz.html.write_html`); plotly's
 ``to_html`` replaces ``{plot_id}`` by the plot's div id and runs the script once the empty plot exists.
 It decodes the frames (int16 cm coordinates, uint8 fields, uint16 mm EPW), builds the controls (colour
-field, frame slider, a caption) and redraws with ``Plotly.react`` (the camera is kept: ``uirevision``).
+field, frame slider, a caption; ``#color=F&frame=K`` in the URL picks them) and redraws with ``Plotly.react`` (the camera is kept: ``uirevision``).
 """
 
 SCRIPT = r"""
@@ -90,9 +90,10 @@ SCRIPT = r"""
   D.specs.forEach(function (s) {
     const o = document.createElement('option'); o.value = s.field; o.textContent = s.field; select.appendChild(o);
   });
-  select.value = D.color;
+  const hash = new URLSearchParams(location.hash.slice(1));  // page.html#color=intensity&frame=3
+  select.value = specs[hash.get('color')] ? hash.get('color') : D.color;
   const slider = document.createElement('input');
-  slider.type = 'range'; slider.min = 0; slider.max = Math.max(0, frames.length - 1); slider.value = 0;
+  slider.type = 'range'; slider.min = 0; slider.max = Math.max(0, frames.length - 1); slider.value = Math.min(+hash.get('frame') || 0, frames.length - 1);
   slider.style.width = '40%'; slider.id = 'lws-frame';
   const caption = document.createElement('span');
   bar.append('colour by ', select, '  frame ', slider, ' ', caption);

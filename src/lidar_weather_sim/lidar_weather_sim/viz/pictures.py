@@ -96,7 +96,8 @@ def _bev_actor(draw: ImageDraw.ImageDraw, view: BevView, actor) -> None:
         front = actor.to_sensor(np.array([[3.0, 0.0, 0.0]]))[0]
     fc, fr = view.to_px(front[0], front[1])
     draw.line((float(col), float(row), float(fc), float(fr)), fill=BOX, width=2)
-    draw.text((float(col) + 8, float(row) - 6), str(actor.actor_id), fill=BOX, font=font(12))
+    text_at = (float(cc.max()) + 4, float(rr.min())) if actor.size_m is not None else (float(col) + 8, float(row) - 6)
+    draw.text(text_at, str(actor.actor_id), fill=BOX, font=font(12))  # beside the box, not inside
 
 
 def range_picture(frame: RenderFrame, style: Style, view: RangeView, width_px: int) -> Image.Image:

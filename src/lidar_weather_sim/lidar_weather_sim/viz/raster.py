@@ -69,16 +69,16 @@ def zbuffer(cells: np.ndarray, depth: np.ndarray, keep: str) -> tuple[np.ndarray
 
 
 def grow(image: np.ndarray, px: int) -> np.ndarray:
-    """``image`` with each non-background pixel copied into empty pixels up to ``px - 1`` to the
-    right and below (in place; returns it)."""
-    drawn = image != BACKGROUND
-    for shift in range(1, px):
-        for dr, dc in ((0, shift), (shift, 0), (shift, shift)):
-            src = image[: image.shape[0] - dr, : image.shape[1] - dc]
-            dst = image[dr:, dc:]
-            fill = ~drawn[dr:, dc:] & (src != BACKGROUND)
-            dst[fill] = src[fill]
-        drawn = image != BACKGROUND
+    """``image`` with each drawn (non-background) pixel widened to a ``px`` x ``px`` square towards the
+    right and below, over background pixels only (in place; returns it)."""
+    original = image.copy()
+    rows, cols = image.shape
+    for dr in range(px):
+        for dc in range(px):
+            if dr or dc:
+                src, dst = original[: rows - dr, : cols - dc], image[dr:, dc:]
+                fill = (dst == BACKGROUND) & (src != BACKGROUND)
+                dst[fill] = src[fill]
     return image
 
 
