@@ -368,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--html", action="store_true", help="also cloud.html: the frames in 3D (orbit, zoom, frame slider, "
                                                             "colour by field), self-contained")  # fmt: skip
     render.add_argument("--max-points", type=number_in(int, 100, 500_000), default=20_000,
-                        help="--html: points per frame at most (a seeded random subset; about 14 bytes each, default 20000)")
+                        help="--html: points per frame at most (a seeded random subset; about 15 bytes each, default 20000)")
     render.add_argument("--out", required=True, metavar="DIR", help="output directory (created; files are replaced)")
     render.set_defaults(func=_cmd_render)
 

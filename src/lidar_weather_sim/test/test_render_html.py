@@ -62,7 +62,7 @@ def test_page_is_self_contained_and_holds_the_subsampled_clouds(tmp_path):
         epw = np.frombuffer(base64.b64decode(frame["fields"]["epw"]), "<u2") / 1000.0
         assert np.abs(epw - kept["epw"]).max() <= 0.0005 + 1e-6
     bytes_per_point = (len(html) - _empty_page_size(tmp_path)) / (2 * 200)
-    assert bytes_per_point < 16  # as the docs say: about 14 B per point
+    assert bytes_per_point < 16  # the docs say about 15 B per point
 
 
 def _empty_page_size(tmp_path) -> int:

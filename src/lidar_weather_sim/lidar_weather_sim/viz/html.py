@@ -11,7 +11,7 @@ diamond at the sensor origin with a 2 m line along +x; actors are wire boxes whe
 Size: each frame keeps at most ``max_points`` points (a random subset, seeded by the frame number, so
 the same page comes out each time); coordinates are stored as int16 centimetres (points farther than
 327 m on an axis are left out), label, echo and intensity as uint8, EPW as uint16 millimetres (to
-65.5 m), base64-encoded: about 14 bytes per point, plus about 4.7 MB of plotly.js. Geometry is in the
+65.5 m), base64-encoded: about 15 bytes per point (measured on OS1 frames), plus 4.8 MB of plotly.js. Geometry is in the
 sensor frame (REP-103: x forward, y left, z up; m).
 """
 

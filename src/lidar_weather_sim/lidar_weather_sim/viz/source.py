@@ -59,8 +59,8 @@ class ActorMarker:
 
 @dataclass(frozen=True)
 class RenderFrame:
-    """One selected frame: its number in the topic, stamp (ns), seconds since the first selected
-    frame, the sensor frame's name, points (project layout or a subset of it) and actors."""
+    """One selected frame: its number in the topic, stamp (ns), seconds since the bag's first message
+    (``time_s``, as ``lidar-weather-sim run`` counts simulated time), the sensor frame's name, points (project layout or a subset of it) and actors."""
 
     index: int
     stamp_ns: int
@@ -100,6 +100,7 @@ class FrameSource:
         if count == 0:
             raise BagError(f"bag {self.path}: topic {self.topic} holds no clouds")
         self.selection = parse_selection(frames, count)
+        self.start_ns = info.start_ns
         self.sizes = dict(sizes or {})
         self.buffer = TransformBuffer(cache_time_s=info.duration_s + 10.0, extrapolation_tolerance_s=0.05)
         for m in read_messages(self.path, [TOPIC_TF, TOPIC_TF_STATIC]):
@@ -110,7 +111,6 @@ class FrameSource:
         return len(self.selection)
 
     def __iter__(self) -> Iterator[RenderFrame]:
-        first_stamp = None
         for index, item in enumerate(read_messages(self.path, [self.topic])):
             if index >= self.selection.stop:
                 break
@@ -122,9 +122,8 @@ class FrameSource:
                 raise BagError(f"bag {self.path}, topic {self.topic}, message {index}: {err}") from err
             stamp = item.msg.header.stamp
             stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-            first_stamp = stamp_ns if first_stamp is None else first_stamp
             frame_id = item.msg.header.frame_id
-            yield RenderFrame(index, stamp_ns, (stamp_ns - first_stamp) * 1e-9, frame_id, points,
+            yield RenderFrame(index, stamp_ns, (stamp_ns - self.start_ns) * 1e-9, frame_id, points,
                               self.actors(frame_id, stamp_ns + _half_scan_ns(points)))  # fmt: skip
 
     def actors(self, sensor_frame: str, stamp_ns: int) -> tuple[ActorMarker, ...]:
