@@ -65,7 +65,7 @@ def render_run(source: FrameSource, out: str | Path, *, color: str | None = None
         if style is None:
             style = run_style(frame, color, range_m, size_px, point_px)
             has_channel = "channel" in (frame.points.dtype.names or ())
-            range_view = RangeView.of(frame.points) if has_channel and len(frame.points) else None
+            range_view = RangeView.of(frame.points) if has_channel else None  # an empty frame: a full turn
             if not has_channel:
                 report.notes.append("the clouds have no 'channel' field: no range image")
         if range_view is not None and len(frame.points):  # alternating layers: a channel may show up later
