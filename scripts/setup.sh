@@ -18,7 +18,7 @@ venv="$root/.venv"
 say() { printf '[setup] %s\n' "$*"; }
 
 # --- 1. Debian packages ----------------------------------------------------
-apt_packages=(python3-venv python3-dev cmake g++ make libusb-1.0-0 libgomp1 libllvm15)
+apt_packages=(python3-venv python3-dev cmake g++ make libusb-1.0-0 libgomp1 libllvm15 chromium)  # chromium: render --html test
 missing=()
 for p in "${apt_packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -13,6 +13,7 @@ import sys
 from lidar_weather_sim.core.argtypes import (
     count_int,
     non_negative_float,
+    number_in,
     port_int,
     positive_float,
     positive_int,
@@ -262,6 +263,35 @@ def _cmd_gap(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_render(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lidar_weather_sim.viz.render import render_run
+    from lidar_weather_sim.viz.source import FrameSource, scenario_sizes
+
+    sizes = None
+    if args.scenario:
+        from lidar_weather_sim.scenario.schema import load_scenario
+
+        sizes = scenario_sizes(load_scenario(args.scenario))
+    source = FrameSource(args.bag, args.topic, args.frames, sizes)
+    report = render_run(source, args.out, color=args.color, range_m=args.range, size_px=args.size,
+                        point_px=args.point_px, animation=not args.no_animation)  # fmt: skip
+    for note in report.notes:
+        print(f"lidar-weather-sim render: note: {note}", file=sys.stderr)
+    gif = f", {report.animation.name}" if report.animation else ""
+    print(f"wrote {len(report.bev)} bird's-eye and {len(report.range)} range-image pictures{gif} to {report.out} "
+          f"({report.seconds_per_frame:.3f} s per frame)")  # fmt: skip
+    if args.html:
+        from lidar_weather_sim.viz.html import write_html
+
+        page = write_html(FrameSource(args.bag, args.topic, args.frames, sizes), Path(args.out) / "cloud.html",
+                          color=args.color, max_points=args.max_points)  # fmt: skip
+        print(f"wrote {page.path} ({page.path.stat().st_size / 1e6:.1f} MB, {page.frames} frames, "
+              f"at most {args.max_points} points each)")  # fmt: skip
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="lidar-weather-sim",
@@ -343,6 +373,28 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--heldout-frames", type=positive_int, default=30, help="held-out frames used for every decision")
     gap.add_argument("--out", default="gap_report", help="output directory")
     gap.set_defaults(func=_cmd_gap)
+
+    render = commands.add_parser("render", help="pictures of a bag's clouds: bird's-eye and range-image PNGs, a GIF, "
+                                                "optionally a 3D HTML page (no rviz2 needed)")  # fmt: skip
+    render.add_argument("bag", metavar="BAG", help="rosbag2 directory (MCAP or sqlite3) or a .mcap file")
+    render.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
+    render.add_argument("--frames", metavar="A:B", help="frames A to B-1 of the topic, counted from 0 (also A:, :B, N; "
+                                                        "default: all)")  # fmt: skip
+    render.add_argument("--color", choices=["label", "echo", "epw", "intensity", "distance"],
+                        help="field to colour by (default: label, or distance for clouds without ground truth)")
+    render.add_argument("--scenario", help="scenario whose actor sizes give the actors' boxes (the bag has none; "
+                                           "without it actors are drawn as their frame's origin and heading)")  # fmt: skip
+    render.add_argument("--range", type=positive_float, default=60.0,
+                        help="bird's-eye window: this many m ahead, half behind, 1.5x across (default 60)")
+    render.add_argument("--size", type=number_in(int, 200, 4000), default=800, help="bird's-eye side in px (200-4000)")
+    render.add_argument("--point-px", type=number_in(int, 1, 8), help="dot size in px (default 3 for sparse clouds, else 2)")
+    render.add_argument("--no-animation", action="store_true", help="no animation.gif")
+    render.add_argument("--html", action="store_true", help="also cloud.html: the frames in 3D (orbit, zoom, frame slider, "
+                                                            "colour by field), self-contained")  # fmt: skip
+    render.add_argument("--max-points", type=number_in(int, 100, 500_000), default=20_000,
+                        help="--html: points per frame at most (a seeded random subset; about 15 bytes each, default 20000)")
+    render.add_argument("--out", required=True, metavar="DIR", help="output directory (created; files are replaced)")
+    render.set_defaults(func=_cmd_render)
 
     up = commands.add_parser("up", help="start a graph of config/graphs as separate processes (what ros2 launch starts)")
     up.add_argument("graph", metavar="GRAPH", help="graph name in config/graphs (sim, replay_compare, closed_loop, pattern) or a path")
