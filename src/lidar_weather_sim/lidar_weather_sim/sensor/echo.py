@@ -471,7 +471,8 @@ def _select_runs(beam, a, starts, counts, mode, out):
             j = i + 1
             while j < end and beam[j] == beam[i]:
                 j += 1
-            out[i:j] = 0
+            for k in range(i, j):
+                out[k] = 0
             if mode == _FIRST:
                 out[i] = _RT_FIRST
             elif mode == _LAST:
