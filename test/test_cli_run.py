@@ -111,3 +111,19 @@ def test_recover_says_when_a_bag_is_intact(tmp_path, cli):
     result = subprocess.run([*cli, "recover", str(out)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and "is intact" in result.stdout and "nothing to do" in result.stdout, result.stdout
     assert {f.name: f.read_bytes() for f in out.iterdir()} == before
+
+
+def test_the_return_mode_flag_is_honoured_and_an_unknown_mode_refused(tmp_path, cli):
+    out = tmp_path / "strongest"
+    result = subprocess.run([*cli, "run", "highway_clear", "--frames", "2", "--return-mode", "strongest", "--out",
+                             str(out)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    for cloud in read_clouds(out):
+        points = cloud.points
+        assert (points["return_type"] == 3).all()  # Nebula's STRONGEST
+        assert np.unique(points[["channel", "time_stamp"]], return_counts=True)[1].max() == 1  # one point per beam
+    bad = tmp_path / "bad"
+    result = subprocess.run([*cli, "run", "highway_clear", "--frames", "1", "--return-mode", "nearest", "--out", str(bad)],
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    _one_line_error(result, "--return-mode", "'nearest'", "'strongest', 'last', 'dual', 'first', 'all'")
+    assert not bad.exists()

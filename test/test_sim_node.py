@@ -304,6 +304,8 @@ def _static_msg(world):
      ("lidar_weather_sim.ros.lidar_sim_node", ["sun_irradiance_w_m2:=300"], "of type 'INTEGER', expecting type 'DOUBLE'"),
      ("lidar_weather_sim.ros.lidar_sim_node", ["scenario:=highway_spray", "regions:=[spray,spray]"],
       "spray listed more than once"),
+     ("lidar_weather_sim.ros.lidar_sim_node", ["return_mode:=nearest"],
+      "return_mode 'nearest' is not one of strongest, last, dual, first, all"),
      ("weather_filter.ros.weather_filter_node", ["method:=foo"], "unknown filter method 'foo'")],
 )  # fmt: skip
 def test_a_bad_start_parameter_exits_2_with_one_line(module, params, reason):
@@ -452,6 +454,34 @@ def test_time_jump_back_restarts_the_scan(ros, world):
         stamps = [decode(m)[0] for m in published]
         # the jump's first message only restarts; frame 0 of the new scan starts at the second (tick -499)
         assert stamps == [T0, T0 + 40_000_000, T0 + 80_000_000, T0 - 499 * TICK, T0 - 495 * TICK]
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize("mode, types", [("", None), ("last", {1}), ("strongest", {3})])
+def test_the_return_mode_parameter_is_honoured(ros, world, mode, types):
+    """'' = the scenario's, else the profile's (scala4: all, up to 3 echoes per beam); a mode reports one point per beam."""
+    from types import SimpleNamespace
+
+    from rclpy.parameter import Parameter
+
+    from lidar_weather_sim.ros.lidar_sim_node import LidarSimNode
+
+    overrides = [Parameter("pose_source", value="tf"), Parameter("return_mode", value=mode)]
+    node = LidarSimNode(context=ros.context, parameter_overrides=overrides)
+    try:
+        published = []
+        node._points = SimpleNamespace(publish=published.append)
+        node._on_tf_static(_static_msg(world))
+        for k in range(3):  # frame 0 is complete at tick 2
+            node._on_tf(_tf_msg(world, k))
+        assert node.session.sim.profile.detection.return_mode == (mode or "all")
+        points = decode(published[0])[1]
+        beams = np.unique(points[["channel", "time_stamp"]], return_counts=True)[1]
+        if types is None:
+            assert set(np.unique(points["return_type"]).tolist()) <= {2, 6, 7, 1}  # identical, first, second, last
+        else:
+            assert set(np.unique(points["return_type"]).tolist()) == types and beams.max() == 1
     finally:
         node.destroy_node()
 

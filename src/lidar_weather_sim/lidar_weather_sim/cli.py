@@ -19,7 +19,7 @@ from lidar_weather_sim.core.argtypes import (
     positive_int,
     seed_int,
 )
-from lidar_weather_sim.core.names import TOPIC_POINTS
+from lidar_weather_sim.core.names import RETURN_MODES, TOPIC_POINTS
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -58,8 +58,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             bar.update(done - bar.n)
 
         report = run_scenario(
-            scenario, out, frames=args.frames, seed=args.seed, profile=args.profile, overwrite=args.overwrite,
-            progress=progress,
+            scenario, out, frames=args.frames, seed=args.seed, profile=args.profile, return_mode=args.return_mode,
+            overwrite=args.overwrite, progress=progress,
         )  # fmt: skip
     if report.stopped:
         print(f"lidar-weather-sim run: warning: {report.stopped}", file=sys.stderr)
@@ -77,6 +77,8 @@ def _run_realtime(args: argparse.Namespace) -> int:
         ros_args += ["-p", f"seed:={args.seed}"]
     if args.profile:
         ros_args += ["-p", f"profile:={args.profile}"]
+    if args.return_mode:
+        ros_args += ["-p", f"return_mode:={args.return_mode}"]
     node_main(ros_args)
     return 0
 
@@ -312,6 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", type=positive_int, help="frames to simulate (default: the scenario's duration)")
     run.add_argument("--seed", type=seed_int, help="random seed (default: the scenario's)")
     run.add_argument("--profile", help="sensor profile overriding the scenario's (name or YAML path)")
+    run.add_argument("--return-mode", choices=RETURN_MODES, metavar="MODE",
+                     help="what each beam reports of its echoes, overriding the scenario's and the profile's: "
+                          "strongest, last, first, dual (last + strongest) or all (every echo)")
     run.add_argument("--out", help="output rosbag2 directory (default: <scenario>_run)")
     run.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     run.add_argument("--realtime", action="store_true",

@@ -15,7 +15,7 @@ ground-truth fields follow. Clouds are unorganised (height 1).
 | elevation  | float32 |     20 | rad   | atan2(z, hypot(x, y))                                    |
 | distance   | float32 |     24 | m     | range along the beam                                     |
 | time_stamp | uint32  |     28 | ns    | firing time after the header stamp                       |
-| echo       | uint8   |     32 | -     | 1-based echo number of the beam, in range order          |
+| echo       | uint8   |     32 | -     | 1-based rank among the beam's detected echoes, by range  |
 | label      | uint8   |     33 | -     | ground truth, see ``Label`` (only with ground truth)      |
 | epw        | float32 |     36 | m     | echo pulse width                                         |
 | object_id  | uint32  |     40 | -     | ground-truth object (only with ground truth)             |
@@ -26,6 +26,12 @@ Real sensors that measure no EPW (e.g. an Ouster OS1) write the 40-byte layout
 without the ``epw`` field as well (:data:`POINT_DTYPE_NO_EPW`): a missing field,
 not a fill value, is how readers such as the weather filters tell that EPW is
 unknown (they then fall back to intensity or geometry).
+``echo`` is the rank of the echo among all the echoes its beam detected (up to ``max_echoes``), also when
+the return mode reports only some of them: under ``last`` a beam whose drop in front of a wall gave two
+echoes reports the wall with echo 2. ``return_type`` says which return the mode reported (Nebula's codes):
+under ``all`` IDENTICAL, FIRST, SECOND or LAST by position among the beam's points; under ``strongest``,
+``last``, ``first`` STRONGEST, LAST, FIRST; under ``dual`` LAST and STRONGEST, or LAST_STRONGEST and
+SECOND_STRONGEST when the last echo is the strongest, or IDENTICAL for a beam with one echo.
 A merged echo takes the label and object id of its strongest contributing
 sub-ray; a spray point's object id is the emitting vehicle's.
 """
@@ -64,8 +70,10 @@ class ReturnType(IntEnum):
     LAST = 1
     FIRST = 2
     STRONGEST = 3
-    IDENTICAL = 6  # the beam's only kept echo
+    IDENTICAL = 6  # the beam's only kept echo (all, dual)
     SECOND = 7
+    SECOND_STRONGEST = 8  # dual: the strongest of the others when the last echo is the strongest
+    LAST_STRONGEST = 10  # dual: the last echo when it is also the strongest
 
 
 #: Labels of solid objects that a weather filter must keep.

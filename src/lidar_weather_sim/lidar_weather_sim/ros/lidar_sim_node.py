@@ -52,6 +52,7 @@ from lidar_weather_sim.core.names import (
     FRAME_BASE_LINK,
     FRAME_LIDAR,
     FRAME_MAP,
+    RETURN_MODES,
     TOPIC_CLOCK,
     TOPIC_POINTS,
     TOPIC_TF,
@@ -108,10 +109,12 @@ class LidarSimNode(Node):
         p = self._p
         p("scenario", "highway_clear", "Scenario (name or YAML path): map, actors, weather, regions")
         p("profile", "", "Sensor profile name or YAML path ('' = the scenario's)")
+        p("return_mode", "", f"What each beam reports of its echoes: {', '.join(RETURN_MODES)} ('' = the scenario's, "
+          "else the profile's detection.return_mode)")
         mode = p("pose_source", "scenario", "Pose input: scenario (built-in player, drives /clock), tf or odometry")
         if mode not in POSE_SOURCES:
             raise ConfigError(f"pose_source '{mode}' is not one of {', '.join(POSE_SOURCES)}")
-        self.world = World.build(load_scenario(p("scenario")), p("profile") or None)
+        self.world = World.build(load_scenario(p("scenario")), p("profile") or None, p("return_mode") or None)
         scenario, mount = self.world.scenario, self.world.scenario.sensor.mount
         self.fixed = p("fixed_frame", FRAME_MAP, "Fixed (world) frame of the scene")
         self.base = p("base_frame", FRAME_BASE_LINK, "Vehicle frame (odometry child; scenario mode /tf)")
@@ -176,7 +179,8 @@ class LidarSimNode(Node):
             self._wait = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if wait else None
             self._subscribe_input(odom_topic)
         self.get_logger().info(
-            f"scenario '{scenario.name}', profile '{self.world.profile.name}', pose source {mode}, "
+            f"scenario '{scenario.name}', profile '{self.world.profile.name}' "
+            f"(return mode {self.world.profile.detection.return_mode}), pose source {mode}, "
             f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
             + (f"; regions read {', '.join(self.topic_inputs.topics)}" if self.topic_inputs.topics else "")
             + (f"; starts once {TOPIC_POINTS} has a subscriber" if wait else "")

@@ -22,6 +22,7 @@ from pydantic import Field, model_validator
 from lidar_weather_sim.core.config import ConfigError, ConfigModel, load_yaml
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.weather import Weather
+from lidar_weather_sim.sensor.profile import ReturnMode
 
 #: Physical bounds of scenario values: a value outside is refused naming its key.
 MAX_SPEED_M_S = 150.0  # 540 km/h
@@ -106,6 +107,9 @@ class Mount(ConfigModel):
 
 class SensorSetup(ConfigModel):
     profile: str = Field("scala4", description="Name in config/sensors or a path")
+    return_mode: ReturnMode | None = Field(
+        None, description="Return mode overriding the profile's detection.return_mode (null: the profile's)"
+    )
     mount: Mount = Field(default_factory=Mount)
 
 

@@ -39,10 +39,15 @@ class World:
         return self._casters[backend]
 
     @classmethod
-    def build(cls, scenario: Scenario, profile: str | SensorProfile | None = None) -> "World":
-        """Scene, player and profile of ``scenario`` (``profile`` overrides the scenario's sensor)."""
+    def build(cls, scenario: Scenario, profile: str | SensorProfile | None = None,
+              return_mode: str | None = None) -> "World":  # fmt: skip
+        """Scene, player and profile of ``scenario`` (``profile`` overrides the scenario's sensor; ``return_mode``,
+        else the scenario's ``sensor.return_mode``, the profile's ``detection.return_mode``)."""
         if not isinstance(profile, SensorProfile):
             profile = load_profile(profile or scenario.sensor.profile)
+        return_mode = return_mode or scenario.sensor.return_mode
+        if return_mode:
+            profile = profile.with_return_mode(return_mode)
         if scenario.map is None:  # mesh-only: an empty road network, the scene is the static meshes
             scene = Scene(MaterialTable.default(), roads=RoadNetwork({}, "<no map>"))
         else:

@@ -20,6 +20,17 @@ than the range resolution are merged first (power-summed at their
 power-weighted range). Up to ``max_echoes`` echoes per beam are kept, in range
 order, numbered from 1.
 
+Return modes
+------------
+What a beam reports of its detected echoes is the return mode (:data:`~lidar_weather_sim.core.names.RETURN_MODES`),
+applied by :func:`select_returns` as the sensor's firmware does before the driver's minimum-range cut:
+``strongest`` the echo with the highest peak amplitude (on a tie the nearer), ``last`` the farthest,
+``first`` the nearest, ``dual`` the last and the strongest; when the last is also the strongest, the
+strongest of the others instead (Velodyne VLP-16 / VLP-32C manuals, "Dual Return Mode": "If the strongest
+return is also the last return, then the second-strongest return is provided"), a beam with one echo gives
+one point. ``all`` reports every echo. Ouster's dual return differs: the two strongest echoes, strongest
+first (Ouster firmware "Return Order", default STRONGEST_TO_WEAKEST); it is not one of these modes.
+
 Why one module of ~410 lines: the waveform, the threshold crossing and the echo selection are one
 algorithm (thesis eq. 3-5) with its numba kernels beside it.
 """
@@ -32,6 +43,8 @@ import numba
 import numpy as np
 
 from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.names import RETURN_MODES
+from lidar_weather_sim.core.points import ReturnType
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold
 
 
@@ -415,3 +428,65 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
         k = isolated[q]
         ew[k] = 2.0 * s * np.sqrt(2.0 * np.log(ew[k]))
     return count - lo
+
+
+_STRONGEST, _LAST, _FIRST, _DUAL = (RETURN_MODES.index(m) for m in ("strongest", "last", "first", "dual"))
+_RT_LAST, _RT_FIRST, _RT_STRONGEST, _RT_IDENTICAL, _RT_SECOND_STRONGEST, _RT_LAST_STRONGEST = (int(r) for r in (
+    ReturnType.LAST, ReturnType.FIRST, ReturnType.STRONGEST, ReturnType.IDENTICAL, ReturnType.SECOND_STRONGEST,
+    ReturnType.LAST_STRONGEST))  # fmt: skip
+
+
+def select_returns(beam: np.ndarray, amplitude: np.ndarray, runs: tuple[np.ndarray, np.ndarray], mode: str,
+                   out: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """The return each echo is reported as under the return ``mode`` (strongest, last, first or dual; see
+    the module's "Return modes"): Nebula's :class:`~lidar_weather_sim.core.points.ReturnType` code, 0 for an
+    echo the mode does not report.
+
+    ``beam``, ``amplitude`` (peak, noise units): the echoes of :class:`Echoes` in the runs (starts, counts),
+    each beam's echoes together and in range order as :func:`detect_echoes` writes them. Returns ``out``
+    (or a new uint8 array as long as ``beam``) with the codes written in the runs. ``all`` has nothing to
+    select: every echo is reported and the caller keeps them (a ValueError here)."""
+    if mode not in RETURN_MODES or mode == "all":
+        raise ValueError(f"return_mode {mode!r} selects nothing here: one of strongest, last, first, dual")
+    out = np.empty(len(beam), np.uint8) if out is None else out
+    _select_runs(beam, amplitude, runs[0], runs[1], RETURN_MODES.index(mode), out)
+    return out
+
+
+@numba.njit(cache=True)
+def _first_max(a, i0, i1):
+    """Index of the first highest of a[i0:i1] (the nearest of equal peaks)."""
+    best = i0
+    for i in range(i0 + 1, i1):
+        if a[i] > a[best]:
+            best = i
+    return best
+
+
+@numba.njit(cache=True)
+def _select_runs(beam, a, starts, counts, mode, out):
+    for c in range(len(counts)):
+        i, end = starts[c], starts[c] + counts[c]
+        while i < end:
+            j = i + 1
+            while j < end and beam[j] == beam[i]:
+                j += 1
+            for k in range(i, j):
+                out[k] = 0
+            if mode == _FIRST:
+                out[i] = _RT_FIRST
+            elif mode == _LAST:
+                out[j - 1] = _RT_LAST
+            elif mode == _STRONGEST:
+                out[_first_max(a, i, j)] = _RT_STRONGEST
+            elif j - i == 1:  # dual, one echo: one point
+                out[i] = _RT_IDENTICAL
+            else:
+                strongest = _first_max(a, i, j)
+                if strongest == j - 1:
+                    out[j - 1] = _RT_LAST_STRONGEST
+                    out[_first_max(a, i, j - 1)] = _RT_SECOND_STRONGEST
+                else:
+                    out[j - 1] = _RT_LAST
+                    out[strongest] = _RT_STRONGEST
+            i = j

@@ -15,7 +15,11 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from lidar_weather_sim.core.config import ConfigModel, load_named
+from lidar_weather_sim.core.config import ConfigError, ConfigModel, load_named
+from lidar_weather_sim.core.names import RETURN_MODES
+
+#: A return mode's name (:data:`~lidar_weather_sim.core.names.RETURN_MODES`).
+ReturnMode = Literal[RETURN_MODES]
 
 
 class Beam(ConfigModel):
@@ -68,7 +72,11 @@ class Pulse(ConfigModel):
 
 
 class Detection(ConfigModel):
-    max_echoes: int = Field(1, ge=1, le=8, description="Echoes reported per beam")
+    max_echoes: int = Field(1, ge=1, le=8, description="Echoes detected per beam (the nearest ones)")
+    return_mode: ReturnMode = Field(
+        "all", description="What each beam reports of its detected echoes: strongest (highest peak), last (farthest), "
+        "first (nearest), dual (last and strongest, Velodyne's dual return) or all (every echo)"
+    )
     power_constant: float = Field(
         gt=0, description="C of P = C * w * rho * cos(theta) / R^2 * T^2: peak amplitude of a full-beam hit (noise units m^2)"
     )
@@ -116,6 +124,13 @@ class SensorProfile(ConfigModel):
     @property
     def period_s(self) -> float:
         return 1.0 / self.scan.frame_rate_hz
+
+    def with_return_mode(self, mode: str) -> "SensorProfile":
+        """This profile reporting ``mode`` (one of :data:`~lidar_weather_sim.core.names.RETURN_MODES`; else a
+        ConfigError naming ``return_mode`` and the valid modes)."""
+        if mode not in RETURN_MODES:
+            raise ConfigError(f"return_mode {mode!r} is not one of {', '.join(RETURN_MODES)}")
+        return self.model_copy(update={"detection": self.detection.model_copy(update={"return_mode": mode})})
 
 
 def profiles_dir() -> Path:

@@ -283,17 +283,20 @@ def _normal(rng, sigma, out):
 
 
 @numba.njit(cache=True)
-def kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio):
+def kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio, reported):
     """The echoes in the runs (starts, counts) in order: ``ranges`` (where the echoes are) gets
-    each one's range plus its ``noise``; those at or beyond ``min_range`` get their index
-    into ``kept`` and their peak amplitude (at least 1e-12) over ``dark`` into ``ratio``, as
-    numpy's sum, flatnonzero, maximum and division. Returns how many were kept."""
+    each one's range plus its ``noise`` (every echo's, reported or not: a return mode changes which
+    points there are, never their noise); those the return mode reports (``reported`` non-zero, see
+    :func:`~lidar_weather_sim.sensor.echo.select_returns`; empty: all) and at or beyond ``min_range``
+    get their index into ``kept`` and their peak amplitude (at least 1e-12) over ``dark`` into
+    ``ratio``, as numpy's sum, flatnonzero, maximum and division. Returns how many were kept."""
+    every = len(reported) == 0
     j = count = 0
     for c in range(len(counts)):
         for i in range(starts[c], starts[c] + counts[c]):
             ranges[i] = noise[j] + range_m[i]
             j += 1
-            if ranges[i] >= min_range:
+            if ranges[i] >= min_range and (every or reported[i] != 0):
                 a = amplitude[i]
                 kept[count] = i
                 ratio[count] = (a if not a < 1e-12 else 1e-12) / dark
@@ -312,7 +315,9 @@ def padding_bytes(dtype: np.dtype) -> np.ndarray:
 
 def fill_points(points, kept, *args):
     """Points of the echoes ``kept`` (ascending) in the sensor frame at their firing time; every
-    byte of ``points`` is written (padding as zeros), so it may come from ``np.empty``."""
+    byte of ``points`` is written (padding as zeros), so it may come from ``np.empty``. The return
+    type is the echo's ``reported`` code (:func:`~lidar_weather_sim.sensor.echo.select_returns`), or
+    with an empty ``reported`` (return mode all) its position among the beam's kept echoes."""
     raw = points.view(np.uint8).reshape(len(points), points.dtype.itemsize)
     *args, label, object_id, ground_truth, padding = args
     cuts = workers.bounds(len(kept), CHUNK_RAYS // 4)
@@ -335,7 +340,7 @@ def _fill_ground_truth_run(points, kept, j0, j1, label, object_id):
 
 @numba.njit(cache=True, nogil=True)
 def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_ratio, span, columns, channels, n_beams,
-                     cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, padding):  # fmt: skip
+                     cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, reported, padding):  # fmt: skip
     """Points j0..j1 of :func:`fill_points` (``raw``: the same memory as bytes, (N, itemsize))."""
     first = -n_beams  # first beam of the current column (none yet): divisions only where it changes
     col = 0
@@ -361,6 +366,9 @@ def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_rat
         p["echo"] = echo[i]
         p["epw"] = epw[i]
         p["intensity"] = intensity_byte(log_ratio[j], span)
+        if len(reported):
+            p["return_type"] = reported[i]
+            continue
         # Nebula return type: IDENTICAL when alone, else FIRST / SECOND / LAST (among the kept echoes)
         last = j + 1 == len(kept) or beam[kept[j + 1]] != bm
         if echo[i] == 1:

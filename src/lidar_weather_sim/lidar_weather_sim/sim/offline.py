@@ -43,6 +43,7 @@ def run_scenario(
     frames: int | None = None,
     seed: int | None = None,
     profile: str | None = None,
+    return_mode: str | None = None,
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
     postprocess: Callable[[Frame], np.ndarray | None] | None = None,
@@ -50,14 +51,15 @@ def run_scenario(
     """Simulate ``frames`` frames (default: the scenario's duration) and record them to ``output``.
 
     ``postprocess(frame)`` may replace a frame's points before they are written, or return
-    None to drop the frame (it still counts towards ``frames``). A mesh-only scenario (no ego)
+    None to drop the frame (it still counts towards ``frames``). ``return_mode`` overrides the scenario's and
+    the profile's (:data:`~lidar_weather_sim.core.names.RETURN_MODES`). A mesh-only scenario (no ego)
     raises :class:`NoEgoError`: it has no poses to run."""
     if scenario.ego is None:
         raise NoEgoError(
             f"scenario '{scenario.name}' has no ego (mesh-only, no map): it cannot be run; use it with "
             "gap/compare on a recording or the sim node's /tf mode"
         )
-    world = World.build(scenario, profile)
+    world = World.build(scenario, profile, return_mode)
     sim = LidarSimulator.of_world(world, seed=seed)
     total = frames if frames is not None else max(1, int(round(scenario.duration_s * world.profile.scan.frame_rate_hz)))
     player = world.player

@@ -4,7 +4,7 @@
 asks the pose source once for all their poses, and runs each batch through :meth:`LidarSimulator._cast`,
 which reads as the data path::
 
-    poses -> rays -> cast -> regions -> candidates -> occlusion -> echoes -> points
+    poses -> rays -> cast -> regions -> candidates -> occlusion -> echoes -> returns -> points
 
 - **poses**: the sensor pose of every column at its own firing time (rolling shutter), the actors'
   poses at the batch time;
@@ -17,6 +17,8 @@ which reads as the data path::
   (:mod:`lidar_weather_sim.sensor.radiometry`); **occlusion**: each scaled by the light the
   candidates in front of it on its sub-ray leave, grouped by beam for the echo stage;
 - **echoes**: the threshold decision on each beam's waveform (:mod:`lidar_weather_sim.sensor.echo`);
+- **returns**: what the profile's return mode (``detection.return_mode``) reports of each beam's echoes
+  (:func:`~lidar_weather_sim.sensor.echo.select_returns`; ``all``: every echo);
 - **points**: range noise, intensity, points in the sensor frame at their firing time, appended to the
   frame; a frame is returned when its sweep is complete (stamp: the scan start; ``time_stamp``: ns after).
 
@@ -41,7 +43,7 @@ from lidar_weather_sim.core.geometry import quaternion_matrices
 from lidar_weather_sim.core.points import Label, empty_points, point_dtype
 from lidar_weather_sim.core.seeding import Reseedable
 from lidar_weather_sim.regions.base import RayBatch, Region, RegionEffect, combine, region_entropy, region_rng
-from lidar_weather_sim.sensor.echo import Echoes, detect_echoes
+from lidar_weather_sim.sensor.echo import Echoes, detect_echoes, select_returns
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import Threshold, dark_level, overlap_factor, peak_amplitude
 from lidar_weather_sim.sensor.scan import ScanPattern
@@ -55,6 +57,9 @@ from lidar_weather_sim.sim.kernels import (
     surface_returns,
     world_rays,
 )
+
+#: :meth:`LidarSimulator._returns` of return mode ``all``: no selection, every echo is reported.
+_EVERY_ECHO = np.zeros(0, np.uint8)
 
 
 class PoseSource(Protocol):
@@ -251,7 +256,7 @@ class LidarSimulator:
         candidates, segments = self._add_false_alarms(candidates, segments, len(columns) * directions.shape[1],
                                                       acc.index, int(columns[0]))  # fmt: skip
         echoes = self._echoes(candidates, segments)
-        self._points(echoes, columns, directions.shape[1], acc, int(columns[0]))
+        self._points(echoes, self._returns(echoes), columns, directions.shape[1], acc, int(columns[0]))
         acc.rays += directions.shape[0] * directions.shape[1] * directions.shape[2]
 
     def _directions(self, frame_index: int, columns: np.ndarray) -> np.ndarray:
@@ -320,6 +325,15 @@ class LidarSimulator:
             scratch=self._scratch,
         )
 
+    def _returns(self, echoes: Echoes) -> np.ndarray:
+        """The return type each echo is reported as under the profile's return mode, 0 for one it does not
+        report (:func:`~lidar_weather_sim.sensor.echo.select_returns`); empty for ``all`` (every echo)."""
+        mode = self.profile.detection.return_mode
+        if mode == "all":
+            return _EVERY_ECHO
+        out = self._scratch.get("reported", len(echoes.beam), np.uint8)
+        return select_returns(echoes.beam, echoes.amplitude, echoes.runs, mode, out)
+
     def _candidates(self, hits, directions, rotation, rays: RayBatch | None, effect):
         """Candidate returns (beam, range, amplitude, label, object id) of scene hits and scatterers,
         and the runs of those arrays that hold them (see :func:`surface_returns`; None: all).
@@ -381,9 +395,10 @@ class LidarSimulator:
         extra = (beam, ranges, amp, np.full(len(beam), Label.NOISE, np.uint8), np.zeros(len(beam), np.uint32))
         return tuple(np.concatenate([a, e]) for a, e in zip(candidates, extra)), None
 
-    def _points(self, echoes, columns: np.ndarray, n_beams: int, acc: _FrameAccumulator, first_column: int) -> None:
-        """Append to the frame the points of the echoes at or beyond the minimum range after range
-        noise. Intensity is 0-255, logarithmic in the peak amplitude above the dark threshold
+    def _points(self, echoes, reported: np.ndarray, columns: np.ndarray, n_beams: int, acc: _FrameAccumulator,
+                first_column: int) -> None:  # fmt: skip
+        """Append to the frame the points of the echoes the return mode reports (``reported``, see
+        :meth:`_returns`) at or beyond the minimum range after range noise. Intensity is 0-255, logarithmic in the peak amplitude above the dark threshold
         (0 = at threshold, 255 = ``intensity_dynamic_range`` times above it)."""
         profile = self.profile
         starts, counts = echoes.runs
@@ -393,7 +408,7 @@ class LidarSimulator:
                                    (("noisy_range", np.float64), ("kept", np.int64), ("log_ratio", np.float64)))  # fmt: skip
         noise = range_noise(rng, float(profile.range.noise_sigma_m), int(counts.sum()), self._scratch)
         count = kept_echoes(noise, echoes.range_m, echoes.amplitude, starts, counts, max(profile.range.min_m, 0.0),
-                             self.dark_threshold(), ranges, kept, log_ratio)  # fmt: skip
+                             self.dark_threshold(), ranges, kept, log_ratio, reported)  # fmt: skip
         kept, log_ratio = kept[:count], log_ratio[:count]
         if acc.points is None:
             # at most max_echoes per beam: one allocation per frame, no copies (pages never written cost nothing)
@@ -408,7 +423,7 @@ class LidarSimulator:
         geo = self._point_tables()
         fill_points(
             points, kept, ranges, echoes.beam, echoes.echo, echoes.epw_m, log_ratio, float(span),
-            np.ascontiguousarray(columns, np.int64), self.pattern.active_channels(acc.index), n_beams, *geo,
+            np.ascontiguousarray(columns, np.int64), self.pattern.active_channels(acc.index), n_beams, *geo, reported,
             echoes.label, echoes.object_id, self.ground_truth, padding_bytes(points.dtype),
         )  # fmt: skip
 
