@@ -81,6 +81,25 @@ def check_profile(points: np.ndarray, profile: SensorProfile, name: str) -> None
                             f"{math.degrees(float(np.median(off))):.2f} deg")  # fmt: skip
 
 
+def profile_for_cloud(points: np.ndarray) -> str:
+    """The shipped profile (``config/sensors``) whose channels and elevations match the cloud; of several,
+    the one whose column count is nearest the cloud's most first echoes on one channel."""
+    from lidar_weather_sim.sensor.profile import load_profile, profiles_dir
+
+    matching = []
+    for path in sorted(profiles_dir().glob("*.yaml")):
+        try:
+            check_profile(points, load_profile(path), path.stem)
+        except ObstacleError:
+            continue
+        matching.append(path.stem)
+    if not matching:
+        raise ObstacleError("no shipped sensor profile matches the cloud's channels and elevations: give --profile")
+    first = points["channel"][points["echo"] <= 1]
+    columns = int(np.bincount(first.astype(np.int64)).max(initial=0)) if len(first) else 0
+    return min(matching, key=lambda name: abs(load_profile(name).scan.columns - columns))
+
+
 @dataclass
 class _Slot:
     box: Box
