@@ -184,3 +184,22 @@ def obstacle_scores(truth: np.ndarray, pred: np.ndarray) -> dict:
     return {"obstacle_precision": tp / (tp + fp) if tp + fp else 1.0, "obstacle_recall": tp / (tp + fn) if tp + fn else 1.0,
             "obstacle_f1": f1(tp, fp, fn), "no_obstacle_f1": f1(tn, fn, fp), "obstacle_points": tp + fn,
             "other_points": tn + fp}  # fmt: skip
+
+
+def evaluate_obstacles(frames: Iterable[np.ndarray], model: str | Path | None = None) -> dict | None:
+    """:func:`obstacle_scores` of the classifier over a sequence of labelled frames, in the feature region
+    (micro-averaged over its detections), plus ``obstacle_model``; None when no frame has a label-3 point."""
+    classifier = ObstacleClassifier.load(model)
+    truth, pred, any_obstacle = [], [], False
+    for points in frames:
+        if "label" not in (points.dtype.names or ()):
+            return None
+        mask = feature_region_mask(points)
+        is_obstacle = points["label"] == Label.OBSTACLE
+        any_obstacle |= bool(is_obstacle.any())
+        truth.append(is_obstacle[mask])
+        pred.append(classifier.predict(points)[mask])
+    if not any_obstacle:
+        return None
+    scores = obstacle_scores(np.concatenate(truth), np.concatenate(pred))
+    return {**scores, "obstacle_model": str(Path(model) if model else DEFAULT_OBSTACLE_MODEL)}
