@@ -198,3 +198,17 @@ def test_boxes_are_held_for_their_duration(vlp16, pattern):
         run = seen[i : i + seen[i].duration]
         assert all(b == seen[i] for b in run)
         i += seen[i].duration
+
+
+def test_a_cloud_without_epw_or_ground_truth_gets_labels_but_no_epw(vlp16, pattern):
+    from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW
+
+    frame = _frames(pattern, 1)[0]
+    real = np.zeros(len(frame), POINT_DTYPE_NO_EPW)
+    for name in POINT_DTYPE_NO_EPW.names:
+        real[name] = frame[name]
+    out, boxes = ObstacleAugmenter(vlp16, seed=2).frame(real, 0, ROAD_Z)
+    assert "epw" not in out.dtype.names and {"label", "object_id"} <= set(out.dtype.names)
+    assert out.dtype.itemsize == 44
+    assert set(out["object_id"][out["label"] == Label.OBSTACLE].tolist()) == {boxes[0].object_id}
+    assert set(out["label"][out["label"] != Label.OBSTACLE].tolist()) == {Label.UNKNOWN}

@@ -54,13 +54,18 @@ def added_noise_sigma(profile: SensorProfile) -> float:
 
 
 def with_ground_truth(points: np.ndarray) -> np.ndarray:
-    """``points`` in a layout that has ``label`` and ``object_id`` (the project's 44-byte one when they
-    are missing; fields it lacks, e.g. ``epw`` of a sensor without EPW, stay 0)."""
+    """``points`` in a layout that has ``label`` and ``object_id``: their own fields plus those two at the
+    project's offsets (44 bytes). A field the cloud lacks stays absent (a sensor without EPW keeps having
+    none: a missing field, not a fill value, tells readers EPW is unknown)."""
     if "label" in points.dtype.names and "object_id" in points.dtype.names:
         return points
-    out = np.zeros(len(points), POINT_DTYPE)
-    for name in points.dtype.names:
-        if name in POINT_DTYPE.names:
+    names = [n for n in points.dtype.names if n in POINT_DTYPE.names]
+    names += [n for n in ("label", "object_id") if n not in names]
+    dtype = np.dtype({"names": names, "formats": [POINT_DTYPE.fields[n][0] for n in names],
+                      "offsets": [POINT_DTYPE.fields[n][1] for n in names], "itemsize": POINT_DTYPE.itemsize})  # fmt: skip
+    out = np.zeros(len(points), dtype)
+    for name in names:
+        if name in points.dtype.names:
             out[name] = points[name]
     return out
 
