@@ -146,7 +146,12 @@ def _apply_preset(args: argparse.Namespace) -> None:
 
 def _cmd_train_obstacle(args: argparse.Namespace) -> int:
     """``train --preset augmentation``: paper 4's obstacle classifier on the fixed augmented runs."""
-    from weather_filter.obstacle import AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE, DEFAULT_OBSTACLE_MODEL, train_obstacle
+    from weather_filter.obstacle import (
+        AUGMENT_TRAIN_RUNS,
+        AUGMENT_TRAIN_RUNS_WIDE,
+        DEFAULT_OBSTACLE_MODEL,
+        train_obstacle,
+    )
     from weather_filter.obstacle_data import augmented_bag
     from weather_filter.simdata import frames_of
 
