@@ -18,6 +18,21 @@ def spray_bag(tmp_path_factory):
     return out
 
 
+def test_the_car_ahead_comes_from_the_bag_and_no_box_overlaps_it(spray_bag):
+    from lidar_weather_sim.gap.augment_obstacles import ObstacleAugmenter, car_ahead
+    from lidar_weather_sim.gap.obstacle_boxes import footprints_overlap
+    from lidar_weather_sim.io.recording import Recording
+    from lidar_weather_sim.sensor.profile import load_profile
+
+    recording = Recording.load(spray_bag)
+    (car,) = car_ahead(recording, recording.frames[0])
+    # highway_spray: the rear middle 17.5 m ahead, 3.7 m left (the lane centre 3.75 m), a 4.7 m car
+    assert car.x == pytest.approx(17.5 + 4.7 / 2, abs=0.05) and car.y == pytest.approx(3.75, abs=0.05)
+    augmenter = ObstacleAugmenter(load_profile("scala4"), objects=3, seed=9)
+    for _ in range(100):
+        assert not any(footprints_overlap(b.footprint, car) for b in augmenter.boxes(-0.5, (car,)))
+
+
 def _counts(path):
     return {t.name: t.count for t in bag_info(path).topics}
 
