@@ -228,6 +228,33 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_augment(args: argparse.Namespace) -> int:
+    from lidar_weather_sim.gap.augment_obstacles import augment_bag, check_profile, profile_for_cloud
+    from lidar_weather_sim.io.recording import Recording
+    from lidar_weather_sim.sensor.profile import load_profile
+
+    first = Recording.load(args.bag, args.topic).frames[0].points
+    name = args.profile or profile_for_cloud(first)
+    profile = load_profile(name)
+    check_profile(first, profile, name)
+    frames, boxes = augment_bag(args.bag, args.out, profile, name, topic=args.topic, objects=args.objects,
+                                size_m=args.sizes, seed=args.seed, overwrite=args.overwrite)  # fmt: skip
+    print(f"wrote {frames} frames of {args.bag} with {boxes} obstacle boxes ({args.objects} per frame, profile {name}) "
+          f"to {args.out}")  # fmt: skip
+    return 0
+
+
+def _sizes(text: str) -> tuple[float, float]:
+    """``A:B`` (m) -> (A, B)."""
+    try:
+        lo, hi = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MIN:MAX in m, e.g. 0.2:2, not {text!r}") from None
+    if not 0.0 < lo <= hi:
+        raise argparse.ArgumentTypeError(f"need 0 < MIN <= MAX, not {text!r}")
+    return lo, hi
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -360,6 +387,17 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--out", required=True, help="output rosbag2 directory (MCAP)")
     measured.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     measured.set_defaults(func=_cmd_make_measured)
+
+    augment = commands.add_parser("augment", help="insert paper 4's synthetic obstacle boxes into a recording's frames")
+    augment.add_argument("bag", metavar="BAG", help="rosbag2 with a PointCloud2 topic (real or simulated)")
+    augment.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
+    augment.add_argument("--profile", help="sensor profile of the cloud (default: the shipped one that matches it)")
+    augment.add_argument("--objects", type=seed_int, default=1, help="boxes per frame (default 1)")
+    augment.add_argument("--sizes", type=_sizes, metavar="A:B", help="box sides in m (default: the paper's 0.2:2)")
+    augment.add_argument("--seed", type=seed_int, default=0, help="random seed (default 0)")
+    augment.add_argument("--out", required=True, help="output rosbag2 directory (MCAP)")
+    augment.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    augment.set_defaults(func=_cmd_augment)
 
     compare = commands.add_parser("compare", help="metrics, report and plots of a simulated vs a measured recording")
     compare.add_argument("measured", metavar="MEASURED", help="rosbag2 (MCAP or sqlite3) with a PointCloud2 topic")

@@ -51,6 +51,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         warnings.simplefilter("always", GeometryFallbackWarning)
         warnings.showwarning = lambda message, *rest, **kw: print(f"weather-filter eval: warning: {message}", file=sys.stderr)
         result = evaluate_bag(args.bag, args.method, args.topic, args.fallback, **_parse_params(args.param))
+    from lidar_weather_sim.io.bags import read_clouds
+    from weather_filter.obstacle import evaluate_obstacles
+
+    obstacles = evaluate_obstacles((f.points for f in read_clouds(args.bag, args.topic)), args.obstacle_model)
+    if obstacles is not None:  # the bag has label-3 points: paper 4's obstacle classifier too
+        result.update(obstacles)
     text = json.dumps(result, indent=2)
     if args.out:
         with open(args.out, "w") as stream:
@@ -138,9 +144,43 @@ def _apply_preset(args: argparse.Namespace) -> None:
         raise ValueError("nothing to train on: give --sim specs or --preset shipped")
 
 
+def _cmd_train_obstacle(args: argparse.Namespace) -> int:
+    """``train --preset augmentation``: paper 4's obstacle classifier on the fixed augmented runs."""
+    from weather_filter.obstacle import (
+        AUGMENT_TRAIN_RUNS,
+        AUGMENT_TRAIN_RUNS_WIDE,
+        DEFAULT_OBSTACLE_MODEL,
+        train_obstacle,
+    )
+    from weather_filter.obstacle_data import augmented_bag
+    from weather_filter.simdata import frames_of
+
+    if args.sim or args.bags or args.synthetic_frames:
+        raise ValueError("--preset augmentation trains on its own runs (weather_filter.obstacle.AUGMENT_TRAIN_RUNS) "
+                         "only: no --sim, bags or --synthetic-frames")  # fmt: skip
+    runs = AUGMENT_TRAIN_RUNS if args.preset == "augmentation" else AUGMENT_TRAIN_RUNS_WIDE
+    if args.preset != "augmentation" and args.out is None:
+        raise ValueError("--preset augmentation-wide is an experiment: give --out FILE.joblib")
+    sources = []
+    for run in runs:
+        bag = augmented_bag(run, args.cache)
+        print(f"augmented run {run}: {bag}", file=sys.stderr)
+        sources.append(frames_of(bag, args.topic))
+    command = f"weather-filter train --preset {args.preset} --seed {args.seed}"
+    report = train_obstacle(sources, args.out or DEFAULT_OBSTACLE_MODEL, trained_on=", ".join(runs),
+                            command=command, seed=args.seed)  # fmt: skip
+    s = report.scores
+    print(f"trained the obstacle classifier on {report.frames} frames ({report.points} feature-region points, "
+          f"{report.box_points} obstacle): train obstacle F1 {s['obstacle_f1']:.4f}, no-obstacle F1 "
+          f"{s['no_obstacle_f1']:.4f}; wrote {report.output}")  # fmt: skip
+    return 0
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
     from weather_filter.learned import DEFAULT_MODEL, train
 
+    if args.preset in ("augmentation", "augmentation-wide"):
+        return _cmd_train_obstacle(args)
     _apply_preset(args)
     _refuse_packaged_overwrite(args)
     sources, described = _training_sources(args)
@@ -182,13 +222,18 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--fallback", default="dror", choices=GEOMETRY_METHODS,
                     help="geometry-only filter for clouds lacking the method's fields (default dror)")  # fmt: skip
     ev.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="filter parameter override")
+    ev.add_argument("--obstacle-model", metavar="PATH", help="obstacle classifier run when the bag has label-3 points "
+                    "(default: the shipped models/obstacle_point_mlp_v1.joblib)")  # fmt: skip
     ev.set_defaults(func=_cmd_eval)
 
     tr = commands.add_parser("train", help="train the learned per-point filter on labelled simulation runs / bags")
     tr.add_argument("bags", nargs="*", metavar="BAG", help="labelled rosbag2 directories or .mcap files")
     tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]",
                     help="simulate this labelled run (cached under --cache) and train on it; repeatable")  # fmt: skip
-    tr.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (simdata.TRAIN_SPECS)")
+    tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-wide"],
+                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation: train paper 4's "
+                         "obstacle classifier on its augmented runs (obstacle.AUGMENT_TRAIN_RUNS; default --out: "
+                         "models/obstacle_point_mlp_v1.joblib); augmentation-wide: an experiment on more runs (obstacle.AUGMENT_TRAIN_RUNS_WIDE)")  # fmt: skip
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     tr.add_argument("--synthetic-frames", type=number_in(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")

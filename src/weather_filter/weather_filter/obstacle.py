@@ -1,0 +1,214 @@
+"""Paper 4's obstacle-vs-spray classifier (thesis lines 2770-2819): does a detection belong to a solid
+obstacle (label 3, "box") or not (spray, rain, vehicles, road: "no box")?
+
+Features: the paper's 15 per-detection parameters (:data:`PAPER_FEATURES`: x, y, echo, layer, EPW, the
+counts of the detection's cell in the radial 1 deg, 10x10 cm, 20 cm x 2 m, 4 m x 10 cm and 50x50 cm
+bird's-eye histograms, the radial count's change from the previous frame, and the 10 cm histogram
+convolved with the horizontal, corner, rotated corner and impulse matrices), computed by the learned
+weather filter's extractor (:class:`weather_filter.features.PointFeatures`) on the detections of the
+paper's feature region only (``feature_region_m``: x 0-20 m, |y| <= 6 m, sensor frame); detections
+outside it are never classified as obstacle. Classifier: StandardScaler + MLP with
+``classifier.hidden_units`` hidden units, fitted with the paper's class weights (``weight_no_box``,
+``weight_box``), a detection is "box" when its probability is >= 0.5. Every value is read from
+``thesis_tables.yaml`` (``augmentation``). The paper trained with scaled conjugate gradient; scikit-learn
+has none, so Adam (its default) is used.
+
+Training data (``weather-filter train --preset augmentation``): simulated spray runs augmented with
+``lidar-weather-sim augment``'s boxes, the lists below fixed before the first training.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.gap.obstacle_boxes import augmentation_table
+from weather_filter.features import FEATURE_NAMES, PointFeatures
+
+MODELS_DIR = Path(__file__).resolve().parent / "models"
+DEFAULT_OBSTACLE_MODEL = MODELS_DIR / "obstacle_point_mlp_v1.joblib"
+PAPER_FEATURES = ("x", "y", "echo", "channel", "epw", "n_radial", "n_small", "n_rear", "n_side", "n_middle",
+                  "d_radial", "conv_horizontal", "conv_corner", "conv_corner_rot90", "conv_impulse")  # fmt: skip
+_COLUMNS = [FEATURE_NAMES.index(n) for n in PAPER_FEATURES]
+
+#: Training runs: ``SCENARIO:SEED:FRAMES[:PROFILE]@AUGMENT_SEED`` - a simulated spray run (weather_filter.simdata
+#: spec) and the seed of ``lidar-weather-sim augment`` (1 box per frame, the paper's ranges). Fixed before training.
+AUGMENT_TRAIN_RUNS = (
+    "highway_spray:11:40@11", "highway_spray:12:40@12", "wf_train_rain_spray:11:40@13", "wf_train_clear_spray:11:40@14",
+    "wf_train_crosswind_spray:11:40@15", "proving_ground_39:11:40@16", "proving_ground_48:11:40@17",
+    "highway_spray_crosswind:11:40@18",
+)  # fmt: skip
+#: An experiment, not the shipped model's runs (``train --preset augmentation-wide --out FILE``): the training runs
+#: plus other weather and roads (snow on the curved road, fog, fog + rain, clear highway) and more spray seeds.
+#: Chosen after the shipped model's held-out figures were known (it missed most on wf_heldout_mixed: curved road,
+#: snow, fog), so its figures on those held-out runs are not a clean held-out measure.
+AUGMENT_TRAIN_RUNS_WIDE = AUGMENT_TRAIN_RUNS + (
+    "wf_train_snow:21:40@21", "wf_train_fog:21:40@22", "wf_train_fog_rain:21:40@23", "highway_clear:21:40@24",
+    "highway_spray:22:40@25", "wf_train_rain_spray:22:40@26", "wf_train_crosswind_spray:22:40@27",
+    "proving_ground_39:22:40@28", "wf_train_snow:23:40@29", "wf_train_fog:23:40@30",
+)  # fmt: skip
+#: Held-out runs: other simulation seeds, other augmentation seeds, and scenarios in no training run
+#: (proving_ground_55 / 60, wf_heldout_mixed).
+AUGMENT_TEST_RUNS = (
+    "highway_spray:111:40@111", "proving_ground_55:111:40@112", "proving_ground_60:111:40@113",
+    "wf_heldout_mixed:111:40@114", "highway_spray_crosswind:111:40@115",
+)  # fmt: skip
+
+
+def parse_run(text: str) -> tuple[str, int]:
+    """``SPEC@SEED`` -> (simulation spec, augmentation seed)."""
+    spec, sep, seed = text.rpartition("@")
+    if not sep or not spec or not seed.isdigit():
+        raise ValueError(f"augmented run {text!r}: expected SCENARIO:SEED:FRAMES[:PROFILE]@AUGMENT_SEED")
+    return spec, int(seed)
+
+
+def feature_region_mask(points: np.ndarray) -> np.ndarray:
+    """Detections inside the paper's feature region (sensor frame, m)."""
+    region = augmentation_table()["feature_region_m"]
+    x, y = points["x"], points["y"]
+    return (x >= region["x"][0]) & (x <= region["x"][1]) & (y >= region["y"][0]) & (y <= region["y"][1])
+
+
+class ObstacleFeatures:
+    """The paper's features of the feature region's detections, frame after frame of one sequence."""
+
+    def __init__(self) -> None:
+        region = augmentation_table()["feature_region_m"]
+        extent = max(abs(v) for v in (*region["x"], *region["y"]))
+        self._extractor = PointFeatures(extent_m=extent, radial_bin_deg=augmentation_table()["histogram_cells_m"]["radial_deg"])
+
+    def reset(self) -> None:
+        self._extractor.reset()
+
+    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mask of the region's detections, (M, 15) float32 features of those)."""
+        mask = feature_region_mask(points)
+        return mask, np.ascontiguousarray(self._extractor(points[mask])[:, _COLUMNS])
+
+
+def class_weights() -> tuple[float, float]:
+    """(no box, box) error weights of the paper."""
+    c = augmentation_table()["classifier"]
+    return float(c["weight_no_box"]), float(c["weight_box"])
+
+
+def training_arrays(sequences: Iterable[Iterable[np.ndarray]]) -> tuple[np.ndarray, np.ndarray, int]:
+    """(X, y, frames) of labelled frame sequences; y = 1 for label 3 (obstacle), 0 else; region only."""
+    xs, ys, frames = [], [], 0
+    for sequence in sequences:
+        features = ObstacleFeatures()
+        for points in sequence:
+            mask, x = features(points)
+            xs.append(x)
+            ys.append((points["label"][mask] == Label.OBSTACLE).astype(np.int8))
+            frames += 1
+    if not xs:
+        raise ValueError("no labelled frames to train on")
+    return np.concatenate(xs), np.concatenate(ys), frames
+
+
+@dataclass(frozen=True)
+class ObstacleTrainingReport:
+    frames: int
+    points: int
+    box_points: int
+    scores: dict
+    output: Path
+
+
+def train_obstacle(sequences, output: str | Path, *, trained_on: str, command: str, seed: int = 0) -> ObstacleTrainingReport:
+    """Fit the paper's classifier on labelled frame sequences and write the model bundle to ``output``."""
+    import joblib
+    import sklearn
+    from sklearn.neural_network import MLPClassifier
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    x, y, frames = training_arrays(sequences)
+    if y.min() == y.max():
+        raise ValueError("training data holds only one class (need obstacle and other points)")
+    hidden = int(augmentation_table()["classifier"]["hidden_units"])
+    w_nb, w_b = class_weights()
+    model = make_pipeline(StandardScaler(), MLPClassifier(hidden_layer_sizes=(hidden,), max_iter=500,
+                                                          early_stopping=True, random_state=seed))  # fmt: skip
+    model.fit(x, y, mlpclassifier__sample_weight=np.where(y == 1, w_b, w_nb))
+    scores = obstacle_scores(y.astype(bool), model.predict_proba(x)[:, 1] >= 0.5)
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    joblib.dump({"model": model, "feature_names": PAPER_FEATURES, "threshold": 0.5, "hidden": [hidden],
+                 "class_weights": {"no_box": w_nb, "box": w_b}, "sklearn_version": sklearn.__version__,
+                 "trained_on": trained_on, "command": command, "version": 1}, output, compress=3)  # fmt: skip
+    return ObstacleTrainingReport(frames, len(y), int(y.sum()), scores, output)
+
+
+class ObstacleClassifier:
+    """The shipped (or a given) obstacle model; call :meth:`predict` frame after frame of one sequence."""
+
+    def __init__(self, bundle: dict) -> None:
+        from weather_filter.learned import FastMLP
+
+        if tuple(bundle["feature_names"]) != PAPER_FEATURES:
+            raise ValueError("obstacle model built on other features than weather_filter.obstacle.PAPER_FEATURES")
+        self.bundle = bundle
+        self._fast = FastMLP(bundle["model"])
+        self._logit_threshold = float(np.log(bundle["threshold"] / (1.0 - bundle["threshold"])))
+        self.features = ObstacleFeatures()
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> "ObstacleClassifier":
+        import joblib
+
+        path = Path(path) if path else DEFAULT_OBSTACLE_MODEL
+        if not path.is_file():
+            raise ValueError(f"obstacle model {path} not found")
+        return cls(joblib.load(path))
+
+    def reset(self) -> None:
+        self.features.reset()
+
+    def predict(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: the detection is an obstacle's (False outside the feature region)."""
+        mask, x = self.features(points)
+        out = np.zeros(len(points), bool)
+        if len(x):
+            out[mask] = self._fast.logit(x) >= self._logit_threshold
+        return out
+
+
+def obstacle_scores(truth: np.ndarray, pred: np.ndarray) -> dict:
+    """Precision, recall, F1 of the obstacle ("box") class and F1 of the rest ("no box"), fractions;
+    a zero denominator counts as 1.0 (nothing to get wrong)."""
+    truth, pred = np.asarray(truth, bool), np.asarray(pred, bool)
+    tp, fp, fn = int((truth & pred).sum()), int((~truth & pred).sum()), int((truth & ~pred).sum())
+    tn = int((~truth & ~pred).sum())
+
+    def f1(tp, fp, fn):
+        return 2 * tp / (2 * tp + fp + fn) if (2 * tp + fp + fn) else 1.0
+
+    return {"obstacle_precision": tp / (tp + fp) if tp + fp else 1.0, "obstacle_recall": tp / (tp + fn) if tp + fn else 1.0,
+            "obstacle_f1": f1(tp, fp, fn), "no_obstacle_f1": f1(tn, fn, fp), "obstacle_points": tp + fn,
+            "other_points": tn + fp}  # fmt: skip
+
+
+def evaluate_obstacles(frames: Iterable[np.ndarray], model: str | Path | None = None) -> dict | None:
+    """:func:`obstacle_scores` of the classifier over a sequence of labelled frames, in the feature region
+    (micro-averaged over its detections), plus ``obstacle_model``; None when no frame has a label-3 point."""
+    classifier = ObstacleClassifier.load(model)
+    truth, pred, any_obstacle = [], [], False
+    for points in frames:
+        if "label" not in (points.dtype.names or ()):
+            return None
+        mask = feature_region_mask(points)
+        is_obstacle = points["label"] == Label.OBSTACLE
+        any_obstacle |= bool(is_obstacle.any())
+        truth.append(is_obstacle[mask])
+        pred.append(classifier.predict(points)[mask])
+    if not any_obstacle:
+        return None
+    scores = obstacle_scores(np.concatenate(truth), np.concatenate(pred))
+    return {**scores, "obstacle_model": str(Path(model) if model else DEFAULT_OBSTACLE_MODEL)}
