@@ -1,7 +1,7 @@
 """Reality-gap workflow: make-measured hides effects, gap names them, fits them and shrinks the gap; compare.
 
-The diagnosis tests run on 60 highway_clear scala4 frames with reduced budgets (the
-command's defaults are larger); each checks that exactly the hidden effects are named,
+The diagnosis tests run on 60 highway_clear scala4 frames with the command's default budgets
+(lidar_weather_sim.gap.budgets: 30 calibration, 30 held-out, 6 screening frames); each checks that exactly the hidden effects are named,
 that the main parameter comes back within 15 % and that the held-out gap at least halves.
 """
 
@@ -20,7 +20,6 @@ from lidar_weather_sim.io.bags import bag_info
 from lidar_weather_sim.scenario.schema import Scenario, load_scenario
 
 FRAMES = 60
-BUDGETS = {"fit_frames": 30, "heldout_frames": 30, "screen_frames": 6}
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +31,7 @@ def _diagnose(scenario: Scenario, hidden: list[str], tmp_path) -> tuple[dict, li
     scenario = case_scenario(scenario, hidden)
     effects = [parse_effect(text) for text in hidden]
     make_measured(scenario, effects, tmp_path / "measured", frames=FRAMES)
-    return run_gap(tmp_path / "measured", scenario, tmp_path / "gap", **BUDGETS), effects
+    return run_gap(tmp_path / "measured", scenario, tmp_path / "gap"), effects
 
 
 CASES = RECOVERY_CASES

@@ -20,6 +20,7 @@ from lidar_weather_sim.core.argtypes import (
     seed_int,
 )
 from lidar_weather_sim.core.names import RETURN_MODES, TOPIC_POINTS
+from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -412,8 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--scenario", required=True, help="scenario to re-simulate with (name or YAML path)")
     gap.add_argument("--profile", help="sensor profile overriding the scenario's")
     gap.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
-    gap.add_argument("--fit-frames", type=positive_int, default=24, help="calibration frames used for fitting")
-    gap.add_argument("--heldout-frames", type=positive_int, default=30, help="held-out frames used for every decision")
+    gap.add_argument("--fit-frames", type=positive_int, default=FIT_FRAMES, help="calibration frames used for fitting (default %(default)s)")
+    gap.add_argument("--heldout-frames", type=positive_int, default=HELDOUT_FRAMES,
+                     help="held-out frames used for every decision (default %(default)s)")  # fmt: skip
     gap.add_argument("--out", default="gap_report", help="output directory")
     gap.set_defaults(func=_cmd_gap)
 

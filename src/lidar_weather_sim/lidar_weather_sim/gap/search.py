@@ -37,6 +37,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
 from lidar_weather_sim.gap.effects import EFFECTS, Effect, conflicts, search_grid, spray_candidates
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.signatures import Signature, gap_value
@@ -101,7 +102,8 @@ def candidate_effects(resim: Resimulator) -> list[Effect]:
 class GapSearch:
     """The diagnosis of :mod:`lidar_weather_sim.gap.search` over one recording and scenario."""
 
-    def __init__(self, resim: Resimulator, fit_frames: int = 24, heldout_frames: int = 30, screen_frames: int = 4,
+    def __init__(self, resim: Resimulator, fit_frames: int = FIT_FRAMES, heldout_frames: int = HELDOUT_FRAMES,
+                 screen_frames: int = SCREEN_FRAMES,
                  grid: int = 5, refine: int = 2, min_gain: float = MIN_GAIN, min_abs_gain: float = MIN_ABS_GAIN,
                  progress: Callable[[str], None] | None = None) -> None:  # fmt: skip
         self.resim = resim
