@@ -338,6 +338,7 @@ class Page:
 PAGES = (
     Page("cover", "src/lidar_weather_sim/docs/regions/cover.md", Source("region:cover")),
     Page("atmosphere", "src/lidar_weather_sim/docs/regions/atmosphere.md", Source("region:atmosphere")),
+    Page("faults", "src/lidar_weather_sim/docs/regions/faults.md", Source("region:faults")),
     Page("spray", "src/spray_particles/docs/spray_region.md", Source("region:spray")),
     Page("dror", "src/weather_filter/docs/filters/dror.md", Source("filter:dror")),
     Page("dsor", "src/weather_filter/docs/filters/dsor.md", Source("filter:dsor")),

@@ -48,6 +48,7 @@ setup(
         "lidar_weather_sim.regions": [
             "cover = lidar_weather_sim.regions.cover:CoverRegion",
             "atmosphere = lidar_weather_sim.regions.atmosphere:AtmosphereRegion",
+            "faults = lidar_weather_sim.regions.faults:FaultRegion",
         ],
     },
 )
