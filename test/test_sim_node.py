@@ -547,3 +547,18 @@ def test_session_validation_names_the_problem(world):
     for bad, match in (("[1, 2", "invalid YAML"), ("[1, 2]", "must map"), ("cover: 3", "must map")):
         with pytest.raises(ConfigError, match=match):
             parse_region_params(bad)
+
+
+def test_scenario_mode_stops_when_the_ego_reaches_the_end_of_its_road(processes, tmp_path):
+    """As `run` does: was, clouds of an empty world published without a word after the ego left the map."""
+    from lidar_weather_sim.scenario.schema import load_scenario
+
+    data = load_scenario("highway_clear").model_dump(mode="json")
+    data["ego"].update(s_m=990.0, speed_m_s=25.0)  # the 1 km road ends 0.4 s later
+    data["actors"] = []
+    path = tmp_path / "end.yaml"
+    path.write_text(yaml.safe_dump(data))
+    proc = node_process(processes, scenario=str(path), realtime_factor=0.0)
+    assert proc.wait(timeout=120) == 0, processes.output(proc)
+    out = processes.output(proc)
+    assert "the ego reached the end of road '1' at 0.40 s" in out and "published 10 clouds" in out, out

@@ -10,7 +10,9 @@ With ``wait_for_subscriber`` the tf/odometry input is subscribed to only once
 listens, and the player, waiting for this node's subscriptions, starts after),
 and in scenario mode simulated time starts only then (a recorder keeps frame 0);
 with ``exit_when_input_ends`` the node exits once every publisher of that input
-has left and all it sent is cast (the end of a bag replay).
+has left and all it sent is cast (the end of a bag replay). In scenario mode the
+node stops (status 0, with a warning) when the ego reaches the end of its road, as
+``lidar-weather-sim run`` does: beyond it the ego would leave the map.
 The map and the actors come from ``scenario``; with ``actors_from_tf`` (tf/odometry
 mode) the actors' bodies and spray emitters follow their /tf frames actor_<id>
 (fixed_frame -> actor_<id>, as scenario mode publishes them). Each pose update casts
@@ -143,6 +145,7 @@ class LidarSimNode(Node):
         self._gate = PoseGate(gap, speed)
         self.inputs = 0  # pose messages (/tf or odometry) received
         self.published = 0
+        self.road_end_s: float | None = None  # scenario mode: when the ego reached the end of its road (s)
         from_tf = p("actors_from_tf", False, "tf/odometry: actors (bodies and spray emitters) follow their /tf frames "
                     "actor_<id> in fixed_frame instead of the scenario; absent while their frame is unknown")
         if mode != "scenario":
@@ -323,6 +326,11 @@ class LidarSimNode(Node):
             self._hold = False
         self._tick += 1
         self._t = t = self._tick * self._dt
+        if self.world.player.ego.at_road_end(t):  # as `run`: the ego would leave the map, the clouds go empty
+            self.road_end_s = t
+            self.get_logger().warning(f"the ego reached the end of road {self.world.scenario.ego.road!r} at {t:.2f} s "
+                                      f"(it would leave the map): stopping after {self.published} clouds")  # fmt: skip
+            return
         ns = round(t * 1e9)
         self._clock_pub.publish(ClockMsg(clock=_time(ns)))
         if self._tf is not None:
@@ -353,7 +361,8 @@ class LidarSimNode(Node):
 
     @property
     def finished(self) -> bool:
-        return 0 < self.max_frames <= self.published
+        """max_frames clouds published, or (scenario mode) the ego reached the end of its road."""
+        return 0 < self.max_frames <= self.published or self.road_end_s is not None
 
     def _stamp_ns(self, time_s: float) -> int:
         """Simulated seconds -> ROS stamp (scenario mode: simulated time is ROS time)."""
@@ -402,7 +411,7 @@ def _spin(node: LidarSimNode) -> None:
         ended = node.input_ended  # then all the input sent is queued here
         if not _spin_once(executor, POLL_S) and ended:
             break  # ... and cast
-    if node.finished:  # max_frames: the last clouds are best effort; give them time to reach the readers
+    if node.finished:  # max_frames or road end: the last clouds are best effort; give them time to reach the readers
         linger_until = time.monotonic() + LINGER_S
         while not stop_requested() and time.monotonic() < linger_until:
             time.sleep(POLL_S)
