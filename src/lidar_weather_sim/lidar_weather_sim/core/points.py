@@ -143,3 +143,16 @@ def fill_polar(points: np.ndarray) -> None:
     points["azimuth"] = np.arctan2(y, x)
     points["elevation"] = np.arctan2(z, horizontal)
     points["distance"] = np.hypot(horizontal, z)
+
+
+def add_range_noise(points: np.ndarray, sigma_m: float, rng: np.random.Generator) -> None:
+    """Move ``points`` (an array or a view with x, y, z, distance) along their beams by N(0, sigma_m) (m), in
+    place (ranges kept >= 1 mm)."""
+    if sigma_m <= 0 or not len(points):
+        return
+    d = points["distance"].astype(np.float64)
+    new = np.maximum(d + rng.normal(0.0, sigma_m, len(d)), 1e-3)
+    scale = new / np.maximum(d, 1e-9)
+    for axis in ("x", "y", "z"):
+        points[axis] = points[axis] * scale
+    points["distance"] = new

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from lidar_weather_sim.core.points import strip_ground_truth
+from lidar_weather_sim.core.points import add_range_noise, strip_ground_truth
 from lidar_weather_sim.gap.effects import Effect, apply_effects
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.sim.offline import RunReport, run_scenario
@@ -41,14 +41,7 @@ class Nuisance:
 def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator) -> np.ndarray:
     """Points without ground truth, each moved along its beam by N(0, sigma_m) (m)."""
     out = strip_ground_truth(points)
-    if sigma_m <= 0 or not len(out):
-        return out
-    d = out["distance"].astype(np.float64)
-    new = np.maximum(d + rng.normal(0.0, sigma_m, len(d)), 1e-3)
-    scale = new / np.maximum(d, 1e-9)
-    for axis in ("x", "y", "z"):
-        out[axis] = out[axis] * scale
-    out["distance"] = new
+    add_range_noise(out, sigma_m, rng)
     return out
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_weather_sim.core.points import ReturnType
+from lidar_weather_sim.core.points import ReturnType, add_range_noise
 from lidar_weather_sim.sensor.scan import ScanPattern
 
 #: Recorded returns this close (m) are never removed by an obstacle (paper 4: "the region from 0 to 5 m").
@@ -100,17 +100,6 @@ def merge_obstacles(recorded: np.ndarray, obstacle: np.ndarray, pattern: ScanPat
     if "return_type" in out.dtype.names and touched.any():
         out["return_type"][touched] = _return_types(all_key[touched], out["distance"][touched].astype(np.float64),
                                                     out["echo"][touched])  # fmt: skip
-    _range_noise(added, noise_sigma_m, rng)
+    add_range_noise(added, noise_sigma_m, rng)
     return out
 
-
-def _range_noise(points: np.ndarray, sigma_m: float, rng: np.random.Generator) -> None:
-    """Move ``points`` (a view) along their beams by N(0, sigma_m) (m), in place."""
-    if sigma_m <= 0 or not len(points):
-        return
-    d = points["distance"].astype(np.float64)
-    new = np.maximum(d + rng.normal(0.0, sigma_m, len(d)), 1e-3)
-    scale = new / np.maximum(d, 1e-9)
-    for axis in ("x", "y", "z"):
-        points[axis] = points[axis] * scale
-    points["distance"] = new
