@@ -25,6 +25,8 @@ setup(
     entry_points={
         # The filter's training and evaluation runs (weather_filter/scenarios/wf_*.yaml), runnable by name.
         "lidar_weather_sim.scenario_dirs": ["weather_filter = weather_filter.simdata:scenario_directory"],
+        # `lidar-weather-sim sweep`'s `compute: [eval]`: the filter's evaluation of each run.
+        "lidar_weather_sim.sweep_metrics": ["eval = weather_filter.sweep_metrics:evaluate"],
         "console_scripts": [
             "weather-filter = weather_filter.cli:main",
             "weather_filter_node = weather_filter.ros.weather_filter_node:main",

@@ -18,6 +18,7 @@ from lidar_weather_sim.core.argtypes import (
     positive_float,
     positive_int,
     seed_int,
+    workers_int,
 )
 from lidar_weather_sim.core.names import RETURN_MODES, TOPIC_POINTS
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES
@@ -322,6 +323,23 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from lidar_weather_sim.sweep.command import run_sweep
+
+    with tqdm(unit="run", desc="sweep") as bar:
+
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        report = run_sweep(args.sweep, args.out, scheduler=args.scheduler, workers=args.workers, progress=progress)
+    print(f"{report.runs} runs: {report.ran} ran ({report.failed} failed in all), {report.skipped} already done; "
+          f"{report.wall_s:.1f} s; wrote {report.results} and {report.report}")  # fmt: skip
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="lidar-weather-sim",
@@ -418,6 +436,16 @@ def build_parser() -> argparse.ArgumentParser:
                      help="held-out frames used for every decision (default %(default)s)")  # fmt: skip
     gap.add_argument("--out", default="gap_report", help="output directory")
     gap.set_defaults(func=_cmd_gap)
+
+    sweep = commands.add_parser("sweep", help="many seeded runs over swept scenario keys on Dask (local or a cluster), "
+                                              "one metrics row per run, resumable")  # fmt: skip
+    sweep.add_argument("sweep", metavar="SWEEP.yaml", help="what to run: scenario, frames, seeds, grid or random, compute")
+    sweep.add_argument("--out", required=True, help="output directory (runs already in it are skipped)")
+    engine = sweep.add_mutually_exclusive_group()
+    engine.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
+    engine.add_argument("--workers", type=workers_int, default=None,
+                        help="local worker processes (default: one per CPU; 0: in this process, no Dask)")  # fmt: skip
+    sweep.set_defaults(func=_cmd_sweep)
 
     render = commands.add_parser("render", help="pictures of a bag's clouds: bird's-eye and range-image PNGs, a GIF, "
                                                 "optionally a 3D HTML page (no rviz2 needed)")  # fmt: skip

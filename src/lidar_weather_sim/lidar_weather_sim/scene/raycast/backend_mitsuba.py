@@ -30,6 +30,8 @@ from functools import cache
 
 import numpy as np
 
+from lidar_weather_sim.core import workers
+
 from .backend import CasterBase
 
 VARIANT = "llvm_ad_rgb"
@@ -73,10 +75,11 @@ def check() -> None:
 
 @cache
 def _threads() -> int:
-    """Dr.Jit's thread count before our first use (all cores unless the user set it)."""
+    """Dr.Jit's thread count before our first use (all cores unless the user set it), at most the
+    simulator's own (``LWS_SIM_THREADS``: 1 in a sweep's worker processes)."""
     import drjit as dr
 
-    return dr.thread_count()
+    return max(1, min(dr.thread_count(), workers.THREADS))
 
 
 @contextmanager

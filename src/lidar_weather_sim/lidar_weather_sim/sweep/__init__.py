@@ -1,0 +1,1 @@
+"""``lidar-weather-sim sweep``: many seeded simulation runs over swept scenario keys, on the Dask engine."""
