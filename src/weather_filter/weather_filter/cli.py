@@ -76,12 +76,11 @@ def _synthetic_frames(n: int, seed: int):
 
 def _training_sources(args: argparse.Namespace) -> tuple[list, list[str]]:
     """Frame sequences (one per bag / simulation run / synthetic set) and their descriptions."""
-    from weather_filter.simdata import SimSpec, frames_of, simulate
+    from weather_filter.simdata import SimSpec, frames_of
 
     sources, described = [], []
-    for spec in map(SimSpec.parse, args.sim):
-        bag = simulate(spec, args.cache)
-        print(f"simulation {spec}: {bag}", file=sys.stderr)
+    specs = list(map(SimSpec.parse, args.sim))
+    for spec, bag in zip(specs, _simulate_all(args, specs)):
         sources.append(frames_of(bag, args.topic))
         described.append(f"sim:{spec}")
     for bag in args.bags:
@@ -93,6 +92,19 @@ def _training_sources(args: argparse.Namespace) -> tuple[list, list[str]]:
     if not sources:
         raise ValueError("nothing to train on: give --sim specs, labelled bags and/or --synthetic-frames N")
     return sources, described
+
+
+def _simulate_all(args: argparse.Namespace, specs: list) -> list:
+    """The bags of the --sim runs, the missing ones simulated on the engine of --workers / --scheduler."""
+    from weather_filter.simdata import simulate_all
+
+    def report(spec, bag) -> None:
+        print(f"simulated {spec}: {bag}", file=sys.stderr)
+
+    try:
+        return simulate_all(specs, args.cache, scheduler=args.scheduler, workers=args.workers, progress=report)
+    except RuntimeError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def _preset_specs(command: str) -> tuple[str, ...]:  # noqa: D401
@@ -201,10 +213,21 @@ def _cmd_train_weather(args: argparse.Namespace) -> int:
 
     _apply_preset(args)
     _refuse_packaged_overwrite(args)
+    _simulate_all(args, args.sim)
     report = train_knn(args.sim, args.out or DEFAULT_KNN_MODEL, command=_stored_command(args), k=args.k,
                        cache_dir=args.cache, topic=args.topic)  # fmt: skip
     print(f"trained KNN (k={args.k}) on {report.frames} frames {report.per_class}; wrote {report.output}")
     return 0
+
+
+def _engine_options(parser: argparse.ArgumentParser) -> None:
+    """Where the --sim runs not in the cache are simulated (lidar_weather_sim.core.engine)."""
+    engine = parser.add_mutually_exclusive_group()
+    engine.add_argument("--workers", type=number_in(int, 0), default=0,
+                        help="simulate the missing --sim runs on N local Dask worker processes (default 0: in this "
+                             "process, one after another)")  # fmt: skip
+    engine.add_argument("--scheduler", metavar="ADDRESS", help="simulate them on the Dask cluster at ADDRESS "
+                        "(its workers must see --cache)")  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -246,6 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"least share of the training solid points the chosen threshold keeps (default {TRAIN_OBJECT_RECALL})")  # fmt: skip
     tr.add_argument("--seed", type=number_in(int, 0), default=0, help="random seed of sampling, synthetic frames and the MLP")
     tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib)")
+    _engine_options(tr)
     tr.set_defaults(func=_cmd_train)
 
     tw = commands.add_parser("train-weather", help="train the per-frame weather classifier (KNN) on simulation runs")
@@ -256,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     tw.add_argument("--k", type=number_in(int, 1), default=5, help="neighbours (default 5)")
     tw.add_argument("--out", help="model file (default: the packaged models/weather_knn_v<N>.joblib)")
+    _engine_options(tw)
     tw.set_defaults(func=_cmd_train_weather)
     return parser
 

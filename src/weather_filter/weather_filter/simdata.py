@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Iterator
 
@@ -112,6 +113,40 @@ def simulate(spec: SimSpec | str, cache_dir: str | Path | None = None) -> Path:
     cache.mkdir(parents=True, exist_ok=True)
     run_scenario(spec.load_scenario(), bag, frames=spec.frames, seed=spec.seed, profile=spec.profile, overwrite=True)
     return bag
+
+
+def simulate_all(specs: list[SimSpec | str], cache_dir: str | Path | None = None, *, scheduler: str | None = None,
+                 workers: int | None = 0, progress=None) -> list[Path]:  # fmt: skip
+    """The bags of ``specs`` (in order), those not cached yet simulated on the Dask engine
+    (:class:`lidar_weather_sim.core.engine.Engine`: ``workers=0`` in this process, ``N`` local worker
+    processes, or a cluster at ``scheduler`` whose workers see ``cache_dir``). ``progress(spec, bag)``
+    as each finishes. A run that fails raises after the others have finished (their bags are kept)."""
+    from lidar_weather_sim.core.engine import Engine
+
+    specs = [SimSpec.parse(s) if isinstance(s, str) else s for s in specs]
+    cache = Path(cache_dir).resolve() if cache_dir else default_cache_dir()
+    bags = [cache / spec.bag_name for spec in specs]
+    todo = list(dict.fromkeys(spec for spec, bag in zip(specs, bags) if not (bag / "metadata.yaml").exists()))
+    errors = []
+    with Engine(scheduler, workers) if todo else Engine() as engine:
+        if todo:
+            engine.warm(_warm_up, todo[0])
+        for outcome in engine.map(partial(simulate, cache_dir=str(cache)), todo):
+            if outcome.error:
+                errors.append(f"simulation {todo[outcome.index]}: {outcome.error}")
+            elif progress:
+                progress(todo[outcome.index], outcome.result)
+    if errors:
+        raise RuntimeError("; ".join(errors))
+    return bags
+
+
+def _warm_up(spec: SimSpec) -> None:
+    """One frame of ``spec`` into a temporary directory (numba's kernels compiled once per machine)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="wf-warm-") as tmp:
+        simulate(SimSpec(spec.scenario, spec.seed, 1, spec.profile, spec.weather), tmp)
 
 
 def frames_of(bag: str | Path, topic: str = TOPIC_POINTS) -> Iterator[np.ndarray]:
