@@ -142,3 +142,14 @@ def test_compare_writes_metrics_report_and_plots(highway, tmp_path, cli):
                            str(tmp_path / "same")], capture_output=True, text=True)  # fmt: skip
     assert same.returncode == 0, same.stderr
     assert json.loads((tmp_path / "same" / "metrics.json").read_text())["gap"] == 0.0
+
+
+def test_gap_search_on_two_dask_workers_is_the_serial_diagnosis(highway, tmp_path):
+    hidden = ["atmosphere.fog:visual_range=80"]
+    scenario = case_scenario(highway, hidden)
+    make_measured(scenario, [parse_effect(h) for h in hidden], tmp_path / "measured", frames=12)
+    budgets = {"fit_frames": 4, "heldout_frames": 4, "screen_frames": 1}
+    serial = run_gap(tmp_path / "measured", scenario, tmp_path / "serial", **budgets)
+    parallel = run_gap(tmp_path / "measured", scenario, tmp_path / "parallel", workers=2, **budgets)
+    assert [e["name"] for e in serial["effects"]] == ["atmosphere.fog"]
+    assert json.dumps(parallel, sort_keys=True) == json.dumps(serial, sort_keys=True)

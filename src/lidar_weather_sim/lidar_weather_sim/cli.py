@@ -287,7 +287,8 @@ def _cmd_gap(args: argparse.Namespace) -> int:
             bar.set_postfix_str(text[:60])
 
         result = run_gap(args.measured, load_scenario(args.scenario), args.out, profile=args.profile, topic=args.topic,
-                         progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames)  # fmt: skip
+                         progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
+                         scheduler=args.scheduler, workers=args.workers)  # fmt: skip
     found = ", ".join(f"{e['name']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
                       for e in result["effects"]) or "no effect"  # fmt: skip
     print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}; wrote {args.out}/gap.json")
@@ -435,6 +436,11 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--heldout-frames", type=positive_int, default=HELDOUT_FRAMES,
                      help="held-out frames used for every decision (default %(default)s)")  # fmt: skip
     gap.add_argument("--out", default="gap_report", help="output directory")
+    gap_engine = gap.add_mutually_exclusive_group()
+    gap_engine.add_argument("--workers", type=workers_int, default=0, help="run the search's evaluations on N local "
+                            "Dask worker processes (default 0: in this process; the result is the same)")  # fmt: skip
+    gap_engine.add_argument("--scheduler", metavar="ADDRESS", help="run them on the Dask cluster at ADDRESS (its "
+                            "workers must read MEASURED at the same path)")  # fmt: skip
     gap.set_defaults(func=_cmd_gap)
 
     sweep = commands.add_parser("sweep", help="many seeded runs over swept scenario keys on Dask (local or a cluster), "

@@ -32,13 +32,16 @@ frames per round, whatever the length of the recording.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
 from lidar_weather_sim.gap.effects import EFFECTS, Effect, conflicts, search_grid, spray_candidates
+from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.signatures import Signature, gap_value
 
@@ -105,8 +108,13 @@ class GapSearch:
     def __init__(self, resim: Resimulator, fit_frames: int = FIT_FRAMES, heldout_frames: int = HELDOUT_FRAMES,
                  screen_frames: int = SCREEN_FRAMES,
                  grid: int = 5, refine: int = 2, min_gain: float = MIN_GAIN, min_abs_gain: float = MIN_ABS_GAIN,
-                 progress: Callable[[str], None] | None = None) -> None:  # fmt: skip
+                 progress: Callable[[str], None] | None = None, engine: Engine | None = None,
+                 source: SearchSource | None = None) -> None:  # fmt: skip
+        """``engine`` with ``source`` (how a worker builds this same search): each round's evaluations run
+        on the engine's workers (:mod:`lidar_weather_sim.gap.parallel`); without, in this process."""
         self.resim = resim
+        self.engine = engine if engine is not None and not engine.serial else None
+        self.source = source
         self.grid = grid
         self.refine = refine
         self.min_gain = min_gain
@@ -128,29 +136,40 @@ class GapSearch:
         return gap_value(self._measured[split], sim, clip=split == "heldout")
 
     def _objective(self, accepted: list[Effect], candidate: Effect, split: str, cache: dict[float, float]):
-        spec = candidate.spec
-        lo, hi = spec.bounds
-
-        def value(x: float) -> float:
-            return float(np.clip(np.exp(x), lo, hi)) if spec.log_search else float(x)
+        """The gap of ``accepted`` + ``candidate`` at search-space value x, memoised in ``cache``."""
 
         def objective(x: float) -> float:
             key = round(float(x), 6)
             if key not in cache:
-                cache[key] = self.gap(accepted + [candidate.with_value(value(x))], split)
+                cache[key] = self.gap(accepted + [self._value(candidate, x)], split)
             return cache[key]
 
-        return objective, value
+        return objective
 
-    def screen(self, accepted: list[Effect], candidate: Effect) -> tuple[Effect, float, np.ndarray, int]:
-        """Grid search on the screening frames: (best effect, its gap, the grid in search space, best index)."""
-        spec = candidate.spec
-        xs = search_grid(spec, self.grid)
-        xs = np.log(xs) if spec.log_search else xs
-        objective, value = self._objective(accepted, candidate, "screen", {})
-        gaps = [objective(x) for x in xs]
-        k = int(np.argmin(gaps))
-        return candidate.with_value(value(xs[k])), gaps[k], xs, k
+    def _value(self, effect: Effect, x: float) -> Effect:
+        """``effect`` at search-space value ``x`` (log of the value where the effect spans decades)."""
+        spec = effect.spec
+        lo, hi = spec.bounds
+        return effect.with_value(float(np.clip(np.exp(x), lo, hi)) if spec.log_search else float(x))
+
+    def _grid(self, effect: Effect) -> np.ndarray:
+        xs = search_grid(effect.spec, self.grid)
+        return np.log(xs) if effect.spec.log_search else xs
+
+    def gaps(self, jobs: list[tuple[list[Effect], str]]) -> list[float]:
+        """:meth:`gap` of every (effects, split), on the engine's workers when there is one."""
+        if self.engine is None:
+            return [self.gap(effects, split) for effects, split in jobs]
+        return self._remote(remote_gap, jobs)
+
+    def _remote(self, task, jobs: list) -> list:
+        out = [None] * len(jobs)
+        for outcome in self.engine.map(partial(task, self.source), jobs):
+            if outcome.error:
+                raise RuntimeError(f"gap search: an evaluation failed on a worker: {outcome.error}")
+            out[outcome.index], casts = outcome.result
+            self.resim.casts += casts
+        return out
 
     def fit(self, accepted: list[Effect], candidate: Effect, xs: np.ndarray, k: int,
             cache: dict[float, float] | None = None) -> tuple[Effect, float, int]:  # fmt: skip
@@ -158,13 +177,13 @@ class GapSearch:
         (``cache``: calibration gaps already known, by search-space value)."""
         spec = candidate.spec
         cache = {} if cache is None else cache
-        objective, value = self._objective(accepted, candidate, "fit", cache)
+        objective = self._objective(accepted, candidate, "fit", cache)
         objective(xs[k])
         lo, hi = xs[max(k - 1, 0)], xs[min(k + 1, len(xs) - 1)]
         tol = 0.01 if spec.log_search else 0.002 * (spec.bounds[1] - spec.bounds[0])
         minimize_scalar(objective, bounds=(lo, hi), method="bounded", options={"xatol": tol, "maxiter": 10})
         x = min(cache, key=cache.get)
-        return candidate.with_value(value(x)), cache[x], len(cache)
+        return self._value(candidate, x), cache[x], len(cache)
 
     def refit(self, effects: list[Effect], passes: int = 2) -> list[Effect]:
         """Coordinate descent: each effect's main parameter fitted again on the calibration frames
@@ -173,30 +192,36 @@ class GapSearch:
         effects = list(effects)
         for _ in range(passes):
             for i, effect in enumerate(effects):
-                spec = effect.spec
-                cache: dict[float, float] = {}
-                objective, value = self._objective(effects[:i] + effects[i + 1 :], effect, "fit", cache)
-                xs = search_grid(spec, self.grid)
-                xs = np.sort(np.append(np.log(xs) if spec.log_search else xs,
-                                       np.log(effect.value) if spec.log_search else effect.value))  # fmt: skip
-                k = int(np.argmin([objective(x) for x in xs]))
-                effects[i] = self.fit(effects[:i] + effects[i + 1 :], effect, xs, k, cache)[0]
+                others = effects[:i] + effects[i + 1 :]
+                current = np.log(effect.value) if effect.spec.log_search else effect.value
+                xs = np.sort(np.append(self._grid(effect), current))
+                row = self.gaps([(others + [self._value(effect, x)], "fit") for x in xs])
+                cache = {round(float(x), 6): g for x, g in zip(xs, row)}
+                k = int(np.argmin(row))
+                effects[i] = self.fit(others, effect, xs, k, cache)[0]
         return effects
 
     def run_round(self, accepted: list[Effect]) -> list[Candidate]:
+        """Screen every candidate on its grid, refine the best ``refine``, score all on the held-out frames;
+        the evaluations of each step are independent (and run on the engine's workers when there is one)."""
         options = [c for c in candidate_effects(self.resim)
                    if not any(_same(c, a) for a in accepted) and conflicts(accepted + [c]) is None]  # fmt: skip
-        screened = [(c, *self.screen(accepted, c)) for c in options]
+        grids = [self._grid(c) for c in options]
+        gaps = iter(self.gaps([(accepted + [self._value(c, x)], "screen") for c, xs in zip(options, grids) for x in xs]))
+        screened = []
+        for c, xs in zip(options, grids):
+            row = [next(gaps) for _ in xs]
+            k = int(np.argmin(row))
+            screened.append((c, self._value(c, xs[k]), row[k], xs, k))
         order = sorted(range(len(screened)), key=lambda i: screened[i][2])
+        best = [(accepted, screened[i][0], screened[i][3], screened[i][4]) for i in order[: self.refine]]
+        fits = [self.fit(*job) for job in best] if self.engine is None else self._remote(remote_fit, best)
+        fitted = [(fits[rank] if rank < len(fits) else (screened[i][1], screened[i][2], 0)) for rank, i in enumerate(order)]
+        heldout = self.gaps([(accepted + [effect], "heldout") for effect, _, _ in fitted])
         out = []
-        for rank, i in enumerate(order):
-            candidate, effect, gap, xs, k = screened[i]
-            evaluations = self.grid
-            if rank < self.refine:
-                effect, gap, n = self.fit(accepted, candidate, xs, k)
-                evaluations += n
-            out.append(Candidate(effect, gap, self.gap(accepted + [effect], "heldout"), evaluations))
-            self.progress(f"{effect.label()}: held-out gap {out[-1].heldout_gap:.4f}")
+        for (effect, gap, n), held in zip(fitted, heldout):
+            out.append(Candidate(effect, gap, held, self.grid + n))
+            self.progress(f"{effect.label()}: held-out gap {held:.4f}")
         return out
 
     def run(self) -> Diagnosis:
