@@ -41,12 +41,14 @@ from __future__ import annotations
 
 import argparse
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import yaml
 from scipy.optimize import minimize
 
+from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.experiments.reproduce import default_tables_path, rows_of, simulate
 from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, ClassParams
 
@@ -160,8 +162,13 @@ def main() -> None:
     parser.add_argument("--out", default=str(OUT), help="fit file to write, and to start from if it exists (else from %(default)s)")
     parser.add_argument("--profile", help="sensor profile (name or YAML path) instead of the scenario's scala4, e.g. "
                                           "one with another detection.sun_noise_per_w_m2")
+    engine = parser.add_mutually_exclusive_group()
+    engine.add_argument("--workers", type=int, default=0, help="fit the classes on N local Dask worker processes "
+                                                               "(default 0: in this process, one after another)")
+    engine.add_argument("--scheduler", metavar="ADDRESS", help="fit them on the Dask cluster at ADDRESS")
     args = parser.parse_args()
     tables = yaml.safe_load(Path(args.tables).read_text())
+    args.out = str(Path(args.out).resolve())  # workers read it too
     if not Path(args.out).exists():  # a new --out starts as a copy of the shipped fit (the runs read it)
         Path(args.out).write_text(OUT.read_text())
     data = yaml.safe_load(Path(args.out).read_text())
@@ -170,32 +177,44 @@ def main() -> None:
                                tables, args.frames, args.out, args.profile)
         data["street_gain"] = round(gain, 4)
         print(f"street_gain {gain:.3f}", flush=True)
-    for weather in args.classes.split(","):
-        start = time.perf_counter()
-        c = {**dict(data["classes"][weather]), "street_gain": data.get("street_gain", 1.0)}
-        starts = dict(kv.split("=") for kv in args.near_start.split(",") if kv)
-        if weather in starts:
-            c.update({k: data["classes"][starts[weather]][k] for k in NEAR})
-        c.update({k: float(v) for k, v in (kv.split("=") for kv in args.start.split(",") if kv)})
-        c = unfitted_to_defaults(c, weather)
-        stages = {"near": NEAR, "street": street_params(weather)}
-        z = {}
-        for stage, names in stages.items():
-            if stage in args.stages.split(",") and names:
-                c, z[stage] = fit_stage(c, names, weather, stage, tables, args.frames, args.iters, args.out, args.profile)
-            else:
-                z[stage] = residuals(c, weather, stage, tables, args.frames, args.out, args.profile)
-        z_near, z_street = z["near"], z["street"]
-        c.pop("street_gain")
-        data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items() if v is not None}
-        data.setdefault("fit_report", {})[weather] = {"z_atmosphere": [round(float(v), 2) for v in z_near],
-                                                      "z_street": [round(float(v), 2) for v in z_street]}
-        data["source"] = ("fitted by benchmarks/fit_atmosphere.py to paper 2 Tables 3 and 4 (thesis_tables.yaml "
-                          "atmosphere_region, street_region); one set per weather class for both sun conditions")
-        Path(args.out).write_text("# Written by benchmarks/fit_atmosphere.py; do not edit by hand.\n"
-                                  + yaml.safe_dump(data, sort_keys=False))
-        print(f"{weather}: {data['classes'][weather]}\n  z atmosphere {z_near.round(2)}  z street {z_street.round(2)}"
-              f"  ({time.perf_counter() - start:.0f} s)", flush=True)
+    fit = partial(fit_class, data=data, tables=tables, args=args)
+    classes = args.classes.split(",")
+    with Engine(args.scheduler, args.workers) as engine:  # the classes are independent fits
+        for outcome in engine.map(fit, classes):
+            if outcome.error:
+                raise SystemExit(f"fit_atmosphere: class {classes[outcome.index]}: {outcome.error}")
+            weather, c, z_near, z_street, seconds = outcome.result
+            data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items() if v is not None}
+            data.setdefault("fit_report", {})[weather] = {"z_atmosphere": [round(float(v), 2) for v in z_near],
+                                                          "z_street": [round(float(v), 2) for v in z_street]}
+            data["source"] = ("fitted by benchmarks/fit_atmosphere.py to paper 2 Tables 3 and 4 (thesis_tables.yaml "
+                              "atmosphere_region, street_region); one set per weather class for both sun conditions")
+            staged = Path(f"{args.out}.partial")  # replaced in one step: the other classes' runs read the file
+            staged.write_text("# Written by benchmarks/fit_atmosphere.py; do not edit by hand.\n"
+                              + yaml.safe_dump(data, sort_keys=False))
+            staged.replace(args.out)
+            print(f"{weather}: {data['classes'][weather]}\n  z atmosphere {z_near.round(2)}  z street "
+                  f"{z_street.round(2)}  ({seconds:.0f} s)", flush=True)
+
+
+def fit_class(weather: str, data: dict, tables: dict, args: argparse.Namespace):
+    """One weather class's fit (its stages in turn): (weather, parameters, z near field, z street, seconds)."""
+    start = time.perf_counter()
+    c = {**dict(data["classes"][weather]), "street_gain": data.get("street_gain", 1.0)}
+    starts = dict(kv.split("=") for kv in args.near_start.split(",") if kv)
+    if weather in starts:
+        c.update({k: data["classes"][starts[weather]][k] for k in NEAR})
+    c.update({k: float(v) for k, v in (kv.split("=") for kv in args.start.split(",") if kv)})
+    c = unfitted_to_defaults(c, weather)
+    stages = {"near": NEAR, "street": street_params(weather)}
+    z = {}
+    for stage, names in stages.items():
+        if stage in args.stages.split(",") and names:
+            c, z[stage] = fit_stage(c, names, weather, stage, tables, args.frames, args.iters, args.out, args.profile)
+        else:
+            z[stage] = residuals(c, weather, stage, tables, args.frames, args.out, args.profile)
+    c.pop("street_gain")
+    return weather, c, z["near"], z["street"], time.perf_counter() - start
 
 
 if __name__ == "__main__":
