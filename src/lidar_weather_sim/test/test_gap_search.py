@@ -15,6 +15,7 @@ class LandscapeSearch(GapSearch):
 
     def __init__(self, landscape: dict[frozenset, float]) -> None:
         self.landscape, self.min_gain, self.min_abs_gain = landscape, MIN_GAIN, MIN_ABS_GAIN
+        self.engine = None
         self.log: list[str] = []
         self.progress = self.log.append
 

@@ -266,7 +266,7 @@ class GapSearch:
         Returns the held-out gap of what stays."""
         while len(diag.accepted) > 1:
             effects = diag.effects
-            without = [self.gap(effects[:i] + effects[i + 1 :], "heldout") for i in range(len(effects))]
+            without = self.gaps([(effects[:i] + effects[i + 1 :], "heldout") for i in range(len(effects))])
             worth = [current <= min(w * (1.0 - self.min_gain), w - self.min_abs_gain) for w in without]
             if all(worth):
                 break
