@@ -31,8 +31,8 @@ def _rows(out: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-def _without_time(rows):
-    return [{k: v for k, v in r.items() if k != "elapsed_s"} for r in rows]
+def _without_time(rows, also=()):
+    return [{k: v for k, v in r.items() if k != "elapsed_s" and k not in also} for r in rows]
 
 
 def _run(cli, *args, env=None, timeout=600):
@@ -95,8 +95,19 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_cluster_by_address_survives_a_killed_worker_and_matches_serial(cli, tmp_path, processes):
-    sweep = _sweep(tmp_path, seeds=[1, 2, 3], grid={"weather.fog.visual_range_m": [40, 100, 400]}, frames=3)
+WORKER_STATE = """
+import sys
+def worker_state(bag, run):
+    from lidar_weather_sim.core import workers
+    return {"sim_threads": workers.THREADS, "rclpy_loaded": "rclpy" in sys.modules}
+"""
+
+
+def test_cluster_by_address_survives_a_killed_worker_and_matches_serial(cli, tmp_path, processes, monkeypatch):
+    (tmp_path / "probe.py").write_text(WORKER_STATE)
+    monkeypatch.setenv("PYTHONPATH", f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    sweep = _sweep(tmp_path, seeds=[1, 2, 3], grid={"weather.fog.visual_range_m": [40, 100, 400]}, frames=3,
+                   compute=["stats", "probe:worker_state"])
     serial = tmp_path / "serial"
     assert _run(cli, sweep, "--out", serial, "--workers", 0).returncode == 0
     port = _free_port()
@@ -120,4 +131,7 @@ def test_cluster_by_address_survives_a_killed_worker_and_matches_serial(cli, tmp
     assert workers[0].wait(timeout=10) is not None and workers[1].poll() is None
     cluster_rows = _rows(out)
     assert len(cluster_rows) == 9 and all(r["status"] == "ok" for r in cluster_rows), stdout
-    assert _without_time(cluster_rows) == _without_time(_rows(serial))
+    # the workers run the simulator single-threaded and never load rclpy
+    assert {(r["worker_state_sim_threads"], r["worker_state_rclpy_loaded"]) for r in cluster_rows} == {("1.0", "0.0")}
+    state = ("worker_state_sim_threads",)  # the serial loop runs on all of this process' threads
+    assert _without_time(cluster_rows, state) == _without_time(_rows(serial), state)

@@ -27,6 +27,8 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from lidar_weather_sim.core.workers import usable_cpus
+
 SINGLE_THREAD_ENV = {"LWS_SIM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
                      "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}  # fmt: skip
 CONNECT_TIMEOUT_S = 10.0
@@ -43,14 +45,6 @@ class Outcome:
     index: int
     result: Any = None
     error: str | None = None
-
-
-def local_workers() -> int:
-    """One worker per CPU this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
 
 
 class Engine:
@@ -73,7 +67,7 @@ class Engine:
             return "serial (this process)"
         if self.scheduler:
             return f"Dask cluster at {self.scheduler}"
-        return f"Dask LocalCluster, {self.workers or local_workers()} workers x 1 thread"
+        return f"Dask LocalCluster, {self.workers or usable_cpus()} workers x 1 thread"
 
     def __enter__(self) -> "Engine":
         if self.serial:
@@ -91,7 +85,7 @@ class Engine:
         else:
             with dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
                                   "distributed.worker.daemon": False}):  # fmt: skip
-                self._cluster = LocalCluster(n_workers=self.workers or local_workers(), threads_per_worker=1,
+                self._cluster = LocalCluster(n_workers=self.workers or usable_cpus(), threads_per_worker=1,
                                              processes=True, dashboard_address=None, env=dict(SINGLE_THREAD_ENV),
                                              silence_logs=40)  # fmt: skip
             self.client = Client(self._cluster)

@@ -30,14 +30,17 @@ import numpy as np
 MAX_CHUNKS = 32
 
 
-def _default_threads() -> int:
-    env = os.environ.get("LWS_SIM_THREADS", "").strip()
-    if env:
-        return max(1, int(env))
+def usable_cpus() -> int:
+    """The CPUs this process may use."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _default_threads() -> int:
+    env = os.environ.get("LWS_SIM_THREADS", "").strip()
+    return max(1, int(env)) if env else usable_cpus()
 
 
 THREADS = _default_threads()
