@@ -22,7 +22,6 @@ on-disk cache (``cache=True`` kernels) is compiled once, not raced by every work
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
