@@ -54,6 +54,8 @@ def test_random_draws_are_seeded_and_in_range(tmp_path):
     ({"sedes": [1]}, "sedes"),
     ({"compute": ["stats", "nonsense"]}, "nonsense"),
     ({"seeds": [1, 1]}, "distinct"),
+    ({"profile": "vlp16", "grid": {"sensor.profile": ["scala4", "os1_128_1024"]}}, "'profile' overrides it"),
+    ({"grid": {"seed": [1, 2]}}, "'seeds' overrides it"),
     ({"random": {"count": 3, "keys": {"weather.fog.visual_range_m": {"low": 0, "high": 9, "log": True}}}}, "low > 0"),
 ])
 def test_bad_sweep_files_name_the_problem(tmp_path, keys, reason):

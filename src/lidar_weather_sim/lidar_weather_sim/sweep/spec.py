@@ -102,6 +102,9 @@ class SweepSpec(ConfigModel):
             empty = [k for k, v in self.grid.items() if not v]
             if empty:
                 raise ValueError(f"'grid' key {empty[0]!r} has no values")
+        for key, name in (("sensor.profile", "profile"), ("sensor.return_mode", "return_mode"), ("seed", "seeds")):
+            if key in self.swept_keys and (getattr(self, name) is not None or name == "seeds"):
+                raise ValueError(f"'{key}' is swept but '{name}' overrides it in every run: sweep one of them")
         if len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
             raise ValueError(f"'seeds' must be distinct non-negative integers, got {self.seeds}")
         for item in self.compute:
