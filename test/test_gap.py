@@ -153,3 +153,18 @@ def test_gap_search_on_two_dask_workers_is_the_serial_diagnosis(highway, tmp_pat
     parallel = run_gap(tmp_path / "measured", scenario, tmp_path / "parallel", workers=2, **budgets)
     assert [e["name"] for e in serial["effects"]] == ["atmosphere.fog"]
     assert json.dumps(parallel, sort_keys=True) == json.dumps(serial, sort_keys=True)
+
+
+@pytest.mark.parametrize("hidden", ["sensor.intensity_gamma:gamma=0.55", "sensor.range_bias:bias=0.12",
+                                    "sensor.ray_drop:probability=0.4"])
+def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hidden, tmp_path):
+    effect = parse_effect(hidden)
+    make_measured(highway, [effect], tmp_path / "measured", frames=24)
+    result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", families=("sensor",), fit_frames=8,
+                     heldout_frames=8, screen_frames=2)  # fmt: skip
+    found = {e["name"]: e["params"] for e in result["effects"]}
+    assert list(found) == [effect.name], result
+    assert found[effect.name][effect.spec.main] == pytest.approx(effect.value, rel=0.15)
+    assert result["gap_after"] <= 0.5 * result["gap_before"]
+    patched = Scenario.model_validate(yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text()))
+    assert patched.sensor.response != highway.sensor.response

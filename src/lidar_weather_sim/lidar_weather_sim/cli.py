@@ -288,7 +288,7 @@ def _cmd_gap(args: argparse.Namespace) -> int:
 
         result = run_gap(args.measured, load_scenario(args.scenario), args.out, profile=args.profile, topic=args.topic,
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
-                         scheduler=args.scheduler, workers=args.workers)  # fmt: skip
+                         scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")))  # fmt: skip
     found = ", ".join(f"{e['name']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
                       for e in result["effects"]) or "no effect"  # fmt: skip
     print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}; wrote {args.out}/gap.json")
@@ -436,6 +436,9 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--heldout-frames", type=positive_int, default=HELDOUT_FRAMES,
                      help="held-out frames used for every decision (default %(default)s)")  # fmt: skip
     gap.add_argument("--out", default="gap_report", help="output directory")
+    gap.add_argument("--effects", default="weather", choices=["weather", "sensor", "weather,sensor"],
+                     help="effect families to search: weather (default; the sun included), sensor (the unit's "
+                          "intensity response, range bias and noise, ray drop: for real recordings) or both")  # fmt: skip
     gap_engine = gap.add_mutually_exclusive_group()
     gap_engine.add_argument("--workers", type=workers_int, default=0, help="run the search's evaluations on N local "
                             "Dask worker processes (default 0: in this process; the result is the same)")  # fmt: skip

@@ -11,7 +11,9 @@ effects. Then, per beam (channel and azimuth column of the profile):
   the effect run (extinction, dirt, a raised noise floor) are removed.
 
 Real returns are otherwise kept as they are (intensity, range), so what remains of the
-real recording's own reality gap stays in the result. The output is a bag like the input:
+real recording's own reality gap stays in the result. Sensor-family effects (``sensor.intensity_*``,
+``range_*``, ``ray_drop``: the unit's response) act on every output point, real or added, as they
+act on a simulated frame (:func:`lidar_weather_sim.sensor.response.apply_response`, seeded per frame). The output is a bag like the input:
 ``/clock``, ``/tf``, ``/tf_static`` copied, and the clouds in the input's point layout.
 """
 
@@ -23,11 +25,13 @@ import numpy as np
 
 from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
-from lidar_weather_sim.gap.effects import Effect
+from lidar_weather_sim.gap.effects import Effect, apply_effects
 from lidar_weather_sim.gap.resim import Resimulator
 from lidar_weather_sim.io.bags import BagWriter, read_messages
 from lidar_weather_sim.io.recording import Recording
+from lidar_weather_sim.regions.base import region_entropy
 from lidar_weather_sim.scenario.schema import Scenario
+from lidar_weather_sim.sensor.response import apply_response
 
 
 def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
@@ -58,12 +62,17 @@ def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect
     resim = Resimulator(recording, scenario, profile)
     columns = resim.world.profile.scan.columns
     everything = range(len(recording.frames))
+    weather = [e for e in effects if e.spec.family != "sensor"]
+    response = apply_effects(scenario, [e for e in effects if e.spec.family == "sensor"]).sensor.response
     base = resim.frames([], everything)
-    with_effects = resim.frames(effects, everything)
+    with_effects = resim.frames(weather, everything) if weather else base
+    min_range = float(resim.world.profile.range.min_m)
     with BagWriter(output, overwrite=overwrite) as bag:
         for m in read_messages(path, [TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC]):
             bag.write(m.topic, m.msg, m.log_time_ns)
-        for frame, b, e in zip(recording.frames, base, with_effects):
+        for k, (frame, b, e) in enumerate(zip(recording.frames, base, with_effects)):
             points = augment_frame(frame.points, b, e, columns)
+            rng = np.random.default_rng(region_entropy(scenario.seed, k, "sensor_response", 0))
+            points = apply_response(points, response, rng, min_range)
             bag.write_cloud(recording.topic, points, frame.stamp_ns, frame.frame_id, log_time_ns=frame.log_time_ns)
     return len(recording.frames)

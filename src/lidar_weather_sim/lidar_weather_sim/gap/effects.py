@@ -14,7 +14,16 @@ cover.dirt                 transmission    mean one-way (0-1); region ``cover``,
 cover.water                transmission    mean one-way (0-1); ``cover``, ``water_film``
 sensor.sun                 irradiance      W/m^2; the receiver's noise floor
 spray                      water_film      mm; region ``spray`` (``actor=ID`` picks the emitter)
+sensor.intensity_gamma     gamma           1; ``sensor.response`` (the unit's intensity response)
+sensor.intensity_scale     scale           1; ``sensor.response``
+sensor.range_bias          bias            m, signed; ``sensor.response``
+sensor.range_noise         sigma           m, on top of the profile's; ``sensor.response``
+sensor.ray_drop            probability     1, of a return at intensity 0; ``sensor.response``
 =========================  ==============  ==================================================
+
+The ``sensor.intensity_*``, ``range_*`` and ``ray_drop`` effects are the unit's own departures from
+the model (:mod:`lidar_weather_sim.sensor.response`), family ``sensor``; the others are the
+``weather`` family (the sun included: it is light from outside).
 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
 unless ``atmosphere.road_wet`` is applied too) and does not feed spray, so the effects
@@ -41,6 +50,8 @@ class EffectSpec:
     bounds: tuple[float, float]
     log_search: bool  # search the main parameter on a log scale
     extras: tuple[str, ...] = ()
+    family: str = "weather"  # or "sensor": the unit's own departures from the model
+    signed: bool = False  # the main parameter may be 0 or negative (else it must be above 0)
 
 
 EFFECTS: dict[str, EffectSpec] = {
@@ -54,8 +65,18 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("cover.water", "transmission", "1", (0.2, 0.995), False),
         EffectSpec("sensor.sun", "irradiance", "W/m^2", (10.0, 1200.0), True),
         EffectSpec("spray", "water_film", "mm", (0.05, 3.0), True, ("actor",)),
+        EffectSpec("sensor.intensity_gamma", "gamma", "1", (0.25, 4.0), True, family="sensor"),
+        EffectSpec("sensor.intensity_scale", "scale", "1", (0.25, 4.0), True, family="sensor"),
+        EffectSpec("sensor.range_bias", "bias", "m", (-0.3, 0.3), False, family="sensor", signed=True),
+        EffectSpec("sensor.range_noise", "sigma", "m", (0.003, 0.3), True, family="sensor"),
+        EffectSpec("sensor.ray_drop", "probability", "1", (0.01, 0.95), True, family="sensor"),
     )
 }
+FAMILIES = ("weather", "sensor")
+#: sensor effect -> the field of ``sensor.response`` it sets
+RESPONSE_FIELDS = {"sensor.intensity_gamma": "intensity_gamma", "sensor.intensity_scale": "intensity_scale",
+                   "sensor.range_bias": "range_bias_m", "sensor.range_noise": "range_noise_m",
+                   "sensor.ray_drop": "drop_probability"}  # fmt: skip
 PRECIPITATION = ("atmosphere.rain", "atmosphere.snow")
 
 
@@ -107,10 +128,12 @@ def parse_effect(text: str) -> Effect:
             params[key] = int(value) if key == "actor" else float(value)
         except ValueError:
             raise ValueError(f"--hide {text!r}: parameter '{key}' needs a number, got '{value}'") from None
-        if key == spec.main and not 0.0 < params[key] < float("inf"):
+        if key == spec.main and spec.signed and not abs(params[key]) < float("inf"):
+            raise ValueError(f"--hide {text!r}: '{key}' must be a finite number ({spec.unit}), got {value}")
+        if key == spec.main and not spec.signed and not 0.0 < params[key] < float("inf"):
             raise ValueError(f"--hide {text!r}: '{key}' must be a finite number above 0 ({spec.unit}), got {value}")
-        if key == spec.main and spec.unit == "1" and params[key] > 1.0:
-            raise ValueError(f"--hide {text!r}: '{key}' is a transmission, at most 1, got {value}")
+        if key == spec.main and spec.main in ("transmission", "probability") and params[key] > 1.0:
+            raise ValueError(f"--hide {text!r}: '{key}' is a {spec.main}, at most 1, got {value}")
     if spec.main not in params:
         if name == "cover.dirt" and "sample" in params:
             from lidar_weather_sim.regions.cover_textures import load_samples
@@ -185,6 +208,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
             region("cover").update(texture="water_film", mean_transmission=v)
         elif e.name == "sensor.sun":
             data["weather"]["sun"]["irradiance_w_m2"] = v
+        elif e.name in RESPONSE_FIELDS:
+            data["sensor"]["response"][RESPONSE_FIELDS[e.name]] = v
         elif e.name == "spray":
             actor = e.params.get("actor", _default_emitter(scenario))
             spray_actors.append((int(actor), v))

@@ -40,7 +40,7 @@ from scipy.optimize import minimize_scalar
 
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
-from lidar_weather_sim.gap.effects import EFFECTS, Effect, conflicts, search_grid, spray_candidates
+from lidar_weather_sim.gap.effects import EFFECTS, FAMILIES, Effect, conflicts, search_grid, spray_candidates
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.signatures import Signature, gap_value
@@ -90,10 +90,12 @@ def split_frames(n: int, fit_frames: int, heldout_frames: int) -> tuple[list[int
     return thin(list(range(0, n, 2)), fit_frames), thin(list(range(1, n, 2)), heldout_frames)
 
 
-def candidate_effects(resim: Resimulator) -> list[Effect]:
-    """One untuned effect per name (the spray once per vehicle), at the middle of its bounds."""
+def candidate_effects(resim: Resimulator, families: tuple[str, ...] = ("weather",)) -> list[Effect]:
+    """One untuned effect per name of ``families`` (the spray once per vehicle), at the middle of its bounds."""
     out = []
     for name, spec in EFFECTS.items():
+        if spec.family not in families:
+            continue
         mid = float(np.sqrt(spec.bounds[0] * spec.bounds[1]) if spec.log_search else np.mean(spec.bounds))
         if name == "spray":
             out += [Effect(name, {spec.main: mid, "actor": actor}) for actor in spray_candidates(resim.scenario)]
@@ -109,9 +111,15 @@ class GapSearch:
                  screen_frames: int = SCREEN_FRAMES,
                  grid: int = 5, refine: int = 2, min_gain: float = MIN_GAIN, min_abs_gain: float = MIN_ABS_GAIN,
                  progress: Callable[[str], None] | None = None, engine: Engine | None = None,
-                 source: SearchSource | None = None) -> None:  # fmt: skip
-        """``engine`` with ``source`` (how a worker builds this same search): each round's evaluations run
-        on the engine's workers (:mod:`lidar_weather_sim.gap.parallel`); without, in this process."""
+                 source: SearchSource | None = None, families: tuple[str, ...] = ("weather",)) -> None:  # fmt: skip
+        """``families``: the effect families searched (:data:`~lidar_weather_sim.gap.effects.FAMILIES`;
+        ``sensor`` adds the unit's own departures, for recordings of real sensors). ``engine`` with
+        ``source`` (how a worker builds this same search): each round's evaluations run on the engine's
+        workers (:mod:`lidar_weather_sim.gap.parallel`); without, in this process."""
+        unknown = sorted(set(families) - set(FAMILIES))
+        if unknown or not families:
+            raise ValueError(f"gap: effect families {list(families)}: choose from {', '.join(FAMILIES)}")
+        self.families = tuple(families)
         self.resim = resim
         self.engine = engine if engine is not None and not engine.serial else None
         self.source = source
@@ -204,7 +212,7 @@ class GapSearch:
     def run_round(self, accepted: list[Effect]) -> list[Candidate]:
         """Screen every candidate on its grid, refine the best ``refine``, score all on the held-out frames;
         the evaluations of each step are independent (and run on the engine's workers when there is one)."""
-        options = [c for c in candidate_effects(self.resim)
+        options = [c for c in candidate_effects(self.resim, self.families)
                    if not any(_same(c, a) for a in accepted) and conflicts(accepted + [c]) is None]  # fmt: skip
         grids = [self._grid(c) for c in options]
         gaps = iter(self.gaps([(accepted + [self._value(c, x)], "screen") for c, xs in zip(options, grids) for x in xs]))

@@ -23,6 +23,7 @@ from lidar_weather_sim.core.config import ConfigError, ConfigModel, load_yaml
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.sensor.profile import ReturnMode
+from lidar_weather_sim.sensor.response import SensorResponse
 
 #: Physical bounds of scenario values: a value outside is refused naming its key.
 MAX_SPEED_M_S = 150.0  # 540 km/h
@@ -111,6 +112,9 @@ class SensorSetup(ConfigModel):
         None, description="Return mode overriding the profile's detection.return_mode (null: the profile's)"
     )
     mount: Mount = Field(default_factory=Mount)
+    response: SensorResponse = Field(
+        default_factory=SensorResponse, description="How this unit's output departs from the sensor model after "
+                                                     "detection (intensity response, range bias and noise, ray drop)")  # fmt: skip
 
 
 class Scenario(ConfigModel):

@@ -46,6 +46,7 @@ from lidar_weather_sim.regions.base import RayBatch, Region, RegionEffect, combi
 from lidar_weather_sim.sensor.echo import Echoes, detect_echoes, select_returns
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import Threshold, dark_level, overlap_factor, peak_amplitude
+from lidar_weather_sim.sensor.response import SensorResponse, apply_response
 from lidar_weather_sim.sensor.scan import ScanPattern
 from lidar_weather_sim.sim.kernels import (
     compact_candidates,
@@ -75,9 +76,11 @@ class PoseSource(Protocol):
 
 
 def scenario_settings(scenario) -> dict:
-    """What the simulator takes from a scenario besides its world: ``seed`` and ``sun_irradiance_w_m2``
-    (W/m^2, from ``weather.sun``), as keyword arguments of :class:`LidarSimulator` and :meth:`~LidarSimulator.restart`."""
-    return {"seed": int(scenario.seed), "sun_irradiance_w_m2": float(scenario.weather.sun.irradiance_w_m2)}
+    """What the simulator takes from a scenario besides its world: ``seed``, ``sun_irradiance_w_m2``
+    (W/m^2, from ``weather.sun``) and ``response`` (``sensor.response``), as keyword arguments of
+    :class:`LidarSimulator` and :meth:`~LidarSimulator.restart`."""
+    return {"seed": int(scenario.seed), "sun_irradiance_w_m2": float(scenario.weather.sun.irradiance_w_m2),
+            "response": scenario.sensor.response}  # fmt: skip
 
 
 @dataclass
@@ -104,8 +107,9 @@ class LidarSimulator:
     ``caster`` casts the rays (``scene.caster(backend)``, built once by whoever owns the scene - a
     :class:`~lidar_weather_sim.scenario.world.World` - and shared by every simulator of it); without
     one the scene's caster on ``backend`` is built here. ``scene`` gives the material table and the
-    actors' labels; ``sun_irradiance_w_m2`` (W/m^2) raises the noise floor; ``seed`` seeds every
-    random stream (same seed and poses, same clouds).
+    actors' labels; ``sun_irradiance_w_m2`` (W/m^2) raises the noise floor; ``response`` is the unit's
+    departure from the model after detection (:mod:`lidar_weather_sim.sensor.response`); ``seed`` seeds
+    every random stream (same seed and poses, same clouds).
     """
 
     def __init__(
@@ -118,6 +122,7 @@ class LidarSimulator:
         regions: list[tuple[str, Region]] | None = None,
         seed: int = 0,
         sun_irradiance_w_m2: float = 0.0,
+        response: SensorResponse | None = None,
         ground_truth: bool = True,
         max_catch_up_frames: int = 10,
     ) -> None:
@@ -129,6 +134,7 @@ class LidarSimulator:
         self.regions = list(regions or [])
         self.seed = int(seed)
         self.sun_irradiance_w_m2 = float(sun_irradiance_w_m2)
+        self.response = response or SensorResponse()
         self.ground_truth = ground_truth
         self.max_catch_up_frames = max_catch_up_frames
         # material tables with a last row for "no hit" (material index -1)
@@ -167,9 +173,9 @@ class LidarSimulator:
 
     # -- time ----------------------------------------------------------------------
     def restart(self, *, regions: list[tuple[str, Region]] | None = None, sun_irradiance_w_m2: float | None = None,
-                seed: int | None = None) -> None:  # fmt: skip
-        """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2) and seed
-        where given. The scene and its caster stay (no rebuild): re-simulating the same frames with
+                seed: int | None = None, response: SensorResponse | None = None) -> None:  # fmt: skip
+        """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2), seed and
+        sensor response where given. The scene and its caster stay (no rebuild): re-simulating the same frames with
         other weather costs only the casts."""
         self._frame = None
         self._last_time_s = None
@@ -180,6 +186,8 @@ class LidarSimulator:
             self.sun_irradiance_w_m2 = float(sun_irradiance_w_m2)
         if seed is not None:
             self.seed = int(seed)
+        if response is not None:
+            self.response = response
 
     def cast_frame(self, index: int, start_s: float, poses: PoseSource, batch_s: float | None = None) -> Frame:
         """Cast the whole frame ``index`` (its scan pattern: scala4 alternates layers by index) whose
@@ -241,6 +249,9 @@ class LidarSimulator:
 
     def _finish(self, acc: _FrameAccumulator) -> Frame:
         points = acc.points[: acc.count] if acc.points is not None else empty_points(0, self.ground_truth)
+        if not self.response.identity:
+            rng = np.random.default_rng(region_entropy(self.seed, acc.index, "sensor_response", 0))
+            points = apply_response(points, self.response, rng, float(self.profile.range.min_m))
         return Frame(acc.index, acc.start_s, points, acc.rays)
 
     # -- one batch: the pipeline ---------------------------------------------------------
