@@ -73,14 +73,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="ouster_street", help="the twin's scenario (default: Ouster's mesh)")
     parser.add_argument("--recording", default=str(cache_dir() / "ouster_real" / "os1_128_street"))
-    parser.add_argument("--limit", type=int, default=0, help="run only the first K cases per profile (0: all)")
+    parser.add_argument("--limit", type=int, default=0, help="run only the first K draws of each profile and effect "
+                                                            "(0: all)")
     parser.add_argument("--workers", type=int, default=0, help="the gap search's Dask workers (0: in this process)")
     args = parser.parse_args()
     spec = yaml.safe_load(CASES.read_text())
     scenario = load_scenario(args.scenario)
     cases = draw_cases(spec)
-    if args.limit:
-        cases = [c for p in spec["profiles"] for c in [c for c in cases if c[0] == p][: args.limit]]
+    if args.limit:  # the first K draws of each profile and effect (and K clear cases)
+        cases = [c for i, c in enumerate(cases) if sum(d[:2] == c[:2] for d in cases[:i]) < args.limit]
     budgets = {k: spec["measurement"][k] for k in ("fit_frames", "heldout_frames", "screen_frames")}
     within = spec["success"]["parameter_within"]
     print(f"{len(cases)} cases from {CASES.name} (seed {spec['seed']}), scenario {scenario.name}, recording "
