@@ -10,7 +10,8 @@ import pytest
 
 from lidar_weather_sim.core.paths import cache_dir
 from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW, Label, empty_points, fill_polar
-from lidar_weather_sim.gap.augment import augment_frame, beam_keys
+from lidar_weather_sim.gap.augment import augment_frame
+from lidar_weather_sim.gap.signatures import beam_keys
 
 COLUMNS = 8
 

@@ -27,17 +27,12 @@ from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
 from lidar_weather_sim.gap.effects import Effect, apply_effects
 from lidar_weather_sim.gap.resim import Resimulator
+from lidar_weather_sim.gap.signatures import beam_keys
 from lidar_weather_sim.io.bags import BagWriter, read_messages
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.regions.base import region_entropy
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.sensor.response import apply_response
-
-
-def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
-    """One integer per point naming its beam: channel x columns + azimuth column."""
-    col = np.floor((points["azimuth"].astype(np.float64) + np.pi) / (2.0 * np.pi) * columns).astype(np.int64)
-    return points["channel"].astype(np.int64) * columns + np.clip(col, 0, columns - 1)
 
 
 def augment_frame(real: np.ndarray, base: np.ndarray, effect: np.ndarray, columns: int) -> np.ndarray:

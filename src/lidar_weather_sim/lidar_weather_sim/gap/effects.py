@@ -234,7 +234,15 @@ def spray_candidates(scenario: Scenario) -> list[int]:
     return [a.id for a in scenario.actors if a.type == "vehicle"]
 
 
+SIGNED_SPAN = 30.0  # a signed effect's grid: magnitudes from its largest / SIGNED_SPAN up, both signs
+
+
 def search_grid(spec: EffectSpec, n: int) -> np.ndarray:
-    """``n`` values spanning the spec's bounds (geometric when searched on a log scale)."""
+    """``n`` values spanning the spec's bounds (geometric when searched on a log scale); for a signed
+    effect ``ceil(n / 2)`` geometric magnitudes of each sign and no 0 (0 is the effect's absence)."""
     lo, hi = spec.bounds
+    if spec.signed:
+        top = max(abs(lo), abs(hi))
+        half = np.geomspace(top / SIGNED_SPAN, top, (n + 1) // 2)
+        return np.concatenate([-half[::-1], half])
     return np.geomspace(lo, hi, n) if spec.log_search else np.linspace(lo, hi, n)

@@ -109,9 +109,12 @@ class Resimulator:
         self.channels = channel_count(recording, self.world)
         self.casts = 0  # frames cast so far (for progress and cost reports)
 
-    def frames(self, effects: list[Effect], indices) -> list[np.ndarray]:
-        """Points of the recording's frames ``indices`` simulated with ``effects``."""
+    def frames(self, effects: list[Effect], indices, redraw: int = 0) -> list[np.ndarray]:
+        """Points of the recording's frames ``indices`` simulated with ``effects``; ``redraw`` > 0: another,
+        independent draw of every random process (the scenario's seed + ``redraw``)."""
         patched = apply_effects(self.scenario, effects)
+        if redraw:
+            patched = patched.model_copy(update={"seed": patched.seed + redraw})
         world = replace(self.world, scenario=patched)
         self.sim.restart(regions=world.regions(pose_source=self.poses), **scenario_settings(patched))
         period = self.world.profile.period_s
@@ -124,9 +127,10 @@ class Resimulator:
             self.casts += 1
         return out
 
-    def signature(self, effects: list[Effect], indices) -> Signature:
-        """The :class:`Signature` of the frames ``indices`` simulated with ``effects``."""
+    def signature(self, effects: list[Effect], indices, frames: list[np.ndarray] | None = None) -> Signature:
+        """The :class:`Signature` of the frames ``indices`` simulated with ``effects`` (or of ``frames``,
+        those frames already simulated)."""
         sig = Signature(self.channels)
-        for i, points in zip(sorted(indices), self.frames(effects, indices)):
+        for i, points in zip(sorted(indices), self.frames(effects, indices) if frames is None else frames):
             sig.add(points, self.contexts[i])
         return sig

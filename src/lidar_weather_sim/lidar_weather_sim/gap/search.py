@@ -43,7 +43,7 @@ from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRA
 from lidar_weather_sim.gap.effects import EFFECTS, FAMILIES, Effect, conflicts, search_grid, spray_candidates
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
-from lidar_weather_sim.gap.signatures import Signature, gap_value
+from lidar_weather_sim.gap.signatures import gap_value, residual_histogram, systematic_bray_curtis
 
 MIN_GAIN = 0.10
 MIN_ABS_GAIN = 0.002
@@ -139,9 +139,30 @@ class GapSearch:
 
     def gap(self, effects: list[Effect], split: str) -> float:
         """Gap between the measured and the simulated frames of ``split`` (screen, fit, heldout);
-        on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart."""
-        sim: Signature = self.resim.signature(effects, self._splits()[split])
-        return gap_value(self._measured[split], sim, clip=split == "heldout")
+        on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
+        With the sensor family, plus the paired-beam range term (:meth:`range_term`)."""
+        indices = self._splits()[split]
+        if "sensor" not in self.families:
+            return gap_value(self._measured[split], self.resim.signature(effects, indices), clip=split == "heldout")
+        frames = self.resim.frames(effects, indices)
+        value = gap_value(self._measured[split], self.resim.signature(effects, indices, frames), clip=split == "heldout")
+        return value + self.range_term(effects, indices, frames, clip=split == "heldout")
+
+    def range_term(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray], clip: bool) -> float:
+        """How the recorded ranges depart from the simulated ones beam by beam, beyond what the simulator's own
+        noise gives: the systematic Bray-Curtis (:func:`systematic_bray_curtis`) between the histogram of
+        recorded minus simulated range over the beams both return on, and the same histogram for a second,
+        independent simulation of the same frames minus the first. Equal when the simulation has the
+        recording's range bias (a shift) and noise (the width); costs a second simulation of the frames.
+        Histograms (:func:`~lidar_weather_sim.gap.signatures.residual_histogram`) of the sensor-frame
+        points, the recorded poses common to both sides."""
+        columns = self.resim.world.profile.scan.columns
+        recorded = [self.resim.recording.frames[i].points for i in sorted(indices)]
+        again = self.resim.frames(effects, indices, redraw=1)
+        measured = sum(residual_histogram(r, f, columns) for r, f in zip(recorded, frames))
+        simulated = sum(residual_histogram(a, f, columns) for a, f in zip(again, frames))
+        n = len(indices)
+        return systematic_bray_curtis(measured, n, simulated, n, clip)
 
     def _objective(self, accepted: list[Effect], candidate: Effect, split: str, cache: dict[float, float]):
         """The gap of ``accepted`` + ``candidate`` at search-space value x, memoised in ``cache``."""

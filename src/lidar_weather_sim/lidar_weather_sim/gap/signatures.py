@@ -244,3 +244,32 @@ def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> f
         return 0.0
     weights = evidence_weights(measured, simulated)
     return float(np.mean([terms[k] * weights[k] for k in terms]))
+
+
+#: Paired-beam range residuals (m): 2 mm bins over +-0.3 m (beams whose returns differ more hit other surfaces).
+RESIDUAL_EDGES = np.linspace(-0.3, 0.3, 301)
+
+
+def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
+    """One integer per point naming its beam: channel x columns + azimuth column."""
+    col = np.floor((points["azimuth"].astype(np.float64) + np.pi) / (2.0 * np.pi) * columns).astype(np.int64)
+    return points["channel"].astype(np.int64) * columns + np.clip(col, 0, columns - 1)
+
+
+def nearest_returns(points: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """(beam keys, range m) of each beam's nearest return, sorted by key."""
+    keys = beam_keys(points, columns)
+    order = np.lexsort((points["distance"], keys))
+    keys, ranges = keys[order], points["distance"][order].astype(np.float64)
+    first = np.ones(len(keys), bool)
+    first[1:] = keys[1:] != keys[:-1]
+    return keys[first], ranges[first]
+
+
+def residual_histogram(a: np.ndarray, b: np.ndarray, columns: int) -> np.ndarray:
+    """Histogram (:data:`RESIDUAL_EDGES`) of range(a) - range(b) over the beams both frames return on
+    (each beam's nearest return): a range bias shifts it, range noise widens it."""
+    ka, ra = nearest_returns(a, columns)
+    kb, rb = nearest_returns(b, columns)
+    _, ia, ib = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
+    return np.histogram(ra[ia] - rb[ib], RESIDUAL_EDGES)[0].astype(np.float64)
