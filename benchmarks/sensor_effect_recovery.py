@@ -12,7 +12,7 @@ the hidden effect, writes that as the "measured" bag, and runs the gap search (s
 the file's budgets) against SCENARIO with the same profile. Every case is printed: the hidden effect,
 what was named, the parameter error, the held-out gap before and after. A case is right when exactly
 the hidden effect is named and its main parameter is within ``parameter_within`` (range bias: or 1 cm);
-a clear case is right when nothing is named. The seed of each re-simulation is the case number.
+a clear case is right when nothing is named. Case k is simulated with seed 1000 + k.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ROOT / "config" / "sensor_effect_cases.yaml"
+MEASURED_SEED = 1000  # case k is drawn with seed 1000 + k: never the search's own draws (the scenario's seed, + 7919)
 
 
 def draw_cases(spec: dict) -> list[tuple[str, str | None, float | None]]:
@@ -93,7 +94,7 @@ def main() -> None:
             start = time.perf_counter()
             hidden = [Effect(name, {EFFECTS[name].main: value})] if name else []
             measured = Path(tmp) / f"case{k}"
-            resimulate(Path(args.recording), scenario, profile, hidden, measured, seed=k)
+            resimulate(Path(args.recording), scenario, profile, hidden, measured, seed=MEASURED_SEED + k)
             result = run_gap(measured, scenario, Path(tmp) / f"gap{k}", profile=profile, families=("sensor",),
                              workers=args.workers, **budgets)  # fmt: skip
             named = {e["name"]: e["params"] for e in result["effects"]}
