@@ -15,6 +15,7 @@ numbers), so two effect lists are compared on the same draws.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 
@@ -88,10 +89,14 @@ def channel_count(recording: Recording, world: World | None = None) -> int:
     return int(max(int(f.points["channel"].max(initial=0)) for f in recording.frames)) + 1
 
 
-def measured_signature(recording: Recording, indices, contexts: list[FrameContext], channels: int) -> Signature:
+def measured_signature(recording: Recording, indices, contexts: list[FrameContext], channels: int,
+                       keep: Callable[[np.ndarray], np.ndarray] | None = None) -> Signature:  # fmt: skip
+    """The recording's frames ``indices`` as a :class:`Signature`; ``keep(points)`` (a boolean mask, e.g. the
+    azimuth sectors of a :class:`~lidar_weather_sim.gap.split.DataSplit`) selects the points counted."""
     sig = Signature(channels)
     for i in indices:
-        sig.add(recording.frames[i].points, contexts[i])
+        points = recording.frames[i].points
+        sig.add(points if keep is None else points[keep(points)], contexts[i])
     return sig
 
 
@@ -124,9 +129,10 @@ class Resimulator:
             self.casts += 1
         return out
 
-    def signature(self, effects: list[Effect], indices) -> Signature:
-        """The :class:`Signature` of the frames ``indices`` simulated with ``effects``."""
+    def signature(self, effects: list[Effect], indices, keep: Callable[[np.ndarray], np.ndarray] | None = None) -> Signature:
+        """The :class:`Signature` of the frames ``indices`` simulated with ``effects`` (only the points
+        ``keep(points)`` selects, when given)."""
         sig = Signature(self.channels)
         for i, points in zip(sorted(indices), self.frames(effects, indices)):
-            sig.add(points, self.contexts[i])
+            sig.add(points if keep is None else points[keep(points)], self.contexts[i])
         return sig
