@@ -36,6 +36,7 @@ class RecordedPoses:
     def __init__(self, recording: Recording, world: World) -> None:
         self._tf = recording.pose_source()
         self._actors = recording.actor_poses if recording.actor_ids() else world.player.actor_poses
+        self._known = set(world.scene.actors)  # recorded actors the scenario has no body for are not cast (a twin)
         self._sensor: dict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = {}
         self._actor: dict[float, dict[int, np.ndarray]] = {}
 
@@ -48,7 +49,7 @@ class RecordedPoses:
 
     def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
         if time_s not in self._actor:
-            self._actor[time_s] = self._actors(time_s)
+            self._actor[time_s] = {k: v for k, v in self._actors(time_s).items() if k in self._known}
         return self._actor[time_s]
 
 

@@ -116,7 +116,8 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
 
     t = time.perf_counter()
     step = max(2 * np.pi / pattern.n_columns, float(np.median(np.diff(np.sort(pattern.elevation)))) if pattern.n_channels > 1 else 0.0)
-    vertices, triangles = reconstruct_mesh(static_xyz, static_origin, step, settings)
+    vertices, triangles = reconstruct_mesh(static_xyz, static_origin, step, settings,
+                                           _sector_bridge(split, clouds[0].pose) if split.kind == "sectors" else None)  # fmt: skip
     timings["mesh_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -167,6 +168,24 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
     (out / "report.json").write_text(json.dumps(report, indent=1))
     (out / "report.md").write_text(_markdown(report))
     return report
+
+
+def _sector_bridge(split: DataSplit, pose: np.ndarray):
+    """For a sector split: the extra trim distance (m) of each vertex, its horizontal range from the sensor
+    (first calibration frame's pose) times its angle to the nearest calibration sector (0 inside one): the
+    arc over which Poisson's surface may continue into a held-out sector."""
+    sectors = np.radians(np.asarray(split.calibration_sectors_deg, dtype=np.float64))
+
+    def bridge(vertices: np.ndarray) -> np.ndarray:
+        local = (vertices - pose[:3, 3]) @ pose[:3, :3]
+        az = np.arctan2(local[:, 1], local[:, 0])[:, None]
+        to_lo = np.abs(np.angle(np.exp(1j * (az - sectors[None, :, 0]))))
+        to_hi = np.abs(np.angle(np.exp(1j * (az - sectors[None, :, 1]))))
+        inside = (az >= sectors[None, :, 0]) & (az < sectors[None, :, 1])
+        angle = np.where(inside, 0.0, np.minimum(to_lo, to_hi)).min(axis=1)
+        return np.hypot(local[:, 0], local[:, 1]) * angle
+
+    return bridge
 
 
 def _first_frames(rec: Recording, n: int) -> Recording:

@@ -12,12 +12,15 @@ All coordinates in the map frame (m). Steps:
    2013) of depth ``poisson_depth``, then trimmed so the surface does not balloon beyond the points:
    vertices of the lowest ``density_quantile`` of Poisson densities go, and so do triangles with a
    vertex farther from the nearest point, or an edge longer, than the local point spacing allows
-   (spacing = range x the angle between neighbouring beams, at least ``voxel_m``).
+   (spacing = range x the angle between neighbouring beams, at least ``voxel_m``). For a sector split a
+   second, coarser Poisson surface (``bridge_depth``) fills the held-out sectors: its triangles there may lie
+   as far from the calibration points as the arc to the nearest calibration sector (``bridge``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -32,6 +35,7 @@ class ReconstructionSettings:
     max_distance_spacings: float = 3.0  # a vertex may lie this many local spacings from the nearest point
     min_distance_m: float = 0.15  # ... but at least this far (m)
     max_edge_spacings: float = 8.0  # edge length limit in local spacings (at least 4 voxels)
+    bridge_depth: int = 9  # Poisson depth of the surface across a sector split's held-out sectors
     seed: int = 0
 
 
@@ -121,9 +125,12 @@ def downsample(xyz: np.ndarray, origins: np.ndarray, voxel_m: float) -> tuple[np
 
 
 def reconstruct_mesh(xyz: np.ndarray, origins: np.ndarray, angular_step_rad: float,
-                     settings: ReconstructionSettings = ReconstructionSettings()) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                     settings: ReconstructionSettings = ReconstructionSettings(),
+                     bridge: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Vertices (V, 3) m and triangles (T, 3) of the static surface through ``xyz`` (module doc, step 2);
-    ``angular_step_rad`` is the larger of the profile's horizontal and vertical beam spacing."""
+    ``angular_step_rad`` is the larger of the profile's horizontal and vertical beam spacing. ``bridge(vertices)``
+    (m, (V,)) widens the trim where the surface may continue beyond the points: a sector split's held-out
+    sectors, which Poisson's smooth surface spans from the calibration sectors around them."""
     import open3d as o3d
 
     pts, org, _ = downsample(xyz, origins, settings.voxel_m)
@@ -134,16 +141,35 @@ def reconstruct_mesh(xyz: np.ndarray, origins: np.ndarray, angular_step_rad: flo
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
             cloud, depth=settings.poisson_depth, n_threads=2)  # fmt: skip
-    density = np.asarray(density)
+    tree = cKDTree(pts)
+    spacing = np.maximum(np.linalg.norm(pts - org, axis=1) * angular_step_rad, settings.voxel_m)
+    vertices, triangles = _trimmed(mesh, np.asarray(density), tree, spacing, settings, bridge, detail=True)
+    if bridge is not None:  # the held-out sectors: a coarser, smoother surface spans them
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            coarse, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+                cloud, depth=settings.bridge_depth, n_threads=2)  # fmt: skip
+        v2, t2 = _trimmed(coarse, np.asarray(density), tree, spacing, settings, bridge)
+        vertices, triangles = np.concatenate([vertices, v2]), np.concatenate([triangles, t2 + len(vertices)])
+    return vertices, triangles
+
+
+def _trimmed(mesh, density: np.ndarray, tree: cKDTree, spacing: np.ndarray, settings: ReconstructionSettings,
+             bridge: Callable[[np.ndarray], np.ndarray] | None, detail: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """A Poisson mesh without its low-density vertices and its triangles beyond the points (module doc), or as far
+    beyond them as ``bridge`` allows; the coarse bridging mesh (``detail`` False) keeps only triangles inside
+    the held-out sectors (every vertex with extra distance > 0)."""
     mesh.remove_vertices_by_mask(density < np.quantile(density, settings.density_quantile))
     vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    spacing = np.maximum(np.linalg.norm(pts - org, axis=1) * angular_step_rad, settings.voxel_m)
-    distance, nearest = cKDTree(pts).query(vertices, workers=2)
+    distance, nearest = tree.query(vertices, workers=2)
     allowed = np.maximum(settings.max_distance_spacings * spacing[nearest], settings.min_distance_m)
-    ok_vertex = distance <= allowed
+    extra = np.zeros(len(vertices)) if bridge is None else bridge(vertices)
+    ok_vertex = distance <= allowed + extra
+    if bridge is not None and not detail:
+        ok_vertex &= extra > 0
     v = vertices[triangles]
     edges = np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2).max(axis=1)
-    edge_limit = settings.max_edge_spacings * np.max(spacing[nearest][triangles], axis=1)
+    edge_limit = np.maximum(settings.max_edge_spacings * np.max(spacing[nearest][triangles], axis=1),
+                            0.5 * extra[triangles].max(axis=1))  # fmt: skip
     keep = ok_vertex[triangles].all(axis=1) & (edges <= np.maximum(edge_limit, 4 * settings.voxel_m))
     triangles = triangles[keep]
     used, remap = np.unique(triangles, return_inverse=True)
