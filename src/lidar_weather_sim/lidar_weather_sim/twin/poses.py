@@ -3,8 +3,9 @@
 - **recorded**: the bag's ``/tf`` (or odometry with the mount on ``/tf_static``): the sensor frame in the
   tree's root (``map``, REP-105) at every point's firing time (rolling shutter), as ``gap`` re-simulates.
 - **kiss-icp**: without poses, KISS-ICP 1.3.0 (Vizzo et al. 2023; its Python API ``KissICP`` with a
-  ``KISSConfig``, not its CLI) registers the clouds in stamp order, deskewing each with its point times;
-  its pose of a frame is the sensor at the middle of the frame's point times. The first frame defines
+  ``KISSConfig``, not its CLI) registers the clouds in stamp order, deskewing each with its point times
+  (normalised to 0-1); its pose of a frame is the sensor at the frame's last point time (KISS-ICP 1.x
+  deskews to the end of the scan), at the middle for the first two frames (not deskewed: no motion yet). The first frame defines
   ``map``. Between frames poses are interpolated (:class:`KeyframeTrack`).
 - **identity**: a single frame without poses: ``map`` is its sensor frame.
 
@@ -78,7 +79,7 @@ def points_in_map(recording: Recording, index: int, poses: TwinPoses) -> tuple[n
 
 
 def kiss_icp_track(recording: Recording, max_range_m: float = 100.0, voxel_size_m: float | None = None) -> KeyframeTrack:
-    """KISS-ICP odometry over every frame (stamp order): a :class:`KeyframeTrack` of the sensor at the middle of
+    """KISS-ICP odometry over every frame (stamp order): a :class:`KeyframeTrack` of the sensor at the end of
     each frame's point times, the first frame's sensor frame as ``map``. ``voxel_size_m`` default: KISS-ICP's
     (max range / 100)."""
     from kiss_icp.config import KISSConfig
@@ -97,7 +98,11 @@ def kiss_icp_track(recording: Recording, max_range_m: float = 100.0, voxel_size_
         stamps = point_times_s(recording, i)
         span = float(np.ptp(stamps)) if len(stamps) else 0.0
         odometry.register_frame(xyz, (stamps - stamps.min()) / span if span > 0 else np.zeros(len(stamps)))  # 0-1
-        times.append(0.5 * (stamps.min() + stamps.max()) if len(stamps) else recording.time_s(frame.stamp_ns))
+        # KISS-ICP 1.x deskews to the scan's end with the last frame-to-frame motion, which is unknown (the
+        # identity) for the first two frames: those stay raw and their poses are the scan's middle
+        deskewed = i >= 2
+        times.append((stamps.max() if deskewed else 0.5 * (stamps.min() + stamps.max())) if len(stamps)
+                     else recording.time_s(frame.stamp_ns))  # fmt: skip
         poses.append(np.array(odometry.last_pose, dtype=np.float64))
     return KeyframeTrack(np.array(times), np.array(poses))
 
