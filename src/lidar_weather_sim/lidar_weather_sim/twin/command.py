@@ -129,7 +129,7 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
     rng = np.linalg.norm(ray, axis=1)
     cos = np.einsum("ij,ij->i", ray / np.maximum(rng, 1e-9)[:, None], normals[nearest])
     rho = point_reflectivity(static_intensity, rng, cos, profile)
-    reflectivity, refl_summary = triangle_reflectivity(nearest, rho, len(triangles))
+    reflectivity, refl_summary = triangle_reflectivity(nearest, rho, len(triangles), v.mean(axis=1))
     timings["reflectivity_s"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -9,7 +9,7 @@ O(R) (C the power constant, O the biaxial overlap, clear air), so
 
 with R the point's range (m) and theta the angle between its ray and the normal of its nearest triangle
 (cos clipped at :data:`MIN_COS`, grazing hits would blow up). Per triangle the geometric mean of its
-points' rho, clipped to the surveyed range; triangles without points get the median of all points. A
+points' rho, clipped to the surveyed range; a triangle without points takes its nearest neighbour's with points. A
 re-simulation then returns, at the recorded geometry, the recorded intensity - whatever the sensor's own
 intensity scale (a real sensor's calibrated reflectivity is read as if it were this profile's intensity).
 """
@@ -35,15 +35,24 @@ def point_reflectivity(intensity: np.ndarray, range_m: np.ndarray, cos_incidence
     return peak * np.asarray(range_m, dtype=np.float64) ** 2 / (det.power_constant * cos * overlap)
 
 
-def triangle_reflectivity(triangle_of_point: np.ndarray, rho: np.ndarray, triangles: int) -> tuple[np.ndarray, dict]:
+def triangle_reflectivity(triangle_of_point: np.ndarray, rho: np.ndarray, triangles: int,
+                          centroids: np.ndarray | None = None) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Per-triangle rho (T,) from the points' ``rho`` and their nearest triangle, and a summary (median,
-    share of points clipped at the range's ends, triangles without points)."""
+    share of points clipped at the range's ends, triangles without points). A triangle without points takes
+    the value of the nearest triangle with points (by ``centroids`` (T, 3) m), else the median of all points."""
     lo, hi = REFLECTIVITY_RANGE
     log_rho = np.log(np.clip(rho, lo, hi))
     counts = np.bincount(triangle_of_point, minlength=triangles)
     sums = np.bincount(triangle_of_point, weights=log_rho, minlength=triangles)
     fill = float(np.median(log_rho)) if len(log_rho) else np.log(0.1)
-    out = np.exp(np.where(counts > 0, sums / np.maximum(counts, 1), fill))
+    mean = np.where(counts > 0, sums / np.maximum(counts, 1), fill)
+    has = counts > 0
+    if centroids is not None and has.any() and not has.all():
+        from scipy.spatial import cKDTree
+
+        nearest = cKDTree(centroids[has]).query(centroids[~has], workers=2)[1]
+        mean[~has] = mean[has][nearest]
+    out = np.exp(mean)
     summary = {"median": float(np.exp(fill)), "clipped_high": float(np.mean(rho > hi)) if len(rho) else 0.0,
                "clipped_low": float(np.mean(rho < lo)) if len(rho) else 0.0,
                "triangles_without_points": int(np.count_nonzero(counts == 0))}  # fmt: skip
