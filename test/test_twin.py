@@ -178,3 +178,24 @@ def test_bad_input_exits_2_and_writes_nothing(highway_bag, tmp_path, capsys):
     assert "empty cloud" in _one_error_line(capsys) and not out.exists()
     assert cli_main(["twin", str(highway_bag), "--frames", "1", "--split", "frames", "--out", str(out)]) == 2
     assert "at least 2 frames" in _one_error_line(capsys) and not out.exists()
+
+
+def test_gap_reads_the_split_beside_the_twin_scenario(highway_bag, single_frame_twin, monkeypatch, capsys, tmp_path):
+    """`gap BAG --scenario DIR/scenario.yaml` hands DIR/split.yaml to the search (a shipped scenario: no split)."""
+    import lidar_weather_sim.gap.command as command
+
+    seen = []
+
+    def fake_run_gap(measured, scenario, out, **kwargs):
+        seen.append(kwargs["split"])
+        return {"gap_before": 0.2, "gap_after": 0.1, "effects": [],
+                "heldout_bev": {"before": {"pearson": 0.5}, "after": {"pearson": 0.6}}}  # fmt: skip
+
+    monkeypatch.setattr(command, "run_gap", fake_run_gap)
+    assert cli_main(["gap", str(highway_bag), "--scenario", str(single_frame_twin / "scenario.yaml"),
+                     "--out", str(tmp_path / "gap")]) == 0  # fmt: skip
+    assert seen[-1] == split_beside(single_frame_twin / "scenario.yaml") and seen[-1].kind == "sectors"
+    captured = capsys.readouterr()
+    assert "using the sectors split" in captured.err and "Pearson 0.500 -> 0.600" in captured.out
+    assert cli_main(["gap", str(highway_bag), "--scenario", "highway_clear", "--out", str(tmp_path / "gap2")]) == 0
+    assert seen[-1] is None
