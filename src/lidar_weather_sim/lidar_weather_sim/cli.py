@@ -278,8 +278,14 @@ def _cmd_gap(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from lidar_weather_sim.gap.command import run_gap
-    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.gap.split import split_beside
+    from lidar_weather_sim.scenario.schema import load_scenario, scenario_path
 
+    split = split_beside(scenario_path(args.scenario))  # a twin's directory: fit and score on its split
+    if split is not None:
+        print(f"lidar-weather-sim gap: note: using the {split.kind} split of "
+              f"{scenario_path(args.scenario).parent / 'split.yaml'} (fit on calibration, score on held-out)",
+              file=sys.stderr)  # fmt: skip
     with tqdm(unit="frame", desc="gap: frames cast") as bar:
 
         def progress(text: str, casts: int) -> None:
@@ -288,10 +294,30 @@ def _cmd_gap(args: argparse.Namespace) -> int:
 
         result = run_gap(args.measured, load_scenario(args.scenario), args.out, profile=args.profile, topic=args.topic,
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
-                         scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")))  # fmt: skip
+                         scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")),
+                         split=split)  # fmt: skip
     found = ", ".join(f"{e['name']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
                       for e in result["effects"]) or "no effect"  # fmt: skip
-    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}; wrote {args.out}/gap.json")
+    bev = result.get("heldout_bev")
+    pearson = f", held-out bird's-eye Pearson {bev['before']['pearson']:.3f} -> {bev['after']['pearson']:.3f}" if bev else ""
+    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}{pearson}; wrote {args.out}/gap.json")
+    return 0
+
+
+def _cmd_twin(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lidar_weather_sim.twin.command import build_twin, load_input
+
+    if Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.overwrite:
+        raise FileExistsError(f"{args.out} exists and is not empty (use --overwrite)")
+    inp = load_input(args.bag, args.topic, args.profile, args.frames, args.split)  # every check before anything is written
+    r = build_twin(inp, args.out)
+    c, d = r["coverage"], r["point_to_mesh_m"]
+    print(f"twin of {r['frames']} frames ({r['split']['kind']} split, poses: {r['poses']}, profile "
+          f"{r['profile']['name']} {r['profile']['how']}): {r['mesh']['triangles']} triangles; within "
+          f"{r['coverage_within_m']} m of the mesh: calibration {c['calibration']:.3f}, held-out {c['heldout']:.3f} "
+          f"(held-out median {d['heldout']['median']:.3f} m); {r['time_s']['total_s']:.1f} s; wrote {args.out}")  # fmt: skip
     return 0
 
 
@@ -455,6 +481,21 @@ def build_parser() -> argparse.ArgumentParser:
     engine.add_argument("--workers", type=workers_int, default=None,
                         help="local worker processes (default: one per CPU; 0: in this process, no Dask)")  # fmt: skip
     sweep.set_defaults(func=_cmd_sweep)
+
+    twin = commands.add_parser("twin", help="digital twin of a recording from its calibration split: mesh with "
+                                            "reflectivity, split, runnable scenario, report")  # fmt: skip
+    twin.add_argument("bag", metavar="BAG", help="rosbag2 with a PointCloud2 topic (poses from /tf or odometry, "
+                                                 "else KISS-ICP)")  # fmt: skip
+    twin.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
+    twin.add_argument("--profile", help="sensor profile (default: the shipped one that matches the cloud, else one "
+                                        "derived from it and written to DIR/profile.yaml)")  # fmt: skip
+    twin.add_argument("--frames", type=positive_int, help="use the first N frames of the topic (default: all)")
+    twin.add_argument("--split", choices=["auto", "frames", "sectors"], default="auto",
+                      help="calibration / held-out split: even / odd frames, alternating 30 deg azimuth sectors of "
+                           "every frame, or auto (sectors below 4 frames; default)")  # fmt: skip
+    twin.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    twin.add_argument("--overwrite", action="store_true", help="write into a non-empty DIR")
+    twin.set_defaults(func=_cmd_twin)
 
     render = commands.add_parser("render", help="pictures of a bag's clouds: bird's-eye and range-image PNGs, a GIF, "
                                                 "optionally a 3D HTML page (no rviz2 needed)")  # fmt: skip

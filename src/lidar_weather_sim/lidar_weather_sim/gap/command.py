@@ -2,37 +2,43 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Callable
 
 import yaml
 
 from lidar_weather_sim.core.engine import Engine
+from lidar_weather_sim.gap.compare import bev_metrics
 from lidar_weather_sim.gap.effects import apply_effects
 from lidar_weather_sim.gap.parallel import SearchSource
 from lidar_weather_sim.gap.report import write_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.search import GapSearch
+from lidar_weather_sim.gap.split import DataSplit
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import Scenario
 
 
 def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profile: str | None = None,
             topic: str | None = None, progress: Callable[[str, int], None] | None = None,
-            scheduler: str | None = None, workers: int = 0, **budgets) -> dict:  # fmt: skip
+            scheduler: str | None = None, workers: int = 0, split: DataSplit | None = None, **budgets) -> dict:  # fmt: skip
     """Diagnose ``measured`` against ``scenario`` and write the gap files to ``out``; returns gap.json's content.
 
     ``progress(message, frames cast so far)`` is called as the search goes; ``budgets`` are
-    :class:`~lidar_weather_sim.gap.search.GapSearch` keywords (fit_frames, heldout_frames, ...).
+    :class:`~lidar_weather_sim.gap.search.GapSearch` keywords (fit_frames, heldout_frames, families, ...);
+    ``split`` (a twin's split.yaml) decides the calibration and held-out parts, and gap.json then also holds
+    the bird's-eye metrics of the held-out part before and after the effects (``heldout_bev``).
     ``workers`` / ``scheduler``: the search's evaluations on N local Dask worker processes or on the
     cluster at ``scheduler`` (:mod:`lidar_weather_sim.gap.parallel`; the result is the same)."""
     recording = Recording.load(measured, topic)
     resim = Resimulator(recording, scenario, profile)
     report = (lambda text: progress(text, resim.casts)) if progress else None
     source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
-                          tuple(sorted(budgets.items())))  # fmt: skip
+                          tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None)  # fmt: skip
     with Engine(scheduler, workers) as engine:
-        diagnosis = GapSearch(resim, progress=report, engine=engine, source=source, **budgets).run()
+        search = GapSearch(resim, progress=report, engine=engine, source=source, split=split, **budgets)
+        diagnosis = search.run()
     patched = apply_effects(scenario, diagnosis.effects)
     patched = patched.model_copy(update={"name": f"{scenario.name}_patched",
                                          "description": f"{scenario.description} + effects found by gap".strip()})  # fmt: skip
@@ -41,4 +47,13 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
     before = resim.signature([], everything)
     after = resim.signature(diagnosis.effects, everything)
     text = yaml.safe_dump(patched.model_dump(mode="json"), sort_keys=False)
-    return write_gap(Path(out), diagnosis, measured_sig, before, after, text, runnable=not scenario.mesh_only)
+    result = write_gap(Path(out), diagnosis, measured_sig, before, after, text,
+                       runnable=not scenario.mesh_only or bool(scenario.trajectory))  # fmt: skip
+    if split is not None:
+        held, keep = diagnosis.heldout_indices, search.keep("heldout")
+        measured_held = measured_signature(recording, held, resim.contexts, resim.channels, keep)
+        result["split"]["kind"] = split.kind
+        result["heldout_bev"] = {"before": bev_metrics(measured_held, resim.signature([], held, keep)),
+                                 "after": bev_metrics(measured_held, resim.signature(diagnosis.effects, held, keep))}  # fmt: skip
+        (Path(out) / "gap.json").write_text(json.dumps(result, indent=1))
+    return result

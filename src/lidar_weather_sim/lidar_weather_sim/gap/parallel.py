@@ -24,17 +24,20 @@ class SearchSource:
     scenario: str  # the scenario as JSON text
     profile: str | None
     topic: str | None
-    budgets: tuple[tuple[str, float], ...]  # GapSearch keywords (fit_frames, heldout_frames, ...)
+    budgets: tuple[tuple[str, object], ...]  # GapSearch keywords (fit_frames, heldout_frames, families, ...)
+    split: str | None = None  # a twin's DataSplit as JSON (its to_dict), or None
 
     def build(self):
         from lidar_weather_sim.gap.resim import Resimulator
         from lidar_weather_sim.gap.search import GapSearch
+        from lidar_weather_sim.gap.split import DataSplit
         from lidar_weather_sim.io.recording import Recording
         from lidar_weather_sim.scenario.schema import Scenario
 
         resim = Resimulator(Recording.load(self.measured, self.topic), Scenario.model_validate(json.loads(self.scenario)),
                             self.profile)  # fmt: skip
-        return GapSearch(resim, **dict(self.budgets))
+        split = DataSplit.from_dict(json.loads(self.split)) if self.split else None
+        return GapSearch(resim, split=split, **dict(self.budgets))
 
 
 _searches: dict[SearchSource, object] = {}  # this worker's search (one at a time)

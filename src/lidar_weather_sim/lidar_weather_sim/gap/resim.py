@@ -15,6 +15,7 @@ numbers), so two effect lists are compared on the same draws.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 
@@ -35,6 +36,7 @@ class RecordedPoses:
     def __init__(self, recording: Recording, world: World) -> None:
         self._tf = recording.pose_source()
         self._actors = recording.actor_poses if recording.actor_ids() else world.player.actor_poses
+        self._known = set(world.scene.actors)  # recorded actors the scenario has no body for are not cast (a twin)
         self._sensor: dict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = {}
         self._actor: dict[float, dict[int, np.ndarray]] = {}
 
@@ -47,7 +49,7 @@ class RecordedPoses:
 
     def actor_poses(self, time_s: float) -> dict[int, np.ndarray]:
         if time_s not in self._actor:
-            self._actor[time_s] = self._actors(time_s)
+            self._actor[time_s] = {k: v for k, v in self._actors(time_s).items() if k in self._known}
         return self._actor[time_s]
 
 
@@ -88,10 +90,14 @@ def channel_count(recording: Recording, world: World | None = None) -> int:
     return int(max(int(f.points["channel"].max(initial=0)) for f in recording.frames)) + 1
 
 
-def measured_signature(recording: Recording, indices, contexts: list[FrameContext], channels: int) -> Signature:
+def measured_signature(recording: Recording, indices, contexts: list[FrameContext], channels: int,
+                       keep: Callable[[np.ndarray], np.ndarray] | None = None) -> Signature:  # fmt: skip
+    """The recording's frames ``indices`` as a :class:`Signature`; ``keep(points)`` (a boolean mask, e.g. the
+    azimuth sectors of a :class:`~lidar_weather_sim.gap.split.DataSplit`) selects the points counted."""
     sig = Signature(channels)
     for i in indices:
-        sig.add(recording.frames[i].points, contexts[i])
+        points = recording.frames[i].points
+        sig.add(points if keep is None else points[keep(points)], contexts[i])
     return sig
 
 
@@ -127,10 +133,11 @@ class Resimulator:
             self.casts += 1
         return out
 
-    def signature(self, effects: list[Effect], indices, frames: list[np.ndarray] | None = None) -> Signature:
-        """The :class:`Signature` of the frames ``indices`` simulated with ``effects`` (or of ``frames``,
-        those frames already simulated)."""
+    def signature(self, effects: list[Effect], indices, keep: Callable[[np.ndarray], np.ndarray] | None = None,
+                  frames: list[np.ndarray] | None = None) -> Signature:  # fmt: skip
+        """The :class:`Signature` of the frames ``indices`` simulated with ``effects`` (or of ``frames``, those
+        frames already simulated; only the points ``keep(points)`` selects, when given)."""
         sig = Signature(self.channels)
         for i, points in zip(sorted(indices), self.frames(effects, indices) if frames is None else frames):
-            sig.add(points, self.contexts[i])
+            sig.add(points if keep is None else points[keep(points)], self.contexts[i])
         return sig

@@ -1,7 +1,8 @@
 """``lidar-weather-sim gap``: measure the reality gap of a recording, name the missing effects, fit them.
 
 1. The recording's frames are split by index: even frames calibrate, odd frames are held
-   out. Up to ``fit_frames`` evenly spaced calibration frames are used for fitting and up to
+   out (or as a twin's split.yaml says, :mod:`lidar_weather_sim.gap.split`: its frames, or for a
+   sector split the same frames with the calibration and held-out azimuth sectors' points). Up to ``fit_frames`` evenly spaced calibration frames are used for fitting and up to
    ``heldout_frames`` held-out frames for every decision.
 2. The gap is :func:`lidar_weather_sim.gap.signatures.gap_value` between the measured frames
    and the same frames re-simulated from the recorded poses (:mod:`lidar_weather_sim.gap.resim`).
@@ -44,6 +45,7 @@ from lidar_weather_sim.gap.effects import EFFECTS, FAMILIES, Effect, conflicts, 
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.signatures import gap_value, residual_histogram, systematic_bray_curtis
+from lidar_weather_sim.gap.split import DataSplit
 
 MIN_GAIN = 0.10
 MIN_ABS_GAIN = 0.002
@@ -75,19 +77,27 @@ class Diagnosis:
         return [c.effect for c, _ in self.accepted]
 
 
-def split_frames(n: int, fit_frames: int, heldout_frames: int) -> tuple[list[int], list[int]]:
-    """Calibration (even) and held-out (odd) frame indices, each thinned evenly to its budget."""
+def _thin(indices: list[int], budget: int) -> list[int]:
+    """At most ``budget`` of ``indices``, evenly spaced."""
+    if len(indices) <= budget:
+        return list(indices)
+    return [indices[int(k)] for k in np.linspace(0, len(indices) - 1, budget).round()]
 
-    def thin(indices: list[int], budget: int) -> list[int]:
-        if len(indices) <= budget:
-            return indices
-        return [indices[int(k)] for k in np.linspace(0, len(indices) - 1, budget).round()]
 
-    if n < 2:
-        raise ValueError(f"gap needs at least 2 frames with poses (one to fit, one held out), the recording has {n}")
+def split_frames(n: int, fit_frames: int, heldout_frames: int, split: DataSplit | None = None) -> tuple[list[int], list[int]]:
+    """Calibration (even) and held-out (odd) frame indices, each thinned evenly to its budget; with a
+    ``split`` (a twin's split.yaml), its parts' frames instead (the same frames for a sector split)."""
+    thin = _thin
     for name, budget in (("fit_frames", fit_frames), ("heldout_frames", heldout_frames)):
         if budget < 1:
             raise ValueError(f"gap: {name} must be at least 1, got {budget}")
+    if split is not None:
+        beyond = [i for i in split.calibration_frames + split.heldout_frames if not 0 <= i < n]
+        if beyond:
+            raise ValueError(f"gap: the split names frames {beyond[:5]} but the recording has {n} frames")
+        return thin(split.calibration_frames, fit_frames), thin(split.heldout_frames, heldout_frames)
+    if n < 2:
+        raise ValueError(f"gap needs at least 2 frames with poses (one to fit, one held out), the recording has {n}")
     return thin(list(range(0, n, 2)), fit_frames), thin(list(range(1, n, 2)), heldout_frames)
 
 
@@ -112,16 +122,19 @@ class GapSearch:
                  screen_frames: int = SCREEN_FRAMES,
                  grid: int = 5, refine: int = 2, min_gain: float = MIN_GAIN, min_abs_gain: float = MIN_ABS_GAIN,
                  progress: Callable[[str], None] | None = None, engine: Engine | None = None,
-                 source: SearchSource | None = None, families: tuple[str, ...] = ("weather",)) -> None:  # fmt: skip
+                 source: SearchSource | None = None, families: tuple[str, ...] = ("weather",),
+                 split: DataSplit | None = None) -> None:  # fmt: skip
         """``families``: the effect families searched (:data:`~lidar_weather_sim.gap.effects.FAMILIES`;
-        ``sensor`` adds the unit's own departures, for recordings of real sensors). ``engine`` with
-        ``source`` (how a worker builds this same search): each round's evaluations run on the engine's
-        workers (:mod:`lidar_weather_sim.gap.parallel`); without, in this process."""
+        ``sensor`` adds the unit's own departures, for recordings of real sensors). ``split``: a twin's
+        calibration / held-out split (else even / odd frames). ``engine`` with ``source`` (how a worker
+        builds this same search): each round's evaluations run on the engine's workers
+        (:mod:`lidar_weather_sim.gap.parallel`); without, in this process."""
         unknown = sorted(set(families) - set(FAMILIES))
         if unknown or not families:
             raise ValueError(f"gap: effect families {list(families)}: choose from {', '.join(FAMILIES)}")
         self.families = tuple(families)
         self.resim = resim
+        self.split = split
         self.engine = engine if engine is not None and not engine.serial else None
         self.source = source
         self.grid = grid
@@ -130,36 +143,46 @@ class GapSearch:
         self.min_abs_gain = min_abs_gain
         self.progress = progress or (lambda text: None)
         rec = resim.recording
-        self.fit_idx, self.held_idx = split_frames(len(rec.frames), fit_frames, heldout_frames)
+        self.fit_idx, self.held_idx = split_frames(len(rec.frames), fit_frames, heldout_frames, split)
         self.screen_idx = self.fit_idx[:: max(1, len(self.fit_idx) // max(screen_frames, 1))][:screen_frames]
-        self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels)
+        self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.keep(name))
                           for name, idx in self._splits().items()}  # fmt: skip
 
     def _splits(self) -> dict[str, list[int]]:
         return {"screen": self.screen_idx, "fit": self.fit_idx, "heldout": self.held_idx}
 
+    def keep(self, split: str) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The point mask of ``split`` under a sector split (None: every point of its frames)."""
+        if self.split is None or self.split.kind == "frames":
+            return None
+        part = "heldout" if split == "heldout" else "calibration"
+        return lambda points: self.split.keep(points, part)
+
     def gap(self, effects: list[Effect], split: str) -> float:
         """Gap between the measured and the simulated frames of ``split`` (screen, fit, heldout);
         on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
         With the sensor family, plus the paired-beam range term (:meth:`range_term`)."""
-        indices = self._splits()[split]
+        indices, keep, clip = self._splits()[split], self.keep(split), split == "heldout"
         if "sensor" not in self.families:
-            return gap_value(self._measured[split], self.resim.signature(effects, indices), clip=split == "heldout")
+            return gap_value(self._measured[split], self.resim.signature(effects, indices, keep), clip=clip)
         frames = self.resim.frames(effects, indices)
-        value = gap_value(self._measured[split], self.resim.signature(effects, indices, frames), clip=split == "heldout")
-        return value + self.range_term(effects, indices, frames, clip=split == "heldout")
+        value = gap_value(self._measured[split], self.resim.signature(effects, indices, keep, frames), clip=clip)
+        return value + self.range_term(effects, indices, frames, keep, clip)
 
-    def range_term(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray], clip: bool) -> float:
+    def range_term(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray],
+                   keep: Callable[[np.ndarray], np.ndarray] | None, clip: bool) -> float:  # fmt: skip
         """How the recorded ranges depart from the simulated ones beam by beam, beyond what the simulator's own
         noise gives: the systematic Bray-Curtis (:func:`systematic_bray_curtis`) between the histogram of
         recorded minus simulated range over the beams both return on, and the same histogram for a second,
         independent simulation of the same frames minus the first. Equal when the simulation has the
         recording's range bias (a shift) and noise (the width); costs a second simulation of the frames.
         Histograms (:func:`~lidar_weather_sim.gap.signatures.residual_histogram`) of the sensor-frame
-        points, the recorded poses common to both sides."""
+        points (those ``keep`` selects), the recorded poses common to both sides."""
         columns = self.resim.world.profile.scan.columns
         recorded = [self.resim.recording.frames[i].points for i in sorted(indices)]
         again = self.resim.frames(effects, indices, redraw=REDRAW_SEED_OFFSET)
+        if keep is not None:
+            recorded, frames, again = ([p[keep(p)] for p in part] for part in (recorded, frames, again))
         measured = sum(residual_histogram(r, f, columns) for r, f in zip(recorded, frames))
         simulated = sum(residual_histogram(a, f, columns) for a, f in zip(again, frames))
         n = len(indices)

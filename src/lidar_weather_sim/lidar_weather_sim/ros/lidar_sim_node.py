@@ -314,6 +314,9 @@ class LidarSimNode(Node):
         try:
             if not math.isfinite(msg.data):
                 raise ValueError(f"speed {msg.data} is not finite")
+            if self.world.player.ego is None:
+                raise ValueError("the scenario has no ego (mesh-only, driven by its trajectory): speed commands "
+                                 "are ignored")  # fmt: skip
             self.world.player.ego.command_speed(self._t, msg.data)
         except ValueError as exc:
             self._once(f"{TOPIC_CMD_SPEED}: {str(exc).split(' ')[0]}", f"{TOPIC_CMD_SPEED}: {exc}")
@@ -326,7 +329,8 @@ class LidarSimNode(Node):
             self._hold = False
         self._tick += 1
         self._t = t = self._tick * self._dt
-        if self.world.player.ego.at_road_end(t):  # as `run`: the ego would leave the map, the clouds go empty
+        ego = self.world.player.ego  # None: a mesh-only scenario driven by its trajectory (no road to leave)
+        if ego is not None and ego.at_road_end(t):  # as `run`: the ego would leave the map, the clouds go empty
             self.road_end_s = t
             self.get_logger().warning(f"the ego reached the end of road {self.world.scenario.ego.road!r} at {t:.2f} s "
                                       f"(it would leave the map): stopping after {self.published} clouds")  # fmt: skip

@@ -7,7 +7,8 @@ sensor is mounted on it with the scenario's mount pose. All poses are in the
 map frame: translations in m, quaternions x, y, z, w. The ego speed can be
 commanded at run time (closed loop); actors keep their scenario speed.
 A mesh-only scenario has no ego: its player has no actors and no ego poses
-(:class:`NoEgoError`); sensor poses then come from a recording or /tf.
+(:class:`NoEgoError`); sensor poses then come from a recording or /tf, or from the
+scenario's ``trajectory`` (:class:`TrajectoryTrack`) when it has one.
 """
 
 from __future__ import annotations
@@ -16,7 +17,13 @@ import numba
 import numpy as np
 
 from lidar_weather_sim.core.config import ConfigError
-from lidar_weather_sim.core.geometry import matrix_quaternion, rpy_matrix, yaw_quaternions
+from lidar_weather_sim.core.geometry import (
+    matrix_quaternion,
+    quaternion_multiply,
+    quaternion_rotate,
+    rpy_matrix,
+    yaw_quaternions,
+)
 from lidar_weather_sim.scenario.placement import place_lead
 from lidar_weather_sim.scenario.schema import Mount, Mover, Scenario
 from lidar_weather_sim.scene.opendrive import RoadNetwork
@@ -116,6 +123,28 @@ class MoverTrack:
         return pos, heading
 
 
+class TrajectoryTrack:
+    """base_link poses in the map frame from a scenario's ``trajectory``: translation interpolated linearly,
+    rotation by slerp between the neighbouring poses, held before the first and after the last (s, m)."""
+
+    def __init__(self, poses) -> None:
+        from scipy.spatial.transform import Rotation, Slerp
+
+        self.times = np.array([p.t_s for p in poses], dtype=np.float64)
+        self.translation = np.array([[p.x_m, p.y_m, p.z_m] for p in poses], dtype=np.float64)
+        q = np.array([[p.qx, p.qy, p.qz, p.qw] for p in poses], dtype=np.float64)
+        self._rotations = Rotation.from_quat(q / np.linalg.norm(q, axis=1, keepdims=True))
+        self._slerp = Slerp(self.times, self._rotations) if len(self.times) > 1 else None
+
+    def poses(self, times_s) -> tuple[np.ndarray, np.ndarray]:
+        """base_link in map at ``times_s`` (s): translations (N, 3) m, quaternions (N, 4) x, y, z, w."""
+        t = np.clip(np.atleast_1d(np.asarray(times_s, dtype=np.float64)), self.times[0], self.times[-1])
+        if self._slerp is None:
+            return np.tile(self.translation[0], (len(t), 1)), np.tile(self._rotations.as_quat(), (len(t), 1))
+        xyz = np.stack([np.interp(t, self.times, self.translation[:, k]) for k in range(3)], axis=-1)
+        return xyz, self._slerp(t).as_quat()
+
+
 class NoEgoError(ValueError):
     """Ego or sensor poses asked of a scenario without an ego (a mesh-only scenario)."""
 
@@ -127,6 +156,7 @@ class ScenarioPlayer:
         self.scenario = scenario
         self.network = network
         self.ego = None if scenario.ego is None else MoverTrack(scenario.ego, network)
+        self.trajectory = TrajectoryTrack(scenario.trajectory) if scenario.trajectory else None
         actors = scenario.actors
         if self.ego is not None:  # actors placed by their gap to the sensor get their lane and s_m
             actors = [place_lead(a, scenario.ego, scenario.sensor.mount, network) for a in actors]
@@ -144,11 +174,17 @@ class ScenarioPlayer:
 
     def base_link_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """base_link in map: translations (N, 3) m, quaternions (N, 4)."""
+        if self.trajectory is not None:
+            return self.trajectory.poses(times_s)
         pos, heading = self._ego().poses(times_s)
         return pos, yaw_quaternions(heading)
 
     def sensor_poses(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor frame in map at each time (rolling shutter: one pose per firing time)."""
+        if self.trajectory is not None:  # base_link pose then the mount: T_map_sensor = T_map_base T_base_sensor
+            translation, q = self.trajectory.poses(times_s)
+            return (translation + quaternion_rotate(q, np.broadcast_to(self.mount[:3, 3], translation.shape)),
+                    quaternion_multiply(q, np.broadcast_to(self._mount_quaternion, q.shape)))  # fmt: skip
         return self._sensor(*self._ego().poses(times_s))
 
     def _sensor(self, pos: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,6 +198,8 @@ class ScenarioPlayer:
     def poses_at(self, sensor_times_s, actor_times_s) -> tuple[np.ndarray, np.ndarray, list[dict[int, np.ndarray]]]:
         """``sensor_poses(sensor_times_s)`` and ``actor_poses_at(actor_times_s)`` at once: an ego that
         keeps its lane and speed joins the actors' lane-pose call on its road (the same values)."""
+        if self.trajectory is not None:
+            return (*self.sensor_poses(sensor_times_s), self.actor_poses_at(actor_times_s))
         ego = self._ego()
         if ego.mover.lane_changes or len(ego._segments) > 1:
             return (*self.sensor_poses(sensor_times_s), self.actor_poses_at(actor_times_s))

@@ -7,9 +7,11 @@ OpenSCENARIO's Weather concepts in snake_case with SI unit suffixes. Positions o
 A scenario without a ``map`` (``map: null`` or omitted) has an empty road
 network: its scene is only its ``static_meshes`` (for example a mesh built from
 a real recording). Such a mesh-only scenario has no roads to drive on, so it has
-no ``ego`` and no ``actors``; its sensor poses must come from outside (``gap`` /
-``compare`` on a recording, the node's /tf or odometry mode), and
-``lidar-weather-sim run`` refuses it.
+no ``ego`` and no ``actors``; its sensor poses come from outside (``gap`` /
+``compare`` on a recording, the node's /tf or odometry mode), or from its
+``trajectory`` (timed base_link poses in the map frame, e.g. the recorded poses
+that ``lidar-weather-sim twin`` writes): only with a trajectory does
+``lidar-weather-sim run`` accept it.
 """
 
 from __future__ import annotations
@@ -117,6 +119,19 @@ class SensorSetup(ConfigModel):
                                                      "detection (intensity response, range bias and noise, ray drop)")  # fmt: skip
 
 
+class TrajectoryPose(ConfigModel):
+    """base_link in the map frame at simulated time ``t_s``: translation (m), unit quaternion x, y, z, w."""
+
+    t_s: float = Field(ge=0, le=MAX_TIME_S, description="Simulated time (s)")
+    x_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
+    y_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
+    z_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
+    qx: float = Field(0.0, ge=-1, le=1)
+    qy: float = Field(0.0, ge=-1, le=1)
+    qz: float = Field(0.0, ge=-1, le=1)
+    qw: float = Field(1.0, ge=-1, le=1)
+
+
 class Scenario(ConfigModel):
     name: str
     description: str = ""
@@ -130,6 +145,10 @@ class Scenario(ConfigModel):
     ego: Mover | None = Field(None, description="The sensor's vehicle; required with a map, absent without one")
     sensor: SensorSetup = Field(default_factory=SensorSetup)
     actors: list[Actor] = Field(default_factory=list)
+    trajectory: list[TrajectoryPose] = Field(
+        default_factory=list, description="Mesh-only scenarios: base_link poses in the map frame over time "
+        "(interpolated: translation linear, rotation slerp; held before the first and after the last); makes "
+        "`lidar-weather-sim run` possible without roads")
     weather: Weather = Field(default_factory=Weather)
     regions: list[str] = Field(default_factory=list, description="Region plugins, in order")
     region_params: dict[str, dict] = Field(default_factory=dict, description="Parameters per region plugin")
@@ -151,6 +170,11 @@ class Scenario(ConfigModel):
                 raise ValueError("a scenario without a 'map' needs 'static_meshes' (its scene would be empty)")
             if self.ego is not None or self.actors:
                 raise ValueError("a scenario without a 'map' has no roads: it cannot have an 'ego' or 'actors'")
+        elif self.trajectory:
+            raise ValueError("'trajectory' is for scenarios without a 'map' (with a map the ego drives its lane)")
+        times = [p.t_s for p in self.trajectory]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise ValueError("'trajectory' times t_s must increase strictly")
         return self
 
     @property

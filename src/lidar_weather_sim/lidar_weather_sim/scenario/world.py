@@ -15,6 +15,7 @@ from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import box_mesh
 from lidar_weather_sim.scene.opendrive import RoadNetwork
 from lidar_weather_sim.scene.scene import Scene, load_static_mesh, vehicle_mesh
+from lidar_weather_sim.scene.surveyed import read_face_reflectivity, surveyed_materials
 from lidar_weather_sim.sensor.profile import SensorProfile, load_profile
 
 
@@ -53,10 +54,12 @@ class World:
         else:
             scene = Scene.from_xodr(_map_path(scenario.map))
         for mesh_name in scenario.static_meshes:
-            scene.add_static(
-                load_static_mesh(_map_path(mesh_name), scene.materials.index("concrete"), scene.next_object_id()),
-                mesh_name,
-            )
+            path = _map_path(mesh_name)
+            mesh = load_static_mesh(path, scene.materials.index("concrete"), scene.next_object_id())
+            reflectivity = read_face_reflectivity(path)  # a twin's mesh: its surveyed reflectivity per triangle
+            if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
+                scene.materials, mesh.material = surveyed_materials(scene.materials, reflectivity)
+            scene.add_static(mesh, mesh_name)
         for actor in scenario.actors:
             size = actor.size
             if actor.type == "vehicle":

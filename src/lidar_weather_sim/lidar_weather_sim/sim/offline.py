@@ -53,11 +53,11 @@ def run_scenario(
     ``postprocess(frame)`` may replace a frame's points before they are written, or return
     None to drop the frame (it still counts towards ``frames``). ``return_mode`` overrides the scenario's and
     the profile's (:data:`~lidar_weather_sim.core.names.RETURN_MODES`). A mesh-only scenario (no ego)
-    raises :class:`NoEgoError`: it has no poses to run."""
-    if scenario.ego is None:
+    without a ``trajectory`` raises :class:`NoEgoError`: it has no poses to run."""
+    if scenario.ego is None and not scenario.trajectory:
         raise NoEgoError(
             f"scenario '{scenario.name}' has no ego (mesh-only, no map): it cannot be run; use it with "
-            "gap/compare on a recording or the sim node's /tf mode"
+            "gap/compare on a recording or the sim node's /tf mode, or give it a 'trajectory'"
         )
     world = World.build(scenario, profile, return_mode)
     sim = LidarSimulator.of_world(world, seed=seed)
@@ -69,7 +69,7 @@ def run_scenario(
     with BagWriter(output, overwrite=overwrite) as bag:
         bag.write(TOPIC_TF_STATIC, tf_message(0, static_transforms(player)), 0)
         while done < total:
-            if player.ego.at_road_end(t):
+            if player.ego is not None and player.ego.at_road_end(t):
                 stopped = (f"the ego reached the end of road {scenario.ego.road!r} at {t:.2f} s (it would leave the "
                            f"map): stopped after {done} of {total} frames")  # fmt: skip
                 break

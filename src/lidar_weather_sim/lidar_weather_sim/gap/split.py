@@ -1,0 +1,109 @@
+"""A recording's calibration / held-out split as a file (``split.yaml``, written by ``lidar-weather-sim twin``).
+
+Two kinds:
+
+- ``frames``: whole frames (by their index in the topic, stamp order): even frames calibrate, odd
+  frames are held out, as :func:`lidar_weather_sim.gap.search.split_frames` splits them.
+- ``sectors``: for recordings with few frames (a single scan works), every frame is used but only
+  the points of some azimuth sectors (sensor frame, REP-103: azimuth = atan2(y, x), deg, [lo, hi))
+  calibrate; the points of the other sectors are held out. Contiguous sectors of ``sector_deg``
+  (default 30 deg) alternate from -180 deg: even sectors calibrate, odd sectors are held out.
+
+``gap`` reads the file beside a scenario (:func:`split_beside`): it then fits on the calibration part
+and scores on the held-out part only, so the twin and the gap never use the same points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+
+SPLIT_FILE = "split.yaml"
+#: Fewer frames than this get a sector split (a frame split would leave one or two frames per part).
+MIN_FRAMES_FOR_FRAME_SPLIT = 4
+SECTOR_DEG = 30.0
+
+
+@dataclass(frozen=True)
+class DataSplit:
+    kind: Literal["frames", "sectors"]
+    calibration_frames: list[int]
+    heldout_frames: list[int]
+    calibration_sectors_deg: list[tuple[float, float]] = field(default_factory=list)  # sectors kind only
+    heldout_sectors_deg: list[tuple[float, float]] = field(default_factory=list)
+
+    def frames(self, part: str) -> list[int]:
+        """Frame indices of ``part`` ("calibration" or "heldout")."""
+        return self.calibration_frames if part == "calibration" else self.heldout_frames
+
+    def keep(self, points: np.ndarray, part: str) -> np.ndarray:
+        """Boolean mask of the points (sensor frame) that belong to ``part``: all of them for a frame split,
+        those whose azimuth lies in the part's sectors for a sector split."""
+        if self.kind == "frames":
+            return np.ones(len(points), dtype=bool)
+        sectors = np.radians(self.calibration_sectors_deg if part == "calibration" else self.heldout_sectors_deg)
+        az = np.arctan2(points["y"].astype(np.float64), points["x"].astype(np.float64))
+        inside = (az[:, None] >= sectors[None, :, 0]) & (az[:, None] < sectors[None, :, 1])
+        return inside.any(axis=1)
+
+    def to_dict(self) -> dict:
+        out = {"kind": self.kind, "calibration": {"frames": list(self.calibration_frames)},
+               "heldout": {"frames": list(self.heldout_frames)}}  # fmt: skip
+        if self.kind == "sectors":
+            out["calibration"]["sectors_deg"] = [list(map(float, s)) for s in self.calibration_sectors_deg]
+            out["heldout"]["sectors_deg"] = [list(map(float, s)) for s in self.heldout_sectors_deg]
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "split") -> "DataSplit":
+        try:
+            kind = data["kind"]
+            cal, held = data["calibration"], data["heldout"]
+            out = cls(kind, [int(i) for i in cal["frames"]], [int(i) for i in held["frames"]],
+                      [tuple(map(float, s)) for s in cal.get("sectors_deg", [])],
+                      [tuple(map(float, s)) for s in held.get("sectors_deg", [])])  # fmt: skip
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: not a calibration/held-out split ({type(exc).__name__}: {exc})") from None
+        if kind not in ("frames", "sectors") or not out.calibration_frames or not out.heldout_frames:
+            raise ValueError(f"{source}: kind must be frames or sectors, with frames in both parts")
+        if kind == "sectors" and not (out.calibration_sectors_deg and out.heldout_sectors_deg):
+            raise ValueError(f"{source}: a sector split needs sectors_deg in both parts")
+        return out
+
+    def write(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text("# calibration / held-out split of the recording (lidar_weather_sim.gap.split)\n"
+                        + yaml.safe_dump(self.to_dict(), sort_keys=False))  # fmt: skip
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "DataSplit":
+        return cls.from_dict(yaml.safe_load(Path(path).read_text()) or {}, str(path))
+
+
+def split_recording(n_frames: int, kind: str = "auto", sector_deg: float = SECTOR_DEG) -> DataSplit:
+    """The split of a recording of ``n_frames`` frames: ``kind`` "frames" (even / odd), "sectors"
+    (alternating ``sector_deg`` sectors of every frame) or "auto": frames from
+    :data:`MIN_FRAMES_FOR_FRAME_SPLIT` frames on, else sectors."""
+    if n_frames < 1:
+        raise ValueError("a split needs at least one frame")
+    if kind not in ("auto", "frames", "sectors"):
+        raise ValueError(f"split kind must be auto, frames or sectors, not {kind!r}")
+    if kind == "frames" and n_frames < 2:
+        raise ValueError("a frame split needs at least 2 frames (one to calibrate, one held out)")
+    if kind == "frames" or (kind == "auto" and n_frames >= MIN_FRAMES_FOR_FRAME_SPLIT):
+        return DataSplit("frames", list(range(0, n_frames, 2)), list(range(1, n_frames, 2)))
+    edges = np.arange(-180.0, 180.0 + 1e-9, sector_deg)
+    sectors = [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:])]
+    frames = list(range(n_frames))
+    return DataSplit("sectors", frames, frames, sectors[0::2], sectors[1::2])
+
+
+def split_beside(scenario_file: str | Path) -> DataSplit | None:
+    """The split in ``split.yaml`` next to a scenario file (a twin's directory), None if there is none."""
+    path = Path(scenario_file).parent / SPLIT_FILE
+    return DataSplit.load(path) if path.is_file() else None

@@ -1,0 +1,272 @@
+"""``lidar-weather-sim twin``: a digital twin of a recording, built only from its calibration split.
+
+Steps (each in its own module): the split (:func:`lidar_weather_sim.gap.split.split_recording`: even /
+odd frames, or alternating 30 deg azimuth sectors below 4 frames); the profile
+(:mod:`~lidar_weather_sim.twin.profile_match`); the poses (:mod:`~lidar_weather_sim.twin.poses`); the
+calibration points in the map frame, moving ones left out, and the trimmed Poisson mesh
+(:mod:`~lidar_weather_sim.twin.reconstruct`); reflectivity per triangle
+(:mod:`~lidar_weather_sim.twin.reflectivity`). At most ``max_frames`` calibration frames (evenly spaced)
+build the mesh, so the cost does not grow with the recording.
+
+DIR gets ``mesh.ply`` (map frame, m; reflectivity per face, :mod:`lidar_weather_sim.scene.surveyed`),
+``split.yaml``, ``scenario.yaml`` (mesh-only, the recording's sensor poses as its ``trajectory``: runnable
+by ``lidar-weather-sim run``, and ``gap BAG --scenario DIR/scenario.yaml`` fits and scores on the split),
+``profile.yaml`` when the profile was derived, and ``report.json`` / ``report.md``: coverage (share of
+calibration and held-out points within :data:`COVERAGE_M` of the mesh), point-to-mesh and
+mesh-to-points distances (median, p95), triangle count, time per step.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial import cKDTree
+
+from lidar_weather_sim.gap.search import _thin
+from lidar_weather_sim.gap.split import SPLIT_FILE, DataSplit, split_recording
+from lidar_weather_sim.io.bags import BagError
+from lidar_weather_sim.io.recording import Recording
+from lidar_weather_sim.scene.surveyed import write_surveyed_ply
+from lidar_weather_sim.sensor.profile import SensorProfile
+from lidar_weather_sim.sensor.scan import ScanPattern
+from lidar_weather_sim.twin.poses import TwinPoses, points_in_map, twin_poses
+from lidar_weather_sim.twin.profile_match import choose_profile
+from lidar_weather_sim.twin.reconstruct import (
+    FrameCloud,
+    ReconstructionSettings,
+    closest_triangles,
+    distances_to_mesh,
+    moving_points,
+    reconstruct_mesh,
+)
+from lidar_weather_sim.twin.reflectivity import point_reflectivity, triangle_reflectivity
+
+COVERAGE_M = 0.1
+MAX_FRAMES = 20  # calibration frames that build the mesh (evenly spaced)
+MAX_REPORT_POINTS = 400_000  # points per part whose distance to the mesh is measured (seeded subset)
+
+
+@dataclass
+class TwinInput:
+    """A recording checked for a twin: frames to use, the profile and the split."""
+
+    recording: Recording
+    frames: int
+    profile_name: str
+    profile: SensorProfile
+    profile_how: str
+    split: DataSplit
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def load_input(bag: str | Path, topic: str | None = None, profile: str | None = None,
+               frames: int | None = None, split: str = "auto") -> TwinInput:  # fmt: skip
+    """Everything checked before anything is written: the bag, its topic, non-empty clouds, the profile and
+    the split (``split``: auto, frames or sectors, :func:`~lidar_weather_sim.gap.split.split_recording`)."""
+    t0 = time.perf_counter()
+    if not Path(bag).exists():
+        raise FileNotFoundError(f"no bag at {bag}")
+    recording = Recording.load(bag, topic)
+    n = len(recording.frames) if frames is None else min(frames, len(recording.frames))
+    empty = [i for i in range(n) if not len(recording.frames[i].points)]
+    if empty:
+        raise BagError(f"bag {bag}: topic {recording.topic}: frame {empty[0]} holds no points (empty cloud)")
+    stamps = np.array([f.stamp_ns for f in recording.frames[:n]], dtype=np.float64)
+    rate = 1e9 / float(np.median(np.diff(stamps))) if n > 1 and np.median(np.diff(stamps)) > 0 else None
+    name, prof, how = choose_profile(recording.frames[0].points, profile, rate)
+    out = TwinInput(recording, n, name, prof, how, split_recording(n, split))
+    out.timings["load_s"] = time.perf_counter() - t0
+    return out
+
+
+def _frame_cloud(recording: Recording, index: int, poses: TwinPoses, part_mask: np.ndarray) -> FrameCloud:
+    xyz, origins = points_in_map(recording, index, poses)
+    frame = recording.frames[index]
+    mid = recording.time_s(frame.stamp_ns) + 0.5 * float(frame.points["time_stamp"].max()) * 1e-9
+    channel = frame.points["channel"]
+    return FrameCloud(xyz[part_mask], origins[part_mask], poses.frame_pose(mid), channel[part_mask])
+
+
+def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings = ReconstructionSettings(),
+               max_frames: int = MAX_FRAMES) -> dict:  # fmt: skip
+    """Build the twin of ``inp`` into ``out`` (module doc); returns report.json's content."""
+    rec, split, profile, timings = inp.recording, inp.split, inp.profile, inp.timings
+    t = time.perf_counter()
+    poses = twin_poses(_first_frames(rec, inp.frames), max_range_m=min(profile.range.max_m, 100.0))
+    timings["poses_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    pattern = ScanPattern(profile)
+    used = _thin(split.calibration_frames, max_frames)
+    clouds, intensity = [], []
+    for i in used:
+        keep = split.keep(rec.frames[i].points, "calibration")
+        clouds.append(_frame_cloud(rec, i, poses, keep))
+        intensity.append(rec.frames[i].points["intensity"][keep])
+    moving = moving_points(clouds, pattern.elevation, pattern.n_columns)
+    static_xyz = np.concatenate([c.xyz[~m] for c, m in zip(clouds, moving)])
+    static_origin = np.concatenate([c.origins[~m] for c, m in zip(clouds, moving)])
+    static_intensity = np.concatenate([v[~m] for v, m in zip(intensity, moving)])
+    timings["moving_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    step = max(2 * np.pi / pattern.n_columns, float(np.median(np.diff(np.sort(pattern.elevation)))) if pattern.n_channels > 1 else 0.0)
+    vertices, triangles = reconstruct_mesh(static_xyz, static_origin, step, settings,
+                                           _sector_bridge(split, clouds[0].pose) if split.kind == "sectors" else None)  # fmt: skip
+    timings["mesh_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    nearest = closest_triangles(vertices, triangles, static_xyz)
+    v = vertices[triangles]
+    normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    ray = static_xyz - static_origin
+    rng = np.linalg.norm(ray, axis=1)
+    cos = np.einsum("ij,ij->i", ray / np.maximum(rng, 1e-9)[:, None], normals[nearest])
+    rho = point_reflectivity(static_intensity, rng, cos, profile)
+    reflectivity, refl_summary = triangle_reflectivity(nearest, rho, len(triangles), v.mean(axis=1))
+    timings["reflectivity_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    coverage = _coverage(rec, split, poses, vertices, triangles, static_xyz, settings.seed)
+    timings["report_s"] = time.perf_counter() - t
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    mesh_path = write_surveyed_ply(out / "mesh.ply", vertices, triangles, reflectivity)
+    split.write(out / SPLIT_FILE)
+    profile_ref = inp.profile_name
+    if inp.profile_how == "derived":
+        (out / "profile.yaml").write_text("# derived from the recording by lidar-weather-sim twin\n"
+                                          + yaml.safe_dump(profile.model_dump(mode="json"), sort_keys=False))  # fmt: skip
+        profile_ref = str((out / "profile.yaml").resolve())
+    scenario = twin_scenario(rec, inp.frames, poses, mesh_path.resolve(), profile_ref, profile)
+    (out / "scenario.yaml").write_text(yaml.safe_dump(scenario, sort_keys=False))
+    removed = int(sum(int(m.sum()) for m in moving))
+    report = {
+        "bag": str(rec.path), "topic": rec.topic, "frames": inp.frames,
+        "profile": {"name": inp.profile_name, "how": inp.profile_how},
+        "poses": poses.source,
+        "split": {"kind": split.kind, "calibration_frames": len(split.calibration_frames),
+                  "heldout_frames": len(split.heldout_frames), "frames_used_for_mesh": used},
+        "moving_points_removed": removed,
+        "moving_note": ("a single frame: nothing to compare it with, no moving points removed" if len(used) < 2
+                        else f"{removed} of {removed + len(static_xyz)} calibration points seen through by a "
+                             "neighbouring frame"),
+        "mesh": {"vertices": int(len(vertices)), "triangles": int(len(triangles)), "file": "mesh.ply"},
+        "coverage_within_m": COVERAGE_M,
+        **coverage,
+        "reflectivity": refl_summary,
+        "time_s": {k: round(v, 3) for k, v in timings.items()},
+    }  # fmt: skip
+    report["time_s"]["total_s"] = round(sum(timings.values()), 3)
+    (out / "report.json").write_text(json.dumps(report, indent=1))
+    (out / "report.md").write_text(_markdown(report))
+    return report
+
+
+def _sector_bridge(split: DataSplit, pose: np.ndarray):
+    """For a sector split: the extra trim distance (m) of each vertex, its horizontal range from the sensor
+    (first calibration frame's pose) times its angle to the nearest calibration sector (0 inside one): the
+    arc over which Poisson's surface may continue into a held-out sector."""
+    sectors = np.radians(np.asarray(split.calibration_sectors_deg, dtype=np.float64))
+
+    def bridge(vertices: np.ndarray) -> np.ndarray:
+        local = (vertices - pose[:3, 3]) @ pose[:3, :3]
+        az = np.arctan2(local[:, 1], local[:, 0])[:, None]
+        to_lo = np.abs(np.angle(np.exp(1j * (az - sectors[None, :, 0]))))
+        to_hi = np.abs(np.angle(np.exp(1j * (az - sectors[None, :, 1]))))
+        inside = (az >= sectors[None, :, 0]) & (az < sectors[None, :, 1])
+        angle = np.where(inside, 0.0, np.minimum(to_lo, to_hi)).min(axis=1)
+        return np.hypot(local[:, 0], local[:, 1]) * angle
+
+    return bridge
+
+
+def _first_frames(rec: Recording, n: int) -> Recording:
+    """``rec`` limited to its first ``n`` frames (the poses of KISS-ICP need no more)."""
+    if n == len(rec.frames):
+        return rec
+    from dataclasses import replace
+
+    return replace(rec, frames=rec.frames[:n])
+
+
+def _part_points(rec: Recording, split: DataSplit, poses: TwinPoses, part: str, rng: np.random.Generator) -> np.ndarray:
+    xyz = []
+    for i in split.frames(part):
+        keep = split.keep(rec.frames[i].points, part)
+        xyz.append(points_in_map(rec, i, poses)[0][keep])
+    xyz = np.concatenate(xyz) if xyz else np.zeros((0, 3))
+    if len(xyz) > MAX_REPORT_POINTS:
+        xyz = xyz[np.sort(rng.choice(len(xyz), MAX_REPORT_POINTS, replace=False))]
+    return xyz
+
+
+def _coverage(rec, split, poses, vertices, triangles, static_xyz, seed: int) -> dict:
+    """Coverage and distances of the calibration and held-out points, and mesh-to-points distances."""
+    rng = np.random.default_rng(seed)
+    out = {"coverage": {}, "point_to_mesh_m": {}}
+    for part in ("calibration", "heldout"):
+        d = distances_to_mesh(vertices, triangles, _part_points(rec, split, poses, part, rng))
+        out["coverage"][part] = float(np.mean(d <= COVERAGE_M)) if len(d) else float("nan")
+        out["point_to_mesh_m"][part] = _stats(d)
+    centroids = vertices[triangles].mean(axis=1)
+    out["mesh_to_points_m"] = _stats(cKDTree(static_xyz).query(centroids, workers=2)[0])
+    return out
+
+
+def _stats(d: np.ndarray) -> dict:
+    if not len(d):
+        return {"median": float("nan"), "p95": float("nan"), "points": 0}
+    return {"median": float(np.median(d)), "p95": float(np.percentile(d, 95)), "points": int(len(d))}
+
+
+def twin_scenario(rec: Recording, frames: int, poses: TwinPoses, mesh: Path, profile_ref: str,
+                  profile: SensorProfile) -> dict:  # fmt: skip
+    """The twin as a mesh-only scenario whose ``trajectory`` is the sensor's poses (base_link = sensor)."""
+    starts = np.array([rec.time_s(f.stamp_ns) for f in rec.frames[:frames]])
+    times = np.unique(np.concatenate([starts, starts + profile.period_s]))
+    translation, quaternion = poses.track.sensor_poses(times)
+    trajectory = [{"t_s": round(float(t), 6), "x_m": float(p[0]), "y_m": float(p[1]), "z_m": float(p[2]),
+                   "qx": float(q[0]), "qy": float(q[1]), "qz": float(q[2]), "qw": float(q[3])}
+                  for t, p, q in zip(times, translation, quaternion)]  # fmt: skip
+    name = f"twin_{Path(rec.path).name}"
+    return {
+        "name": name,
+        "description": f"digital twin of {rec.path} ({rec.topic}, {frames} frames; poses: {poses.source}), "
+                       "built by lidar-weather-sim twin from its calibration split",
+        "map": None,
+        "static_meshes": [str(mesh)],
+        "duration_s": round(float(times[-1]), 6),
+        "seed": 0,
+        "sensor": {"profile": profile_ref, "mount": {"x_m": 0.0, "y_m": 0.0, "z_m": 0.0}},
+        "trajectory": trajectory,
+        "weather": {"fog": {"visual_range_m": 100000.0}, "precipitation": {"type": "dry", "intensity_mm_h": 0.0},
+                    "sun": {"irradiance_w_m2": 0.0}, "wind": {"speed_m_s": 0.0}},
+        "regions": [],
+    }  # fmt: skip
+
+
+def _markdown(r: dict) -> str:
+    c, d, m = r["coverage"], r["point_to_mesh_m"], r["mesh_to_points_m"]
+    return "\n".join([
+        f"# Twin of {r['bag']}", "",
+        f"{r['frames']} frames of {r['topic']}; profile {r['profile']['name']} ({r['profile']['how']}); "
+        f"poses: {r['poses']}; split: {r['split']['kind']} ({r['split']['calibration_frames']} calibration, "
+        f"{r['split']['heldout_frames']} held-out frames; {len(r['split']['frames_used_for_mesh'])} build the mesh).",
+        "", f"Moving objects: {r['moving_note']}.", "",
+        f"| part | within {r['coverage_within_m']} m of the mesh | point-to-mesh median (m) | p95 (m) |",
+        "|---|---:|---:|---:|",
+        *[f"| {p} | {c[p]:.3f} | {d[p]['median']:.3f} | {d[p]['p95']:.3f} |" for p in ("calibration", "heldout")],
+        "", f"Mesh: {r['mesh']['triangles']} triangles; mesh-to-points distance (triangle centroids to the "
+        f"nearest static calibration point) median {m['median']:.3f} m, p95 {m['p95']:.3f} m.",
+        f"Reflectivity: median {r['reflectivity']['median']:.3f}, points clipped high "
+        f"{r['reflectivity']['clipped_high']:.3f}, low {r['reflectivity']['clipped_low']:.3f}.", "",
+        "Time (s): " + ", ".join(f"{k} {v}" for k, v in r["time_s"].items()), "",
+    ])  # fmt: skip

@@ -1,0 +1,158 @@
+"""The pieces the twin adds to lower layers: the split file gap reads, scenarios with a trajectory, meshes
+with a reflectivity per triangle, moving-point removal and the reflectivity inversion."""
+
+from __future__ import annotations
+
+import numpy as np
+import pydantic
+import pytest
+
+from lidar_weather_sim.gap.split import DataSplit, split_beside, split_recording
+from lidar_weather_sim.scenario.schema import Scenario
+from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.scene.surveyed import bin_values, read_face_reflectivity, surveyed_materials, write_surveyed_ply
+from lidar_weather_sim.testing.bags import points_at
+
+
+def test_split_kinds_and_round_trip(tmp_path):
+    frames = split_recording(5)
+    assert (frames.kind, frames.calibration_frames, frames.heldout_frames) == ("frames", [0, 2, 4], [1, 3])
+    sectors = split_recording(3)
+    assert sectors.kind == "sectors" and sectors.calibration_frames == [0, 1, 2] == sectors.heldout_frames
+    assert sectors.calibration_sectors_deg[0] == (-180.0, -150.0) and sectors.heldout_sectors_deg[0] == (-150.0, -120.0)
+    assert split_recording(3, "frames").kind == "frames" and split_recording(8, "sectors").kind == "sectors"
+    sectors.write(tmp_path / "split.yaml")
+    assert DataSplit.load(tmp_path / "split.yaml") == sectors
+    assert split_beside(tmp_path / "scenario.yaml") == sectors and split_beside(tmp_path / "x" / "s.yaml") is None
+    (tmp_path / "bad.yaml").write_text("kind: frames\ncalibration: {frames: []}\nheldout: {frames: [1]}\n")
+    with pytest.raises(ValueError, match="frames in both parts"):
+        DataSplit.load(tmp_path / "bad.yaml")
+
+
+def test_sector_masks_partition_the_points():
+    azimuth = np.radians(np.arange(-179.5, 180.0, 1.0))
+    points = points_at(np.stack([np.cos(azimuth), np.sin(azimuth), np.zeros_like(azimuth)], axis=-1) * 10.0)
+    split = split_recording(1)
+    cal, held = split.keep(points, "calibration"), split.keep(points, "heldout")
+    assert np.all(cal ^ held) and cal.sum() == held.sum() == 180
+    assert cal[0] and not held[0] and held[30] and not cal[30]  # -179.5 deg calibrates, -149.5 is held out
+    assert split_recording(4).keep(points, "heldout").all()
+
+
+def test_gap_search_fits_and_scores_on_the_split():
+    """GapSearch with a split: its frames (thinned to the budgets), and for sectors each part's points only."""
+    from lidar_weather_sim.gap.search import GapSearch, split_frames
+
+    assert split_frames(10, 30, 30, DataSplit("frames", [0, 4, 8], [2, 6])) == ([0, 4, 8], [2, 6])
+    assert split_frames(10, 2, 30, DataSplit("frames", [0, 4, 8], [2, 6])) == ([0, 8], [2, 6])
+    with pytest.raises(ValueError, match="recording has 3 frames"):
+        split_frames(3, 30, 30, DataSplit("frames", [0, 4], [1]))
+
+    class FakeResim:  # the measured signatures only need the recording, contexts and channels
+        from lidar_weather_sim.gap.signatures import FrameContext
+
+        class recording:  # noqa: N801
+            azimuth = np.radians(np.arange(-179.5, 180.0, 1.0))
+            frames = [type("F", (), {"points": points_at(np.stack([np.cos(azimuth), np.sin(azimuth),
+                                                                   np.zeros_like(azimuth)], -1) * 10.0)})()]  # fmt: skip
+
+        contexts = [FrameContext(-2.0, ())]
+        channels = 1
+
+    search = GapSearch(FakeResim(), split=split_recording(1))
+    assert search.fit_idx == [0] == search.held_idx
+    assert search._measured["heldout"].detections().sum() == 180 == search._measured["fit"].detections().sum()
+    assert search.keep("heldout") is not None
+    assert GapSearch(FakeResim(), split=DataSplit("frames", [0], [0])).keep("heldout") is None  # whole frames
+
+
+def _mesh_only(**extra) -> dict:
+    return {"name": "t", "map": None, "static_meshes": ["room.ply"], "sensor": {"profile": "vlp16"}, **extra}
+
+
+def test_trajectory_schema():
+    pose = {"t_s": 0.0, "x_m": 0.0, "y_m": 0.0, "z_m": 0.0}
+    assert Scenario.model_validate(_mesh_only(trajectory=[pose])).trajectory[0].qw == 1.0
+    with pytest.raises(pydantic.ValidationError, match="increase strictly"):
+        Scenario.model_validate(_mesh_only(trajectory=[pose, pose]))
+    with pytest.raises(pydantic.ValidationError, match="scenarios without a 'map'"):
+        Scenario.model_validate({"name": "t", "map": "highway_straight.xodr", "ego": {"lane": -1}, "trajectory": [pose]})
+
+
+def test_a_trajectory_moves_the_sensor_of_a_mesh_only_scenario(tmp_path):
+    """A room seen from a sensor that follows the trajectory: the wall ahead comes closer as it drives."""
+    import trimesh
+
+    from lidar_weather_sim.sim.offline import run_scenario
+
+    box = trimesh.creation.box(extents=(40.0, 40.0, 6.0))
+    box.apply_translation((0.0, 0.0, 1.5))
+    box.export(tmp_path / "room.ply")
+    q = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]  # yaw 90 deg at the end: facing +y
+    trajectory = [{"t_s": 0.0, "x_m": 0.0, "y_m": 0.0, "z_m": 0.0},
+                  {"t_s": 1.0, "x_m": 10.0, "y_m": 0.0, "z_m": 0.0, "qx": q[0], "qy": q[1], "qz": q[2], "qw": q[3]}]  # fmt: skip
+    scenario = Scenario.model_validate({**_mesh_only(trajectory=trajectory), "static_meshes": [str(tmp_path / "room.ply")],
+                                        "sensor": {"profile": "vlp16", "mount": {"x_m": 1.0, "y_m": 0.0, "z_m": 0.0}}})  # fmt: skip
+    player = World.build(scenario).player
+    t, quat = player.sensor_poses(np.array([0.0, 0.5, 1.0, 2.0]))
+    assert np.allclose(t[0], [1.0, 0.0, 0.0]) and np.allclose(t[2], [10.0, 1.0, 0.0]) and np.allclose(t[3], t[2])
+    assert np.allclose(np.abs(quat[2]), np.abs(q), atol=1e-9)
+    report = run_scenario(scenario, tmp_path / "bag", frames=3)
+    assert report.frames == 3 and report.stopped is None
+
+
+def test_surveyed_ply_round_trip_and_materials(tmp_path):
+    import trimesh
+
+    from lidar_weather_sim.scene.materials import MaterialTable
+    from lidar_weather_sim.scene.scene import load_static_mesh
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    t = np.array([[0, 1, 2], [1, 3, 2]])
+    path = write_surveyed_ply(tmp_path / "m.ply", v, t, np.array([0.02, 0.5]))
+    assert np.allclose(read_face_reflectivity(path), [0.02, 0.5])
+    mesh = load_static_mesh(path, 0, 1)
+    assert np.allclose(mesh.vertices, v) and np.array_equal(mesh.triangles, t)
+    trimesh.creation.box().export(tmp_path / "plain.ply")
+    assert read_face_reflectivity(tmp_path / "plain.ply") is None
+    table, material = surveyed_materials(MaterialTable.default(), np.array([0.02, 0.5, 0.0, 2.0]))
+    values = table.reflectivity[material]
+    assert np.allclose(values[:2], [0.02, 0.5], rtol=0.03) and values[2] == bin_values()[0] and values[3] == 1.0
+    assert table.index("asphalt_dry") == 0  # the shipped materials keep their indices
+    assert len(surveyed_materials(table, np.array([0.3]))[0]) == len(table)  # added once
+
+
+def test_reflectivity_inverts_the_simulated_intensity():
+    """A flat wall of known albedo cast by the simulator: the inversion gives the albedo back."""
+    from lidar_weather_sim.sensor.profile import load_profile
+    from lidar_weather_sim.sensor.radiometry import dark_level
+    from lidar_weather_sim.twin.reflectivity import point_reflectivity, triangle_reflectivity
+
+    profile = load_profile("os1_128_1024")
+    det = profile.detection
+    rho, r, cos = 0.3, np.array([5.0, 10.0, 20.0]), np.array([1.0, 0.8, 0.5])
+    peak = det.power_constant * rho * cos / r**2
+    intensity = np.rint(255.0 * np.log(peak / dark_level(det)) / np.log(det.intensity_dynamic_range))
+    got = point_reflectivity(intensity, r, cos, profile)
+    assert np.allclose(got, rho, rtol=0.03)
+    per, summary = triangle_reflectivity(np.array([0, 0, 0]), got, 2)
+    assert per[0] == pytest.approx(rho, rel=0.03) and summary["triangles_without_points"] == 1
+
+
+def test_moving_points_are_the_ones_another_frame_saw_through():
+    from lidar_weather_sim.twin.reconstruct import FrameCloud, moving_points
+
+    elevation = np.radians([-1.0, 0.0, 1.0])
+    columns = 360
+    az = np.radians(np.arange(-179.5, 180.0, 1.0))
+    wall = np.stack([20.0 * np.cos(az), 20.0 * np.sin(az), np.zeros_like(az)], -1)  # a round wall at 20 m, channel 1
+    car = np.array([[10.0 * np.cos(0.5 * np.pi / 180), 10.0 * np.sin(0.5 * np.pi / 180), 0.0]])  # in frame 0 only
+
+    def frame(xyz):
+        return FrameCloud(xyz, np.zeros_like(xyz), np.eye(4), np.ones(len(xyz), np.int64))
+
+    first = frame(np.concatenate([wall[np.abs(az) > 0.02], car]))
+    second = frame(wall)
+    masks = moving_points([first, second], elevation, columns)
+    assert masks[0].sum() == 1 and masks[0][-1] and not masks[1].any()
+    assert not moving_points([first], elevation, columns)[0].any()  # one frame: nothing to compare with
