@@ -31,7 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincc, gamma as gamma_fn
+from scipy.special import gamma as gamma_fn
+from scipy.special import gammaincc
 
 #: Density of the snow aggregates (kg/m^3), assumed (dry snow aggregates: 50-200 kg/m^3).
 SNOW_DENSITY_KG_M3 = 100.0
