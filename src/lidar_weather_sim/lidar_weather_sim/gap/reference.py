@@ -8,7 +8,7 @@ Then, for each weather (:mod:`lidar_weather_sim.physics`: DSD, Mie, biaxial over
 
 - **Sampled beams** (all of a small profile, else ``beams_per_frame`` drawn at random) get a new waveform
   on a range grid of s/8 (s the pulse's Gaussian sigma), summed from
-    * the scene returns, each attenuated by ``exp(-2 alpha R)``;
+    * the scene returns, each attenuated by ``exp(-2 alpha R)`` (each Gaussian pulse summed exactly);
     * rain drops / snow flakes placed one by one (Poisson in each grid cell of the beam volume, diameters
       from the DSD) in 0-5 m, and beyond 5 m every drop large enough to reach 5 % of the threshold on its
       own (smaller ones join the volume term);
@@ -17,6 +17,8 @@ Then, for each weather (:mod:`lidar_weather_sim.physics`: DSD, Mie, biaxial over
       1e4-1e6 droplets per beam);
     * beyond 5 m the fog (and the small drops) by single-scattering quadrature of
       ``C pi beta(r) O(r) exp(-2 alpha r) / r^2`` per grid cell, convolved with the pulse.
+  The drops' peaks are shared between their two nearest grid cells and convolved with the pulse together
+  with the volume term (one FFT per block of beams; thin fog puts ~1e3 droplets one by one in a beam).
   A drop of differential backscatter cross-section sigma (m^2/sr) in a beam of cross-section S(r) acts
   as a surface of reflectance ``pi sigma / S(r)``: its peak is ``C pi sigma / (S(r) r^2) exp(-2 alpha r)``
   (C the profile's power constant). Each drop is placed across the beam (a uniform disc, the beam's
@@ -270,7 +272,7 @@ class ReferenceAtmosphere:
         scene_a = amplitude_from_points(pts, self.threshold, self.sigma, self.dark, self.log_span)
         scene_a = scene_a * np.exp(-2.0 * self.alpha * scene_r)
         scene = self._pulses(pos, scene_r, scene_a, n)
-        parts = {lab: fftconvolve(vol, self.kernel[None, :], mode="same", axes=1) + self._pulses(b, r, a, n)
+        parts = {lab: fftconvolve(vol + self._deposit(b, r, a, n), self.kernel[None, :], mode="same", axes=1)
                  for lab, (b, r, a, vol) in self._particles(n, rng).items()}  # fmt: skip
         wave = scene + sum(parts.values())
         # echoes: runs above the threshold, nearest max_echoes per beam
@@ -357,6 +359,20 @@ class ReferenceAtmosphere:
             idx == first, ReturnType.FIRST, np.where(idx == last, ReturnType.LAST, ReturnType.SECOND)))  # fmt: skip
         out["return_type"] = rt.astype(np.uint8)
         return out
+
+    def _deposit(self, beam: np.ndarray, r: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
+        """(n, K) peaks of drops (beam index, range m, peak) shared linearly between the two nearest cell centres
+        (keeps each drop's amplitude and mean range; convolved with the pulse afterwards, this is its Gaussian
+        pulse to within dx / sigma = 1/8 of a cell's shift, at a fraction of the cost of summing each pulse)."""
+        out = np.zeros(n * self.n_cells)
+        if len(beam):
+            u = r / self.dx - 0.5
+            k0 = np.clip(np.floor(u).astype(np.int64), 0, self.n_cells - 2)
+            w1 = np.clip(u - k0, 0.0, 1.0)
+            flat = beam * self.n_cells + k0
+            out += np.bincount(flat, weights=a * (1.0 - w1), minlength=n * self.n_cells)
+            out += np.bincount(flat + 1, weights=a * w1, minlength=n * self.n_cells)
+        return out.reshape(n, self.n_cells)
 
     def _pulses(self, beam: np.ndarray, r: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
         """(n, K) waveform of Gaussian pulses (beam index, range m, peak) summed exactly on the grid."""
