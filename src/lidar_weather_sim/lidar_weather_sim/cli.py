@@ -208,6 +208,9 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     from lidar_weather_sim.scenario.schema import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
+    if args.on and (args.generator != "fast" or args.labels or args.beams_per_frame):
+        raise ValueError("--on puts the project's own effects on a recording: --reference / --generator, --labels "
+                         "and --beams-per-frame apply only without --on")  # fmt: skip
     if args.on:
         from lidar_weather_sim.gap.augment import augment_recording
 
@@ -222,8 +225,10 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
         print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)} on top to {args.out}")
         return 0
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
-                           profile=args.profile, overwrite=args.overwrite)  # fmt: skip
+                           profile=args.profile, overwrite=args.overwrite, generator=args.generator,
+                           ground_truth=args.labels, beams_per_frame=args.beams_per_frame)  # fmt: skip
     hidden = ", ".join(e.label() for e in effects) or "nothing"
+    hidden += "" if args.generator == "fast" else f" (weather by the {args.generator} generator)"
     lost = f", {report.dropped} dropped by the nuisance model" if report.dropped else ""
     print(f"wrote {report.frames - report.dropped} of {report.frames} frames ({report.points} points{lost}) to "
           f"{report.output} with {hidden} hidden")  # fmt: skip
@@ -430,6 +435,15 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--on", metavar="BAG", help="put the effects on top of this (real) recording's frames "
                                                         "instead of simulating the scenario (see augment.py)")
     measured.add_argument("--topic", help="PointCloud2 topic of --on (default: /lidar/points or the only one)")
+    measured.add_argument("--generator", choices=("fast", "reference", "hahner"), default="fast",
+                          help="who makes fog, rain and snow: the simulator (fast, default), the independent drop-by-drop "
+                               "reference (gap/reference.py) or the simplified Hahner et al. 2021 fog (gap/hahner.py)")
+    measured.add_argument("--reference", dest="generator", action="store_const", const="reference",
+                          help="same as --generator reference")
+    measured.add_argument("--labels", action="store_true", help="keep label and object_id (ground truth) in the points")
+    measured.add_argument("--beams-per-frame", type=positive_int,
+                          help="beams the reference simulates per frame (default: all of a profile with <= 4096 beams "
+                               "per frame, else 1024; the others keep their clear return, attenuated)")
     measured.add_argument("--out", required=True, help="output rosbag2 directory (MCAP)")
     measured.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     measured.set_defaults(func=_cmd_make_measured)

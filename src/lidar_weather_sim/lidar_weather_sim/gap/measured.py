@@ -11,7 +11,17 @@ residual gap:
 - dropped frames: each frame is lost with probability ``drop_fraction`` (default 0.02).
 
 The bag looks like a real recording: ``/clock``, ``/tf``, ``/tf_static`` and the cloud
-topic only, and points without ``label`` and ``object_id`` (the 40-byte layout).
+topic only, and points without ``label`` and ``object_id`` (the 40-byte layout; ``ground_truth=True``,
+``make-measured --labels``, keeps them: weather points then carry FOG / RAIN / SNOW).
+
+``generator`` says who makes the weather:
+
+- ``fast`` (default): the project's own effects (:mod:`lidar_weather_sim.gap.effects`) in the simulator;
+- ``reference``: fog, rain and snow by the independent drop-by-drop reference
+  (:mod:`lidar_weather_sim.gap.reference`) on the simulator's clear frames; the other effects (sun, cover,
+  spray, road) by the simulator;
+- ``hahner``: fog by the simplified extinction-plus-soft-echo generator (:mod:`lidar_weather_sim.gap.hahner`,
+  after Hahner et al., ICCV 2021) on the clear frames; other effects by the simulator (no rain or snow).
 """
 
 from __future__ import annotations
@@ -38,11 +48,49 @@ class Nuisance:
     drop_fraction: float = 0.02
 
 
-def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator) -> np.ndarray:
-    """Points without ground truth, each moved along its beam by N(0, sigma_m) (m)."""
-    out = strip_ground_truth(points)
+GENERATORS = ("fast", "reference", "hahner")
+
+
+def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator, ground_truth: bool = False) -> np.ndarray:
+    """Points (without ground truth unless ``ground_truth``), each moved along its beam by N(0, sigma_m) (m)."""
+    out = points.copy() if ground_truth else strip_ground_truth(points)
     add_range_noise(out, sigma_m, rng)
     return out
+
+
+def weather_transform(scenario: Scenario, effects: list[Effect], generator: str, profile: str | None,
+                      seed: int, beams_per_frame: int | None = None):  # fmt: skip
+    """(scenario with the effects the simulator makes, ``transform(frame) -> points`` or None) of ``generator``."""
+    if generator == "fast":
+        return apply_effects(scenario, effects), None
+    if generator not in GENERATORS:
+        raise ValueError(f"generator {generator!r}: one of {', '.join(GENERATORS)}")
+    from lidar_weather_sim.gap.reference import Atmosphere
+    from lidar_weather_sim.sensor.profile import load_profile
+
+    atmosphere, rest = Atmosphere.split(effects)
+    hidden = apply_effects(scenario, rest)
+    prof = load_profile(profile or scenario.sensor.profile)
+    if scenario.sensor.return_mode:
+        prof = prof.with_return_mode(scenario.sensor.return_mode)
+    sun = float(hidden.weather.sun.irradiance_w_m2)
+    rng = np.random.default_rng([seed & 0xFFFFFFFF, 0x726566])  # "ref": the generator's own stream
+    if generator == "reference":
+        from lidar_weather_sim.gap.reference import ReferenceAtmosphere
+
+        if prof.detection.return_mode != "all":
+            raise ValueError(f"the atmosphere reference reports every echo (return mode all), not "
+                             f"{prof.detection.return_mode!r}")  # fmt: skip
+        ref = ReferenceAtmosphere(prof, atmosphere, sun_irradiance_w_m2=sun, beams_per_frame=beams_per_frame)
+        return hidden, lambda frame: ref.apply(frame.points, frame.index, rng)
+    from lidar_weather_sim.gap.hahner import HahnerFog
+
+    if atmosphere.precipitation is not None:
+        raise ValueError("the hahner generator makes fog only (Hahner et al. 2021): no atmosphere.rain or .snow")
+    if atmosphere.fog_m is None:
+        return hidden, None
+    fog = HahnerFog(prof, atmosphere.fog_m, sun_irradiance_w_m2=sun)
+    return hidden, lambda frame: fog.apply(frame.points, rng)
 
 
 def make_measured(
@@ -56,16 +104,21 @@ def make_measured(
     nuisance: Nuisance = Nuisance(),
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    generator: str = "fast",
+    ground_truth: bool = False,
+    beams_per_frame: int | None = None,
 ) -> RunReport:
-    """Record ``scenario`` with ``effects`` hidden in it and ``nuisance`` added to ``output``."""
-    hidden = apply_effects(scenario, effects)
+    """Record ``scenario`` with ``effects`` hidden in it by ``generator`` (see module doc) and ``nuisance`` added
+    to ``output``; ``beams_per_frame``: the reference's sampled beams (default: all of a small profile)."""
     run_seed = scenario.seed + nuisance.seed_offset if seed is None else seed
+    hidden, transform = weather_transform(scenario, effects, generator, profile, run_seed, beams_per_frame)
     rng = np.random.default_rng([run_seed & 0xFFFFFFFF, 0x6D6561])  # "mea": the nuisance's own stream
 
     def measure(frame: Frame) -> np.ndarray | None:
         if rng.random() < nuisance.drop_fraction:
             return None
-        return degrade(frame.points, nuisance.extra_range_noise_m, rng)
+        points = frame.points if transform is None else transform(frame)
+        return degrade(points, nuisance.extra_range_noise_m, rng, ground_truth)
 
     return run_scenario(hidden, output, frames=frames, seed=run_seed, profile=profile, overwrite=overwrite,
                         progress=progress, postprocess=measure)  # fmt: skip

@@ -1,0 +1,168 @@
+"""The independent atmosphere reference (gap/reference.py) and the simplified Hahner et al. fog (gap/hahner.py):
+drop counts, a lone hard target's echo, Beer-Lambert on every return, make-measured --reference bags, seeds."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim.core.points import Label, empty_points
+from lidar_weather_sim.gap.effects import parse_effect
+from lidar_weather_sim.gap.hahner import KOSCHMIEDER, HahnerFog
+from lidar_weather_sim.gap.measured import make_measured
+from lidar_weather_sim.gap.reference import Atmosphere, ReferenceAtmosphere, amplitude_from_points, epw_of
+from lidar_weather_sim.io.recording import Recording
+from lidar_weather_sim.physics.coefficients import medium
+from lidar_weather_sim.physics.overlap import biaxial_overlap
+from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.sensor.profile import load_profile
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA
+
+
+@pytest.fixture(scope="module")
+def scala4():
+    return load_profile("scala4")
+
+
+def _points(ref: ReferenceAtmosphere, ranges, amplitudes, channel=1, column=290) -> np.ndarray:
+    """Clear points on one beam (column, channel of scala4's frame 0) with the EPW of ``amplitudes``."""
+    pts = empty_points(len(ranges))
+    az = ref.scan.column_azimuth[column] + ref.scan.azimuth_offset[channel]
+    el = ref.scan.elevation[channel]
+    r = np.asarray(ranges, np.float64)
+    pts["x"], pts["y"], pts["z"] = r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)
+    pts["distance"], pts["azimuth"], pts["elevation"] = r, az, el
+    pts["channel"] = channel
+    pts["epw"] = epw_of(np.asarray(amplitudes, np.float64), ref.threshold, ref.sigma)
+    pts["label"] = Label.STATIC
+    pts["object_id"] = 7
+    pts["echo"] = np.arange(1, len(r) + 1)
+    return pts
+
+
+def test_poisson_drop_counts_match_n_times_volume(scala4):
+    """Rain drops placed one by one in 0-5 m and seen by the receiver: their number matches
+    N x (the beam volume weighted by the overlap O(r)) within 4 Poisson sigmas."""
+    ref = ReferenceAtmosphere(scala4, Atmosphere(precipitation=("rain", 20.0)))
+    beams = 2000
+    parts = ref._particles(beams, np.random.default_rng(5))
+    beam, r, _, _ = parts[int(Label.RAIN)]
+    seen = int(np.sum(r < 5.0))
+    m = medium("rain", 20.0, scala4.optics.wavelength_nm)
+    rr = np.linspace(0.0, 5.0, 20001)
+    o = scala4.optics
+    radius = o.tx_aperture_radius_m + rr * np.tan(0.5e-3 * np.sqrt(o.divergence_h_mrad * o.divergence_v_mrad))
+    overlap = biaxial_overlap(rr, o.lens_separation_m, 1e-3 * np.sqrt(o.divergence_h_mrad * o.divergence_v_mrad),
+                              1e-3 * o.receiver_fov_mrad, o.tx_aperture_radius_m, o.rx_aperture_radius_m)  # fmt: skip
+    expected = beams * m.number * np.trapezoid(np.pi * radius**2 * overlap, rr)
+    assert expected > 500  # enough drops for the statistics to mean something
+    assert abs(seen - expected) < 4.0 * np.sqrt(expected)
+    assert set(np.unique(beam)) <= set(range(beams))
+
+
+def test_lone_hard_target_echo_at_its_range_with_the_pulse_epw(scala4):
+    """Fog of 100 km (almost no extinction): a lone target at 20 m is detected at 20 m (+-1 cm) with the EPW
+    of its attenuated pulse, 2 s sqrt(2 ln(A/T)) (+-2 %), and keeps its label and object. (Single large fog
+    droplets within a few m still give weak echoes on some beams: the profile's gain sees them.)"""
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
+    a = 16.0 * ref.threshold
+    out = ref.apply(_points(ref, [20.0], [a]), 0, np.random.default_rng(1))
+    assert np.all(out["distance"][out["label"] == Label.FOG] < 5.0)
+    scene = out[out["label"] != Label.FOG]
+    assert len(scene) == 1
+    p = scene[0]
+    assert p["distance"] == pytest.approx(20.0, abs=0.01)
+    attenuated = a * np.exp(-2.0 * ref.alpha * 20.0)
+    assert p["epw"] == pytest.approx(epw_of(np.array([attenuated]), ref.threshold, ref.sigma)[0], rel=0.02)
+    assert p["epw"] == pytest.approx(2 * scala4.pulse.fwhm_m * np.sqrt(np.log(16.0) / np.log(2.0)) / 2, rel=0.03)
+    assert p["label"] == Label.STATIC and p["object_id"] == 7 and p["echo"] == 1
+
+
+def test_a_pulse_at_twice_the_threshold_has_the_pulse_width(scala4):
+    """EPW of a pulse whose peak is twice the threshold is its FWHM."""
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
+    out = ref.apply(_points(ref, [30.0], [2.0 * ref.threshold / np.exp(-2 * ref.alpha * 30.0)]), 0,
+                    np.random.default_rng(2))  # fmt: skip
+    out = out[out["label"] == Label.STATIC]
+    assert len(out) == 1 and out["epw"][0] == pytest.approx(scala4.pulse.fwhm_m, rel=0.02)
+
+
+def test_dense_fog_hides_a_far_target_and_adds_near_echoes(scala4):
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=30.0))
+    out = ref.apply(_points(ref, [60.0], [20.0 * ref.threshold]), 0, np.random.default_rng(3))
+    assert not np.any(out["label"] == Label.STATIC)  # exp(-2 alpha 60) ~ 1e-7
+    assert np.all(out["label"] == Label.FOG) and np.all(out["distance"] < 30.0)
+
+
+def test_unsampled_beams_keep_their_return_attenuated(scala4):
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=200.0), beams_per_frame=1)
+    pts = np.concatenate([_points(ref, [25.0], [50.0 * ref.threshold], column=c) for c in range(100, 140)])
+    out = ref.apply(pts, 0, np.random.default_rng(4))
+    far = out[out["distance"] > 20.0]
+    assert len(far) >= 39
+    a_out = amplitude_from_points(far, ref.threshold, ref.sigma, ref.dark, ref.log_span)
+    np.testing.assert_allclose(a_out, 50.0 * ref.threshold * np.exp(-2 * ref.alpha * 25.0), rtol=1e-4)
+
+
+def test_hahner_attenuates_every_return_by_beer_lambert(scala4):
+    fog = HahnerFog(scala4, 300.0)
+    alpha = KOSCHMIEDER / 300.0
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
+    ranges = np.array([2.0, 5.0, 10.0, 20.0, 40.0])
+    a = np.full(len(ranges), 1e4 * fog.threshold)  # strong returns: above the soft echo
+    pts = _points(ref, ranges, a)
+    out = fog.apply(pts, np.random.default_rng(0))
+    assert len(out) == len(ranges) and np.all(out["label"] == Label.STATIC)
+    a_out = amplitude_from_points(out, fog.threshold, fog.sigma, fog.dark, fog.log_span)
+    np.testing.assert_allclose(a_out / a, np.exp(-2.0 * alpha * ranges), rtol=1e-4)
+    drop = 255.0 * 2.0 * alpha * ranges / fog.log_span
+    i_in = np.rint(255.0 * np.log(a / fog.dark) / fog.log_span)
+    assert np.all(np.abs(out["intensity"].astype(float) - (i_in - drop)) <= 1.0)
+
+
+def test_hahner_soft_echo_replaces_weak_returns_and_grows_with_alpha(scala4):
+    thin, thick = HahnerFog(scala4, 500.0), HahnerFog(scala4, 50.0)
+    assert thick.soft_peak > thin.soft_peak
+    assert 0.5 < thick.soft_range_m < 10.0
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
+    out = thick.apply(_points(ref, [30.0], [2.0 * thick.threshold]), np.random.default_rng(0))
+    assert len(out) == 1 and out["label"][0] == Label.FOG and out["distance"][0] < 10.0
+
+
+def test_make_measured_reference_writes_a_readable_bag_with_weather_labels(tmp_path):
+    out = tmp_path / "ref"
+    subprocess.run(["lidar-weather-sim", "make-measured", "highway_clear", "--reference", "--hide",
+                    "atmosphere.rain:intensity=30", "--frames", "3", "--labels", "--out", str(out)], check=True)  # fmt: skip
+    rec = Recording.load(out)
+    assert len(rec.frames) >= 2
+    pts = np.concatenate([f.points for f in rec.frames])
+    assert "label" in pts.dtype.names
+    rain = pts["label"] == Label.RAIN
+    assert rain.sum() > 50 and np.all(pts["distance"][rain] > 0)
+    assert np.any(np.isin(pts["label"], [Label.STATIC, Label.VEHICLE]))
+    assert np.all(np.isfinite(pts["epw"])) and np.all(pts["epw"] > 0)
+
+
+def test_same_seed_same_output_other_seed_other_output(tmp_path):
+    sc = load_scenario("highway_clear")
+    fx = [parse_effect("atmosphere.snow:intensity=2")]
+    paths = [tmp_path / n for n in ("a", "b", "c")]
+    for path, seed in zip(paths, (11, 11, 12)):
+        make_measured(sc, fx, path, frames=2, seed=seed, generator="reference")
+    a, b, c = (np.concatenate([f.points for f in Recording.load(p).frames]) for p in paths)
+    assert a.tobytes() == b.tobytes()
+    assert a.tobytes() != c.tobytes()
+
+
+def test_generators_refuse_what_they_do_not_make():
+    sc = load_scenario("highway_clear")
+    with pytest.raises(ValueError, match="fog only"):
+        make_measured(sc, [parse_effect("atmosphere.rain:intensity=5")], "/nonexistent", frames=1, generator="hahner")
+    with pytest.raises(ValueError, match="generator"):
+        make_measured(sc, [], "/nonexistent", frames=1, generator="nope")
+
+
+def test_pulse_sigma_is_the_profiles(scala4):
+    assert ReferenceAtmosphere(scala4, Atmosphere(fog_m=100.0)).sigma == pytest.approx(scala4.pulse.fwhm_m * FWHM_TO_SIGMA)
