@@ -246,8 +246,9 @@ def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> f
     return float(np.mean([terms[k] * weights[k] for k in terms]))
 
 
-#: Paired-beam range residuals (m): 2 mm bins over +-0.3 m (beams whose returns differ more hit other surfaces).
-RESIDUAL_EDGES = np.linspace(-0.3, 0.3, 301)
+#: Paired-beam range residuals (m): 2 mm bins over +-0.3 m, and one bin each for all beyond (other surfaces,
+#: or noise wider than the window: a beam that pairs up is counted whatever its residual).
+RESIDUAL_EDGES = np.concatenate([[-np.inf], np.linspace(-0.3, 0.3, 301), [np.inf]])
 
 
 def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
