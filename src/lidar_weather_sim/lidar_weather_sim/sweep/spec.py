@@ -194,6 +194,8 @@ def expand(spec: SweepSpec, source: str = "SWEEP") -> list[RunSpec]:
             raise ConfigError(f"{source}: key '{key}' acts only through the region(s) {', '.join(readers)}, which "
                               f"scenario '{base.name}' does not list in 'regions': sweeping it would change nothing")
     base_data = base.model_dump(mode="json")
+    # reference bags as absolute paths: a worker may run in another directory
+    compute = [{"compare": str(Path(i["compare"]).resolve())} if isinstance(i, dict) else i for i in spec.compute]
     runs = []
     for point in points(spec):
         data = copy.deepcopy(base_data)
@@ -209,6 +211,6 @@ def expand(spec: SweepSpec, source: str = "SWEEP") -> list[RunSpec]:
             raise ConfigError(f"{source} ({where}): {format_validation_error('scenario', exc, data)}") from None
         for seed in spec.seeds:
             runs.append(RunSpec(scenario=scenario.model_dump(mode="json"), point=point, seed=seed, frames=spec.frames,
-                                profile=spec.profile, return_mode=spec.return_mode, compute=list(spec.compute)))  # fmt: skip
+                                profile=spec.profile, return_mode=spec.return_mode, compute=compute))  # fmt: skip
     return runs
 
