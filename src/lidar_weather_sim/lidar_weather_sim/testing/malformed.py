@@ -69,7 +69,9 @@ def malformed_cloud(good: Any, rng: np.random.Generator, copy: Callable[[Any], A
         msg.data = points.tobytes()
     elif kind == "absurd_size":
         which = str(rng.choice(["width", "height", "point_step", "row_step"]))
-        setattr(msg, which, int(rng.choice([0, U32_MAX, U32_MAX // 2, 2**31])))
+        # width 0 is left out: with row_step and data unchanged it is a valid empty cloud (all row padding)
+        sizes = [U32_MAX, U32_MAX // 2, 2**31] if which == "width" else [0, U32_MAX, U32_MAX // 2, 2**31]
+        setattr(msg, which, int(rng.choice(sizes)))
     elif kind == "big_endian":
         msg.is_bigendian = True
     elif kind == "vector_xyz":
