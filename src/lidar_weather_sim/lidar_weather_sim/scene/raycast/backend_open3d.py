@@ -1,4 +1,4 @@
-"""Open3D ``RaycastingScene`` caster: the reference backend (Embree inside, multithreaded).
+"""Open3D ``RaycastingScene`` caster: the reference backend (Embree inside, on the simulator's ``workers.THREADS``).
 
 The rays go to Open3D as one (N, 6) array shared with its tensor (no copy), written by a
 kernel: numpy copies rows of three floats slowly. Another kernel turns the answer into
@@ -37,7 +37,7 @@ class Caster(CasterBase):
         rays = np.empty((len(o), 6), np.float32)
         cuts = workers.bounds(len(o), CHUNK_RAYS)
         workers.run_chunks(lambda c: _interleave(o, d, rays, cuts[c], cuts[c + 1]), len(cuts) - 1)
-        out = self._scene.cast_rays(self._o3c.Tensor.from_numpy(rays))
+        out = self._scene.cast_rays(self._o3c.Tensor.from_numpy(rays), nthreads=workers.THREADS)
         t_hit, prim = out["t_hit"].numpy(), out["primitive_ids"].numpy()
         dist = np.empty(len(o), np.float32)
         tri = np.empty(len(o), np.int64)
