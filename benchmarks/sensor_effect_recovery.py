@@ -69,6 +69,7 @@ def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
     from lidar_weather_sim.gap.command import run_gap
     from lidar_weather_sim.gap.effects import EFFECTS, Effect
+    from lidar_weather_sim.gap.report import format_params
     from lidar_weather_sim.scenario.schema import load_scenario
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -107,7 +108,7 @@ def main() -> None:
                 ok = not named and name is None
             right.setdefault(f"{profile} {name or 'clear'}", []).append(ok)
             hidden_text = f"{name}={value:.4g}" if name else "clear"
-            named_text = ", ".join(f"{n}={p[EFFECTS[n].main]:.4g}" for n, p in named.items()) or "nothing"
+            named_text = ", ".join(f"{n}({format_params(p)})" for n, p in named.items()) or "nothing"
             print(f"{k:3d} {profile:13} {hidden_text:32} {named_text[:48]:48} "
                   f"{'' if error is None else f'{100 * error:6.1f}%':>7} "
                   f"{result['gap_before']:8.4f} -> {result['gap_after']:.4f} {'yes' if ok else 'NO'}"

@@ -13,8 +13,9 @@ import subprocess
 import pytest
 import yaml
 
+from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.gap.command import run_gap
-from lidar_weather_sim.gap.effects import apply_effects, parse_effect
+from lidar_weather_sim.gap.effects import apply_effects, parse_effect, search_grid
 from lidar_weather_sim.gap.measured import RECOVERY_CASES, Nuisance, case_scenario, make_measured
 from lidar_weather_sim.io.bags import bag_info
 from lidar_weather_sim.scenario.schema import Scenario, load_scenario
@@ -99,6 +100,10 @@ def test_each_hidden_effect_changes_only_itself(highway):
         apply_effects(highway, [parse_effect("atmosphere.rain:intensity=1"), parse_effect("atmosphere.snow:intensity=1")])
     sample = parse_effect("cover.dirt:sample=3l")
     assert sample.value == pytest.approx(0.654)
+    mode = parse_effect("sensor.return_mode:mode=last")
+    assert apply_effects(highway, [mode]).sensor.return_mode == "last"
+    assert mode.label() == "sensor.return_mode:mode=last" and mode.with_value(mode.value) == mode
+    assert [mode.with_value(x).params["mode"] for x in search_grid(mode.spec, 3)] == list(RETURN_MODES)
 
 
 @pytest.mark.parametrize(
@@ -111,7 +116,8 @@ def test_each_hidden_effect_changes_only_itself(highway):
      ("atmosphere.rain:intensity=1e9", "key 'intensity_mm_h': value 1000000000.0: Input should be less than or equal to 300"),
      ("sensor.sun:irradiance=-400", "must be a finite number above 0 (W/m^2), got -400"),
      ("cover.water:transmission=1.5", "at most 1, got 1.5"),
-     ("atmosphere.fog:visual_range=80,visual_range=90", "parameter 'visual_range' given twice")],
+     ("atmosphere.fog:visual_range=80,visual_range=90", "parameter 'visual_range' given twice"),
+     ("sensor.return_mode:mode=loudest", "'mode' must be one of strongest, last, dual, first, all, got 'loudest'")],
 )  # fmt: skip
 def test_bad_hide_specs_exit_2_with_one_line(cli, tmp_path, hide, reason):
     done = subprocess.run([*cli, "make-measured", "highway_clear", "--hide", hide, "--out", str(tmp_path / "x")],
@@ -178,3 +184,17 @@ def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hi
     assert result["gap_after"] <= 0.5 * result["gap_before"]
     patched = Scenario.model_validate(yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text()))
     assert patched.sensor.response != highway.sensor.response
+
+
+def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
+    """Spray gives beams several echoes: a driver set to ``last`` (the profile: ``all``) is named by trying
+    every mode, and the re-simulation with it closes the gap."""
+    spray = load_scenario("highway_spray")
+    make_measured(spray, [parse_effect("sensor.return_mode:mode=last")], tmp_path / "measured", frames=24)
+    result = run_gap(tmp_path / "measured", spray, tmp_path / "gap", families=("sensor",), fit_frames=8,
+                     heldout_frames=8, screen_frames=2)  # fmt: skip
+    assert [(e["name"], e["params"]) for e in result["effects"]] == [("sensor.return_mode", {"mode": "last"})], result
+    assert result["gap_after"] <= 0.1 * result["gap_before"]
+    patched = Scenario.model_validate(yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text()))
+    assert patched.sensor.return_mode == "last"
+    assert "| sensor.return_mode | mode=last |" in (tmp_path / "gap" / "report.md").read_text()

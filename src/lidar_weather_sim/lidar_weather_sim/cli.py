@@ -301,8 +301,9 @@ def _cmd_gap(args: argparse.Namespace) -> int:
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
                          scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")),
                          split=split)  # fmt: skip
-    found = ", ".join(f"{e['name']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
-                      for e in result["effects"]) or "no effect"  # fmt: skip
+    from lidar_weather_sim.gap.report import format_params
+
+    found = ", ".join(f"{e['name']} ({format_params(e['params'])})" for e in result["effects"]) or "no effect"
     bev = result.get("heldout_bev")
     pearson = f", held-out bird's-eye Pearson {bev['before']['pearson']:.3f} -> {bev['after']['pearson']:.3f}" if bev else ""
     print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}{pearson}; wrote {args.out}/gap.json")

@@ -19,11 +19,15 @@ sensor.intensity_scale     scale           1; ``sensor.response``
 sensor.range_bias          bias            m, signed; ``sensor.response``
 sensor.range_noise         sigma           m, on top of the profile's; ``sensor.response``
 sensor.ray_drop            probability     1, of a return at intensity 0; ``sensor.response``
+sensor.return_mode         mode            one of strongest, last, dual, first, all (chosen, not
+                                           fitted); ``sensor.return_mode``
 =========================  ==============  ==================================================
 
 The ``sensor.intensity_*``, ``range_*`` and ``ray_drop`` effects are the unit's own departures from
-the model (:mod:`lidar_weather_sim.sensor.response`), family ``sensor``; the others are the
-``weather`` family (the sun included: it is light from outside).
+the model (:mod:`lidar_weather_sim.sensor.response`), family ``sensor``, with the return mode the
+driver was set to; the others are the ``weather`` family (the sun included: it is light from outside).
+The return mode is *categorical*: its main parameter is one of the spec's ``choices``, which the
+search tries one by one (:func:`search_grid` gives their indices) instead of fitting a number.
 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
 unless ``atmosphere.road_wet`` is applied too) and does not feed spray, so the effects
@@ -37,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.scenario.schema import Scenario
 
 
@@ -52,6 +57,11 @@ class EffectSpec:
     extras: tuple[str, ...] = ()
     family: str = "weather"  # or "sensor": the unit's own departures from the model
     signed: bool = False  # the main parameter may be 0 or negative (else it must be above 0)
+    choices: tuple[str, ...] = ()  # a categorical effect: its main parameter is one of these
+
+    @property
+    def categorical(self) -> bool:
+        return bool(self.choices)
 
 
 EFFECTS: dict[str, EffectSpec] = {
@@ -70,6 +80,8 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor.range_bias", "bias", "m", (-0.3, 0.3), False, family="sensor", signed=True),
         EffectSpec("sensor.range_noise", "sigma", "m", (0.003, 0.3), True, family="sensor"),
         EffectSpec("sensor.ray_drop", "probability", "1", (0.01, 0.95), True, family="sensor"),
+        EffectSpec("sensor.return_mode", "mode", "", (0.0, len(RETURN_MODES) - 1.0), False, family="sensor",
+                   choices=RETURN_MODES),
     )
 }
 FAMILIES = ("weather", "sensor")
@@ -93,14 +105,22 @@ class Effect:
 
     @property
     def value(self) -> float:
-        return float(self.params[self.spec.main])
+        """The main parameter; for a categorical effect the index of its choice."""
+        spec = self.spec
+        if spec.categorical:
+            return float(spec.choices.index(str(self.params[spec.main])))
+        return float(self.params[spec.main])
 
     def with_value(self, value: float) -> "Effect":
-        return Effect(self.name, {**self.params, self.spec.main: float(value)})
+        """This effect with main parameter ``value`` (categorical: the choice at index ``round(value)``)."""
+        spec = self.spec
+        main = spec.choices[int(round(value))] if spec.categorical else float(value)
+        return Effect(self.name, {**self.params, spec.main: main})
 
     def label(self) -> str:
         extra = "".join(f",{k}={v}" for k, v in self.params.items() if k != self.spec.main)
-        return f"{self.name}:{self.spec.main}={self.value:g}{extra}"
+        main = self.params[self.spec.main] if self.spec.categorical else f"{self.value:g}"
+        return f"{self.name}:{self.spec.main}={main}{extra}"
 
 
 def parse_effect(text: str) -> Effect:
@@ -122,6 +142,11 @@ def parse_effect(text: str) -> Effect:
         if key in params:
             raise ValueError(f"--hide {text!r}: parameter '{key}' given twice")
         if key == "sample":
+            params[key] = value
+            continue
+        if key == spec.main and spec.categorical:
+            if value not in spec.choices:
+                raise ValueError(f"--hide {text!r}: '{key}' must be one of {', '.join(spec.choices)}, got '{value}'")
             params[key] = value
             continue
         try:
@@ -189,6 +214,9 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
         atmo.setdefault("road_water_film_mm", 0.0)
     spray_actors = []
     for e in effects:
+        if e.spec.categorical:  # the return mode
+            data["sensor"]["return_mode"] = e.params[e.spec.main]
+            continue
         v = e.value
         if e.name == "atmosphere.fog":
             region("atmosphere")["visual_range_m"] = v
@@ -239,7 +267,10 @@ SIGNED_SPAN = 30.0  # a signed effect's grid: magnitudes from its largest / SIGN
 
 def search_grid(spec: EffectSpec, n: int) -> np.ndarray:
     """``n`` values spanning the spec's bounds (geometric when searched on a log scale); for a signed
-    effect ``ceil(n / 2)`` geometric magnitudes of each sign and no 0 (0 is the effect's absence)."""
+    effect ``ceil(n / 2)`` geometric magnitudes of each sign and no 0 (0 is the effect's absence); for a
+    categorical one the index of every choice, whatever ``n``."""
+    if spec.categorical:
+        return np.arange(len(spec.choices), dtype=np.float64)
     lo, hi = spec.bounds
     if spec.signed:
         top = max(abs(lo), abs(hi))

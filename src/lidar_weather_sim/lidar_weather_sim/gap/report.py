@@ -128,8 +128,10 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
     out.mkdir(parents=True, exist_ok=True)
     (out / "patched_scenario.yaml").write_text(patched_yaml)
 
-    def params(effect) -> dict[str, float]:
-        return {k: float(v) for k, v in effect.params.items() if not isinstance(v, str)}
+    def params(effect) -> dict[str, float | str]:
+        main = effect.spec.main
+        return {k: (v if k == main and effect.spec.categorical else float(v)) for k, v in effect.params.items()
+                if not isinstance(v, str) or (k == main and effect.spec.categorical)}  # fmt: skip
 
     result = {
         "gap_before": diagnosis.gap_before,
@@ -156,13 +158,13 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
              "channel x range histograms (0 = indistinguishable, 1 = disjoint).", "",
              "## Effects found", "", "| effect | parameters | held-out gap before | after |", "|---|---|---:|---:|"]  # fmt: skip
     for e in result["effects"]:
-        lines.append(f"| {e['name']} | {_fmt(e['params'])} | {e['gap_before']:.4f} | {e['gap_after']:.4f} |")
+        lines.append(f"| {e['name']} | {format_params(e['params'])} | {e['gap_before']:.4f} | {e['gap_after']:.4f} |")
     if not result["effects"]:
         lines.append("| none | - | - | - |")
     lines += ["", "## Rejected in the last round (held-out gap with the effect fitted)", "",
               "| effect | fitted parameters | held-out gap |", "|---|---|---:|"]  # fmt: skip
     for e in result["rejected"]:
-        lines.append(f"| {e['name']} | {_fmt(e['params'])} | {e['gap_after']:.4f} |")
+        lines.append(f"| {e['name']} | {format_params(e['params'])} | {e['gap_after']:.4f} |")
     lines += ["", "![terms](gap_terms.png)", "", "![ranges](ranges_before_after.png)", "", "![bev](bev_before_after.png)", ""]
     lines.append("Re-run the patched scenario: `lidar-weather-sim run patched_scenario.yaml`." if runnable else
                  "The patched scenario is mesh-only (no ego): use it with `gap` or `compare` on the recording.")  # fmt: skip
@@ -170,5 +172,6 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
     return result
 
 
-def _fmt(params: dict[str, float]) -> str:
-    return ", ".join(f"{k}={v:.4g}" for k, v in params.items())
+def format_params(params: dict[str, float | str]) -> str:
+    """``key=value, ...`` with numbers to 4 significant digits (a categorical choice as it is)."""
+    return ", ".join(f"{k}={v}" if isinstance(v, str) else f"{k}={v:.4g}" for k, v in params.items())

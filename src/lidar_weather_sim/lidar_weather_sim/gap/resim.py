@@ -122,7 +122,8 @@ class Resimulator:
         if redraw:
             patched = patched.model_copy(update={"seed": patched.seed + redraw})
         world = replace(self.world, scenario=patched)
-        self.sim.restart(regions=world.regions(pose_source=self.poses), **scenario_settings(patched))
+        mode = patched.sensor.return_mode or self.world.profile.detection.return_mode
+        self.sim.restart(regions=world.regions(pose_source=self.poses), return_mode=mode, **scenario_settings(patched))
         period = self.world.profile.period_s
         out = []
         for i in sorted(indices):

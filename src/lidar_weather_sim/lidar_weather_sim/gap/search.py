@@ -108,7 +108,9 @@ def candidate_effects(resim: Resimulator, families: tuple[str, ...] = ("weather"
         if spec.family not in families:
             continue
         mid = float(np.sqrt(spec.bounds[0] * spec.bounds[1]) if spec.log_search else np.mean(spec.bounds))
-        if name == "spray":
+        if spec.categorical:
+            out.append(Effect(name, {spec.main: spec.choices[0]}))
+        elif name == "spray":
             out += [Effect(name, {spec.main: mid, "actor": actor}) for actor in spray_candidates(resim.scenario)]
         else:
             out.append(Effect(name, {spec.main: mid}))
@@ -227,10 +229,16 @@ class GapSearch:
     def fit(self, accepted: list[Effect], candidate: Effect, xs: np.ndarray, k: int,
             cache: dict[float, float] | None = None) -> tuple[Effect, float, int]:  # fmt: skip
         """Brent refinement on the calibration frames between the grid neighbours of ``xs[k]``
-        (``cache``: calibration gaps already known, by search-space value)."""
+        (``cache``: calibration gaps already known, by search-space value); a categorical effect is
+        tried with every choice instead."""
         spec = candidate.spec
         cache = {} if cache is None else cache
         objective = self._objective(accepted, candidate, "fit", cache)
+        if spec.categorical:
+            for x in search_grid(spec, len(spec.choices)):
+                objective(x)
+            x = min(cache, key=cache.get)
+            return self._value(candidate, x), cache[x], len(cache)
         objective(xs[k])
         lo, hi = xs[max(k - 1, 0)], xs[min(k + 1, len(xs) - 1)]
         tol = 0.01 if spec.log_search else 0.002 * (spec.bounds[1] - spec.bounds[0])
@@ -247,7 +255,7 @@ class GapSearch:
             for i, effect in enumerate(effects):
                 others = effects[:i] + effects[i + 1 :]
                 current = np.log(effect.value) if effect.spec.log_search else effect.value
-                xs = np.sort(np.append(self._grid(effect), current))
+                xs = np.unique(np.append(self._grid(effect), current))
                 row = self.gaps([(others + [self._value(effect, x)], "fit") for x in xs])
                 cache = {round(float(x), 6): g for x, g in zip(xs, row)}
                 k = int(np.argmin(row))

@@ -173,9 +173,10 @@ class LidarSimulator:
 
     # -- time ----------------------------------------------------------------------
     def restart(self, *, regions: list[tuple[str, Region]] | None = None, sun_irradiance_w_m2: float | None = None,
-                seed: int | None = None, response: SensorResponse | None = None) -> None:  # fmt: skip
-        """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2), seed and
-        sensor response where given. The scene and its caster stay (no rebuild): re-simulating the same frames with
+                seed: int | None = None, response: SensorResponse | None = None,
+                return_mode: str | None = None) -> None:  # fmt: skip
+        """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2), seed,
+        sensor response and return mode (:data:`~lidar_weather_sim.core.names.RETURN_MODES`) where given. The scene and its caster stay (no rebuild): re-simulating the same frames with
         other weather costs only the casts."""
         self._frame = None
         self._last_time_s = None
@@ -188,6 +189,8 @@ class LidarSimulator:
             self.seed = int(seed)
         if response is not None:
             self.response = response
+        if return_mode is not None and return_mode != self.profile.detection.return_mode:
+            self.profile = self.profile.with_return_mode(return_mode)
 
     def cast_frame(self, index: int, start_s: float, poses: PoseSource, batch_s: float | None = None) -> Frame:
         """Cast the whole frame ``index`` (its scan pattern: scala4 alternates layers by index) whose
