@@ -198,3 +198,20 @@ def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
     patched = Scenario.model_validate(yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text()))
     assert patched.sensor.return_mode == "last"
     assert "| sensor.return_mode | mode=last |" in (tmp_path / "gap" / "report.md").read_text()
+
+
+def test_gap_reads_dead_channels_off_the_recording(highway, tmp_path):
+    """Two VLP-16 channels that return on the road and report nothing are named as the one set the recording shows; a clear
+    recording of the same sensor names none (the same search, nothing hidden)."""
+    vlp16 = highway.model_copy(update={"sensor": highway.sensor.model_copy(update={"profile": "vlp16"})})
+    budgets = {"families": ("sensor",), "fit_frames": 8, "heldout_frames": 8, "screen_frames": 2}
+    make_measured(vlp16, [parse_effect("sensor.dead_channels:channels=2+8")], tmp_path / "dead", frames=16)
+    dead = run_gap(tmp_path / "dead", vlp16, tmp_path / "gap_dead", **budgets)
+    # named first, exactly; on VLP-16 the search goes on to name make-measured's 2 cm range noise (hidden, right)
+    # and return mode 'strongest' (a phantom: it absorbs make-measured's 2 % uniform point drop; see README)
+    first = dead["effects"][0]
+    assert (first["name"], first["params"]) == ("sensor.dead_channels", {"channels": "2+8"}), dead
+    assert dead["gap_after"] <= 0.2 * dead["gap_before"]
+    make_measured(vlp16, [], tmp_path / "clear", frames=16)
+    clear = run_gap(tmp_path / "clear", vlp16, tmp_path / "gap_clear", **budgets)
+    assert "sensor.dead_channels" not in {e["name"] for e in clear["effects"] + clear["rejected"]}, clear

@@ -1,6 +1,7 @@
 """The gap search's decision rules on a known gap landscape (no simulation: the held-out gap of
 every effect set is given), so each rule is checked by itself."""
 
+import numpy as np
 import pytest
 
 from lidar_weather_sim.gap.effects import parse_effect
@@ -64,3 +65,31 @@ def test_the_margin_is_the_acceptance_rule_both_ways(without, kept):
     search = LandscapeSearch(landscape)
     search.prune(diag, current)
     assert ("sensor.sun" in [e.name for e in diag.effects]) is kept
+
+
+def _frame(counts: dict[int, int]) -> np.ndarray:
+    return np.array([c for c, n in counts.items() for _ in range(n)], dtype=[("channel", "u2")])
+
+
+def test_dead_channels_are_the_silent_ones_the_model_sees():
+    from lidar_weather_sim.gap.dead_channels import dead_channels
+
+    simulated = [_frame({0: 100, 1: 100, 2: 100, 3: 4}) for _ in range(3)]
+    measured = [_frame({0: 95, 1: 3, 2: 50, 3: 0}) for _ in range(3)]
+    # 1: 3 of 100 (dead); 2: half its returns (weak, not dead); 3: the model sees 4 per frame (too few to tell)
+    assert dead_channels(measured, simulated, 4) == [1]
+    assert dead_channels(simulated, simulated, 4) == []
+    assert dead_channels([], [], 4) == []
+
+
+def test_dead_channels_effect_parses_and_patches_the_faults_region():
+    from lidar_weather_sim.gap.effects import apply_effects
+    from lidar_weather_sim.scenario.schema import load_scenario
+
+    effect = parse_effect("sensor.dead_channels:channels=17+3+3")
+    assert effect.params == {"channels": "3+17"} and effect.label() == "sensor.dead_channels:channels=3+17"
+    assert effect.with_value(5.0) == effect  # read off the data: nothing to fit
+    patched = apply_effects(load_scenario("highway_clear"), [effect])
+    assert "faults" in patched.regions and patched.region_params["faults"]["dead_channels"] == [3, 17]
+    with pytest.raises(ValueError, match="channel numbers from 0 joined by '\\+'"):
+        parse_effect("sensor.dead_channels:channels=3+x")

@@ -21,13 +21,17 @@ sensor.range_noise         sigma           m, on top of the profile's; ``sensor.
 sensor.ray_drop            probability     1, of a return at intensity 0; ``sensor.response``
 sensor.return_mode         mode            one of strongest, last, dual, first, all (chosen, not
                                            fitted); ``sensor.return_mode``
+sensor.dead_channels       channels        channels joined by ``+`` (e.g. ``3+17``), read off the
+                                           recording (:mod:`lidar_weather_sim.gap.dead_channels`);
+                                           region ``faults``, ``dead_channels``
 =========================  ==============  ==================================================
 
 The ``sensor.intensity_*``, ``range_*`` and ``ray_drop`` effects are the unit's own departures from
 the model (:mod:`lidar_weather_sim.sensor.response`), family ``sensor``, with the return mode the
 driver was set to; the others are the ``weather`` family (the sun included: it is light from outside).
 The return mode is *categorical*: its main parameter is one of the spec's ``choices``, which the
-search tries one by one (:func:`search_grid` gives their indices) instead of fitting a number.
+search tries one by one (:func:`search_grid` gives their indices) instead of fitting a number. The dead
+channels are *read off the data*: the search proposes the one set the recording shows and tries it.
 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
 unless ``atmosphere.road_wet`` is applied too) and does not feed spray, so the effects
@@ -58,10 +62,12 @@ class EffectSpec:
     family: str = "weather"  # or "sensor": the unit's own departures from the model
     signed: bool = False  # the main parameter may be 0 or negative (else it must be above 0)
     choices: tuple[str, ...] = ()  # a categorical effect: its main parameter is one of these
+    from_data: bool = False  # the main parameter is a text read off the recording, tried as it is
 
     @property
     def categorical(self) -> bool:
-        return bool(self.choices)
+        """The main parameter is a text (a choice or read off the data), not a number."""
+        return bool(self.choices) or self.from_data
 
 
 EFFECTS: dict[str, EffectSpec] = {
@@ -82,6 +88,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor.ray_drop", "probability", "1", (0.01, 0.95), True, family="sensor"),
         EffectSpec("sensor.return_mode", "mode", "", (0.0, len(RETURN_MODES) - 1.0), False, family="sensor",
                    choices=RETURN_MODES),
+        EffectSpec("sensor.dead_channels", "channels", "", (0.0, 0.0), False, family="sensor", from_data=True),
     )
 }
 FAMILIES = ("weather", "sensor")
@@ -105,15 +112,20 @@ class Effect:
 
     @property
     def value(self) -> float:
-        """The main parameter; for a categorical effect the index of its choice."""
+        """The main parameter; for a categorical effect the index of its choice (0 when read off the data)."""
         spec = self.spec
+        if spec.from_data:
+            return 0.0
         if spec.categorical:
             return float(spec.choices.index(str(self.params[spec.main])))
         return float(self.params[spec.main])
 
     def with_value(self, value: float) -> "Effect":
-        """This effect with main parameter ``value`` (categorical: the choice at index ``round(value)``)."""
+        """This effect with main parameter ``value`` (categorical: the choice at index ``round(value)``; read
+        off the data: this effect as it is)."""
         spec = self.spec
+        if spec.from_data:
+            return self
         main = spec.choices[int(round(value))] if spec.categorical else float(value)
         return Effect(self.name, {**self.params, spec.main: main})
 
@@ -144,6 +156,9 @@ def parse_effect(text: str) -> Effect:
         if key == "sample":
             params[key] = value
             continue
+        if key == spec.main and spec.from_data:
+            params[key] = "+".join(str(c) for c in parse_channels(value, text))
+            continue
         if key == spec.main and spec.categorical:
             if value not in spec.choices:
                 raise ValueError(f"--hide {text!r}: '{key}' must be one of {', '.join(spec.choices)}, got '{value}'")
@@ -172,6 +187,18 @@ def parse_effect(text: str) -> Effect:
         else:
             raise ValueError(f"--hide {text!r}: effect '{name}' needs its main parameter '{spec.main}' ({spec.unit})")
     return Effect(name, params)
+
+
+def parse_channels(value: str, text: str = "") -> list[int]:
+    """``3+17`` -> [3, 17] (sorted, unique); ValueError naming ``text`` when it is not channels."""
+    try:
+        channels = sorted({int(c) for c in value.split("+")})
+    except ValueError:
+        channels = [-1]
+    if not channels or channels[0] < 0:
+        raise ValueError(f"--hide {text or value!r}: channels must be channel numbers from 0 joined by '+' "
+                         f"(e.g. 3+17), got '{value}'")  # fmt: skip
+    return channels
 
 
 def conflicts(effects: list[Effect]) -> str | None:
@@ -214,6 +241,9 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
         atmo.setdefault("road_water_film_mm", 0.0)
     spray_actors = []
     for e in effects:
+        if e.name == "sensor.dead_channels":
+            region("faults")["dead_channels"] = parse_channels(str(e.params["channels"]))
+            continue
         if e.spec.categorical:  # the return mode
             data["sensor"]["return_mode"] = e.params[e.spec.main]
             continue
@@ -268,9 +298,9 @@ SIGNED_SPAN = 30.0  # a signed effect's grid: magnitudes from its largest / SIGN
 def search_grid(spec: EffectSpec, n: int) -> np.ndarray:
     """``n`` values spanning the spec's bounds (geometric when searched on a log scale); for a signed
     effect ``ceil(n / 2)`` geometric magnitudes of each sign and no 0 (0 is the effect's absence); for a
-    categorical one the index of every choice, whatever ``n``."""
+    categorical one the index of every choice, whatever ``n`` (one value, 0, for an effect read off the data)."""
     if spec.categorical:
-        return np.arange(len(spec.choices), dtype=np.float64)
+        return np.arange(max(len(spec.choices), 1), dtype=np.float64)
     lo, hi = spec.bounds
     if spec.signed:
         top = max(abs(lo), abs(hi))

@@ -41,6 +41,7 @@ from scipy.optimize import minimize_scalar
 
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
+from lidar_weather_sim.gap.dead_channels import dead_channels
 from lidar_weather_sim.gap.effects import EFFECTS, FAMILIES, Effect, conflicts, search_grid, spray_candidates
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
@@ -102,10 +103,11 @@ def split_frames(n: int, fit_frames: int, heldout_frames: int, split: DataSplit 
 
 
 def candidate_effects(resim: Resimulator, families: tuple[str, ...] = ("weather",)) -> list[Effect]:
-    """One untuned effect per name of ``families`` (the spray once per vehicle), at the middle of its bounds."""
+    """One untuned effect per name of ``families`` (the spray once per vehicle), at the middle of its bounds;
+    not the effects read off the data (:meth:`GapSearch.data_candidates`)."""
     out = []
     for name, spec in EFFECTS.items():
-        if spec.family not in families:
+        if spec.family not in families or spec.from_data:
             continue
         mid = float(np.sqrt(spec.bounds[0] * spec.bounds[1]) if spec.log_search else np.mean(spec.bounds))
         if spec.categorical:
@@ -149,6 +151,16 @@ class GapSearch:
         self.screen_idx = self.fit_idx[:: max(1, len(self.fit_idx) // max(screen_frames, 1))][:screen_frames]
         self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.keep(name))
                           for name, idx in self._splits().items()}  # fmt: skip
+        self.data_candidates = self._read_off_data() if "sensor" in self.families else []
+
+    def _read_off_data(self) -> list[Effect]:
+        """Effects whose value the calibration frames show (:mod:`lidar_weather_sim.gap.dead_channels`): the
+        recording against its re-simulation without effects."""
+        keep = self.keep("fit") or (lambda points: np.ones(len(points), bool))
+        measured = [self.resim.recording.frames[i].points for i in sorted(self.fit_idx)]
+        simulated = self.resim.frames([], self.fit_idx)
+        dead = dead_channels([m[keep(m)] for m in measured], [s[keep(s)] for s in simulated], self.resim.channels)
+        return [Effect("sensor.dead_channels", {"channels": "+".join(map(str, dead))})] if dead else []
 
     def _splits(self) -> dict[str, list[int]]:
         return {"screen": self.screen_idx, "fit": self.fit_idx, "heldout": self.held_idx}
@@ -265,7 +277,7 @@ class GapSearch:
     def run_round(self, accepted: list[Effect]) -> list[Candidate]:
         """Screen every candidate on its grid, refine the best ``refine``, score all on the held-out frames;
         the evaluations of each step are independent (and run on the engine's workers when there is one)."""
-        options = [c for c in candidate_effects(self.resim, self.families)
+        options = [c for c in candidate_effects(self.resim, self.families) + self.data_candidates
                    if not any(_same(c, a) for a in accepted) and conflicts(accepted + [c]) is None]  # fmt: skip
         grids = [self._grid(c) for c in options]
         gaps = iter(self.gaps([(accepted + [self._value(c, x)], "screen") for c, xs in zip(options, grids) for x in xs]))
