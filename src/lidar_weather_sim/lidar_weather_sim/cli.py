@@ -452,7 +452,8 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     measured.set_defaults(func=_cmd_make_measured)
 
-    augment = commands.add_parser("augment", help="insert paper 4's synthetic obstacles (boxes, cars, pedestrians, tyre debris) into a recording's frames")
+    augment = commands.add_parser("augment", help="insert paper 4's synthetic obstacles (boxes, cars, pedestrians, "
+                                                  "tyre debris) into a recording's frames")  # fmt: skip
     augment.add_argument("bag", metavar="BAG", help="rosbag2 with a PointCloud2 topic (real or simulated)")
     augment.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
     augment.add_argument("--profile", help="sensor profile of the cloud (default: the shipped one that matches it)")

@@ -1,10 +1,11 @@
 """Obstacles raycast by the simulator with a recording's scan pattern (paper 4's rendering step).
 
 The obstacles of one frame (boxes or the other kinds' meshes) become a scene of their own (one
-material per box, a car's paint, glass, tyres and plates: label ``OBSTACLE``; its object id) and :class:`~lidar_weather_sim.sim.simulator.LidarSimulator` casts the
-frame's scan pattern at it (the profile's channels, columns, firing times, sub-rays across the beam
-divergence, the LIDAR equation and the echo threshold), so each obstacle point has its channel,
-azimuth, ``time_stamp`` (ns after the scan start) and an EPW (m) from the sensor model.
+material per box, a car's paint, glass, tyres and plates: label ``OBSTACLE``; its object id) and
+:class:`~lidar_weather_sim.sim.simulator.LidarSimulator` casts the frame's scan pattern at it (the
+profile's channels, columns, firing times, sub-rays across the beam divergence, the LIDAR equation
+and the echo threshold), so each obstacle point has its channel, azimuth, ``time_stamp`` (ns after
+the scan start) and an EPW (m) from the sensor model.
 
 Frame: the boxes are given in the sensor frame (REP-103) and held there during the sweep (paper 4:
 a box "remains in the same position" relative to the ego, as its simulation kept the leading
