@@ -18,7 +18,9 @@ So, over the whole recording (the histograms of Fig. A4 are the data set's):
    smallest, as a narrower echo than any recorded would not have been detected).
 
 Relative order is kept (a brighter obstacle keeps the wider echoes); intensity is not changed (the
-paper matched EPW only). Frames: the sensor frame (REP-103); m.
+paper matched EPW only). Without a car ahead, an EPW field or :data:`MIN_REAR_POINTS` rear points the
+EPW stays the sensor model's and the reason is logged (warning) and returned. Frames: the sensor
+frame (REP-103); m.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from lidar_weather_sim.core.points import WEATHER_LABELS
 from lidar_weather_sim.gap.obstacle_boxes import Footprint
 
 _log = logging.getLogger(__name__)
+_log.addHandler(logging.NullHandler())  # a library: the application shows it (the CLI: a note on stderr)
 
 EPW_MATCH = ("none", "lead")
 #: Points up to this far (m) in front of the car's rear face, along the car, count as its rear.
