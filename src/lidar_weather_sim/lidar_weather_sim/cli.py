@@ -237,17 +237,21 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
 
 def _cmd_augment(args: argparse.Namespace) -> int:
     from lidar_weather_sim.gap.augment_obstacles import augment_bag, check_profile, profile_for_cloud
+    from lidar_weather_sim.gap.obstacle_kinds import parse_kinds
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.sensor.profile import load_profile
 
+    kinds = parse_kinds(args.kinds)
     first = Recording.load(args.bag, args.topic).frames[0].points
     name = args.profile or profile_for_cloud(first)
     profile = load_profile(name)
     check_profile(first, profile, name)
-    frames, boxes = augment_bag(args.bag, args.out, profile, name, topic=args.topic, objects=args.objects,
-                                size_m=args.sizes, seed=args.seed, overwrite=args.overwrite)  # fmt: skip
-    print(f"wrote {frames} frames of {args.bag} with {boxes} obstacle boxes ({args.objects} per frame, profile {name}) "
-          f"to {args.out}")  # fmt: skip
+    done = augment_bag(args.bag, args.out, profile, name, topic=args.topic, objects=args.objects, size_m=args.sizes,
+                       seed=args.seed, overwrite=args.overwrite, kinds=kinds, epw_match=args.epw_match)  # fmt: skip
+    if args.epw_match == "lead" and "not matched" in done.epw:
+        print(f"lidar-weather-sim augment: note: {done.epw}", file=sys.stderr)
+    print(f"wrote {done.frames} frames of {args.bag} with {done.boxes} obstacles ({args.objects} per frame, "
+          f"{','.join(kinds)}, profile {name}; {done.epw}) to {args.out}")  # fmt: skip
     return 0
 
 
@@ -449,12 +453,18 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     measured.set_defaults(func=_cmd_make_measured)
 
-    augment = commands.add_parser("augment", help="insert paper 4's synthetic obstacle boxes into a recording's frames")
+    augment = commands.add_parser("augment", help="insert paper 4's synthetic obstacles (boxes, cars, pedestrians, "
+                                                  "tyre debris) into a recording's frames")  # fmt: skip
     augment.add_argument("bag", metavar="BAG", help="rosbag2 with a PointCloud2 topic (real or simulated)")
     augment.add_argument("--topic", help="PointCloud2 topic (default: /lidar/points or the only one)")
     augment.add_argument("--profile", help="sensor profile of the cloud (default: the shipped one that matches it)")
     augment.add_argument("--objects", type=seed_int, default=1, help="boxes per frame (default 1)")
     augment.add_argument("--sizes", type=_sizes, metavar="A:B", help="box sides in m (default: the paper's 0.2:2)")
+    augment.add_argument("--kinds", default="box", metavar="K[,K...]",
+                         help="obstacle kinds, drawn in equal shares: box, vehicle, pedestrian, debris (default box)")
+    augment.add_argument("--epw-match", choices=("none", "lead"), default="lead",
+                         help="lead (the paper, Fig. A4): inserted points' EPW mean and sd matched to the car "
+                              "ahead's rear, trimmed to its range; none: the sensor model's (default lead)")  # fmt: skip
     augment.add_argument("--seed", type=seed_int, default=0, help="random seed (default 0)")
     augment.add_argument("--out", required=True, help="output rosbag2 directory (MCAP)")
     augment.add_argument("--overwrite", action="store_true", help="replace an existing output bag")

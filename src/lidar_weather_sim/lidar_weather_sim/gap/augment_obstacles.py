@@ -2,11 +2,15 @@
 
 Per frame, ``objects`` slots each hold one box (:mod:`~lidar_weather_sim.gap.obstacle_boxes`) for its
 duration (1, 2 or 3 frames in equal shares), then draw a new one inside the cone ROI, again if it
-overlaps the car ahead. The boxes are raycast with the recording's scan pattern by the simulator
+overlaps the car ahead; with ``kinds`` other than the box alone, each new obstacle's kind is drawn first
+(equal shares; :mod:`~lidar_weather_sim.gap.obstacle_kinds`, meshes in
+:mod:`~lidar_weather_sim.gap.obstacle_meshes`). The obstacles are raycast with the recording's scan pattern by the simulator
 (:mod:`~lidar_weather_sim.gap.obstacle_cast`) and merged into the recorded frame with occlusion per
 beam and the paper's range noise (:mod:`~lidar_weather_sim.gap.obstacle_occlusion`). Obstacle points
 carry label 3 (``OBSTACLE``) and their box's object id (from :data:`OBJECT_ID_BASE`); a recording
-without ground truth gets ``label`` 0 and ``object_id`` 0 on its own points (44-byte layout).
+without ground truth gets ``label`` 0 and ``object_id`` 0 on its own points (44-byte layout). With
+``epw_match="lead"`` (the paper's step, the default) the inserted points' EPW is matched to the car
+ahead's rear over the whole recording (:mod:`~lidar_weather_sim.gap.obstacle_epw`).
 
 Frames: everything in the sensor frame (REP-103); m, rad. Seeded: the same recording, settings and
 seed give the same output.
@@ -17,10 +21,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from lidar_weather_sim.core.points import POINT_DTYPE
+from lidar_weather_sim.core.points import POINT_DTYPE, Label
 from lidar_weather_sim.gap.obstacle_boxes import (
     Box,
     BoxRanges,
@@ -32,6 +37,8 @@ from lidar_weather_sim.gap.obstacle_boxes import (
     draw_box,
 )
 from lidar_weather_sim.gap.obstacle_cast import ObstacleCaster
+from lidar_weather_sim.gap.obstacle_epw import EPW_MATCH, lead_car, match_to_lead, rear_mask
+from lidar_weather_sim.gap.obstacle_kinds import check_kind_fits, kind_ranges, parse_kinds
 from lidar_weather_sim.gap.obstacle_occlusion import merge_obstacles
 from lidar_weather_sim.gap.resim import road_level
 from lidar_weather_sim.gap.signatures import ActorBox
@@ -121,12 +128,17 @@ class ObstacleAugmenter:
     seed: int = 0
     backend: str | None = None
     roi: Roi = field(default_factory=Roi.paper)
+    kinds: tuple[str, ...] = ("box",)
 
     def __post_init__(self) -> None:
         if self.objects < 0:
             raise ObstacleError(f"--objects {self.objects}: need 0 or more")
+        self.kinds = parse_kinds(self.kinds)
         self.ranges = BoxRanges.paper(self.size_m)
         check_fits(self.ranges, self.roi)
+        self.kind_ranges = {k: kind_ranges(k, self.size_m) for k in self.kinds}
+        for ranges in self.kind_ranges.values():
+            check_kind_fits(ranges, self.roi)
         self.caster = ObstacleCaster(self.profile, self.backend)
         self.noise_sigma_m = added_noise_sigma(self.profile)
         self._rng = np.random.default_rng([int(self.seed) & 0xFFFFFFFF, 0x617567])  # "aug"
@@ -135,11 +147,13 @@ class ObstacleAugmenter:
         self.frames = 0
 
     def boxes(self, road_z_m: float, avoid: tuple[Footprint, ...] = ()) -> list[Box]:
-        """The boxes of the next frame: held ones, and new ones for slots whose box expired."""
+        """The boxes of the next frame: held ones, and new ones for slots whose box expired (of several
+        kinds, the kind drawn first, equal shares: a single kind draws nothing more)."""
         slots = [s for s in self._slots if s.left > 0]
         while len(slots) < self.objects:
             taken = tuple(s.box.footprint for s in slots)
-            box = draw_box(self._rng, self.ranges, self.roi, road_z_m, self._next_id, avoid + taken)
+            kind = self.kinds[int(self._rng.integers(len(self.kinds)))] if len(self.kinds) > 1 else self.kinds[0]
+            box = draw_box(self._rng, self.kind_ranges[kind], self.roi, road_z_m, self._next_id, avoid + taken)
             self._next_id += 1
             slots.append(_Slot(box, box.duration))
         for s in slots:
@@ -174,24 +188,60 @@ def car_ahead(recording: Recording, frame) -> tuple[Footprint, ...]:
     return tuple(out)
 
 
+class AugmentSummary(NamedTuple):
+    """What :func:`augment_bag` did: frames written, obstacles inserted, the EPW matching's one line."""
+
+    frames: int
+    boxes: int
+    epw: str
+
+
+def lead_rear_epw(recording: Recording, road_z_m: float) -> tuple[np.ndarray | None, str]:
+    """EPWs (m) of the recorded points on the car ahead's rear over every frame
+    (:func:`~lidar_weather_sim.gap.obstacle_epw.rear_mask`), or None and why not."""
+    if "epw" not in recording.frames[0].points.dtype.names:
+        return None, "the cloud has no EPW field"
+    if not recording.actor_ids():
+        return None, "the bag has no car ahead (no actor_<id> transform in /tf)"
+    epw, seen = [], False
+    for frame in recording.frames:
+        car = lead_car(car_ahead(recording, frame))
+        if car is not None:
+            seen = True
+            epw.append(frame.points["epw"][rear_mask(frame.points, car, road_z_m)])
+    if not seen:
+        return None, "no actor_<id> is ahead of the sensor (x > 0) in any frame"
+    return np.concatenate(epw).astype(np.float64), ""
+
+
 def augment_bag(path: str | Path, output: str | Path, profile: SensorProfile, profile_name: str, *,
                 topic: str | None = None, objects: int = 1, size_m: tuple[float, float] | None = None,
-                seed: int = 0, backend: str | None = None, overwrite: bool = False) -> tuple[int, int]:  # fmt: skip
+                seed: int = 0, backend: str | None = None, overwrite: bool = False,
+                kinds: tuple[str, ...] | str = ("box",), epw_match: str = "lead") -> AugmentSummary:  # fmt: skip
     """Write ``path`` with obstacles in every frame of its cloud topic to ``output``; every other
-    message is copied. Checks everything before writing anything. Returns (frames, boxes)."""
+    message is copied. ``kinds``: obstacle kinds drawn in equal shares; ``epw_match``: ``lead`` (the
+    paper) matches the inserted points' EPW to the car ahead's rear, ``none`` keeps the sensor
+    model's. Checks everything before writing anything."""
+    if epw_match not in EPW_MATCH:
+        raise ObstacleError(f"--epw-match {epw_match}: choose from {', '.join(EPW_MATCH)}")
     recording = Recording.load(path, topic)
     check_profile(recording.frames[0].points, profile, profile_name)
-    augmenter = ObstacleAugmenter(profile, objects, size_m, seed, backend)
+    augmenter = ObstacleAugmenter(profile, objects, size_m, seed, backend, kinds=parse_kinds(kinds))
     road_z = road_level(recording)
     if road_z < -100.0:  # no returns: the road is not in view
         road_z = -DEFAULT_MOUNT_HEIGHT_M
     period = profile.period_s
     frames = [augmenter.frame(f.points, recording.scan_index(f, period), road_z, car_ahead(recording, f))[0]
               for f in recording.frames]  # fmt: skip
+    epw_note = "EPW from the sensor model (--epw-match none)"
+    if epw_match == "lead":
+        inserted = [(p["label"] == Label.OBSTACLE) & (p["object_id"] >= OBJECT_ID_BASE) for p in frames]
+        rear, reason = lead_rear_epw(recording, road_z)
+        epw_note = match_to_lead(frames, inserted, rear, reason)
     with BagWriter(output, overwrite=overwrite) as bag:
         for m in read_messages(path):
             if m.topic != recording.topic:
                 bag.write(m.topic, m.msg, m.log_time_ns)
         for frame, points in zip(recording.frames, frames):
             bag.write_cloud(recording.topic, points, frame.stamp_ns, frame.frame_id, log_time_ns=frame.log_time_ns)
-    return len(frames), augmenter._next_id - OBJECT_ID_BASE
+    return AugmentSummary(len(frames), augmenter._next_id - OBJECT_ID_BASE, epw_note)

@@ -83,6 +83,13 @@ class BoxRanges:
     reflectivity: tuple[float, float]
     durations: tuple[int, ...]
 
+    kind = "box"
+
+    @property
+    def dims_m(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Lowest and highest (length, width, height) (m): every side in ``size_m``."""
+        return (self.size_m[0],) * 3, (self.size_m[1],) * 3
+
     @classmethod
     def paper(cls, size_m: tuple[float, float] | None = None) -> "BoxRanges":
         box = augmentation_table()["box"]
@@ -126,7 +133,8 @@ def footprints_overlap(a: Footprint, b: Footprint) -> bool:
 class Box:
     """One synthetic obstacle in the sensor frame of the frame it first appears in: footprint centre
     (x, y) m, bottom z_bottom m, sides (length along yaw, width, height) m, yaw rad, reflectivity,
-    ``duration`` frames, ``object_id``."""
+    ``duration`` frames, ``object_id``; ``kind``: the paper's box or a mesh of
+    :mod:`~lidar_weather_sim.gap.obstacle_meshes` whose bounding box these sides are."""
 
     x: float
     y: float
@@ -138,6 +146,7 @@ class Box:
     reflectivity: float
     duration: int
     object_id: int
+    kind: str = "box"
 
     @property
     def footprint(self) -> Footprint:
@@ -163,17 +172,22 @@ def draw_box(rng: np.random.Generator, ranges: BoxRanges, roi: Roi, road_z_m: fl
              avoid: tuple[Footprint, ...] = ()) -> Box:  # fmt: skip
     """One box: sides, yaw, reflectivity uniform in ``ranges``, duration one of ``ranges.durations``,
     centre uniform in the ROI's bounding box, drawn again until its footprint is inside the ROI and
-    clear of every footprint in ``avoid`` (the car ahead). Bottom on the road (``road_z_m``, sensor frame)."""
-    check_fits(ranges, roi)
+    clear of every footprint in ``avoid`` (the car ahead). Bottom on the road (``road_z_m``, sensor frame).
+    ``ranges`` may be any kind's (:class:`~lidar_weather_sim.gap.obstacle_kinds.KindRanges`: its
+    ``kind``, ``dims_m``, ``yaw_rad``, ``reflectivity``, ``durations``); the draws are the same in number
+    and order for every kind, so boxes alone give what they always gave."""
+    if ranges.kind == "box":
+        check_fits(ranges, roi)
     y_max = roi.x_max_m * math.tan(roi.half_angle_rad)
+    low, high = ranges.dims_m
     for _ in range(_MAX_DRAWS):
-        length, width, height = rng.uniform(*ranges.size_m, 3)
+        length, width, height = rng.uniform(low, high)
         yaw = rng.uniform(*ranges.yaw_rad)
         refl = rng.uniform(*ranges.reflectivity)
         duration = int(rng.choice(ranges.durations))
         x, y = rng.uniform(roi.x_min_m, roi.x_max_m), rng.uniform(-y_max, y_max)
         box = Box(float(x), float(y), float(road_z_m), float(length), float(width), float(height), float(yaw),
-                  float(refl), duration, int(object_id))  # fmt: skip
+                  float(refl), duration, int(object_id), ranges.kind)  # fmt: skip
         corners = box.footprint.corners()
         if roi.contains(corners[:, 0], corners[:, 1]).all() and not any(footprints_overlap(box.footprint, a) for a in avoid):
             return box

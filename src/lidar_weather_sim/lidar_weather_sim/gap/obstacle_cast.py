@@ -1,10 +1,11 @@
-"""Obstacle boxes raycast by the simulator with a recording's scan pattern (paper 4's rendering step).
+"""Obstacles raycast by the simulator with a recording's scan pattern (paper 4's rendering step).
 
-The boxes of one frame become a scene of their own (one material per box: its reflectivity, label
-``OBSTACLE``; its object id) and :class:`~lidar_weather_sim.sim.simulator.LidarSimulator` casts the
-frame's scan pattern at it (the profile's channels, columns, firing times, sub-rays across the beam
-divergence, the LIDAR equation and the echo threshold), so each obstacle point has its channel,
-azimuth, ``time_stamp`` (ns after the scan start) and an EPW (m) from the sensor model.
+The obstacles of one frame (boxes or the other kinds' meshes) become a scene of their own (one
+material per box, a car's paint, glass, tyres and plates: label ``OBSTACLE``; its object id) and
+:class:`~lidar_weather_sim.sim.simulator.LidarSimulator` casts the frame's scan pattern at it (the
+profile's channels, columns, firing times, sub-rays across the beam divergence, the LIDAR equation
+and the echo threshold), so each obstacle point has its channel, azimuth, ``time_stamp`` (ns after
+the scan start) and an EPW (m) from the sensor model.
 
 Frame: the boxes are given in the sensor frame (REP-103) and held there during the sweep (paper 4:
 a box "remains in the same position" relative to the ego, as its simulation kept the leading
@@ -16,10 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_weather_sim.core.points import Label, empty_points
+from lidar_weather_sim.core.points import empty_points
 from lidar_weather_sim.gap.obstacle_boxes import Box
+from lidar_weather_sim.gap.obstacle_meshes import obstacle_mesh
 from lidar_weather_sim.scene.materials import MaterialTable
-from lidar_weather_sim.scene.mesh import Material, TriangleMesh, box_mesh
+from lidar_weather_sim.scene.mesh import TriangleMesh
 from lidar_weather_sim.scene.scene import Scene
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.scan import ScanPattern
@@ -38,10 +40,15 @@ class SensorAtOrigin:
 
 
 def box_scene(boxes: list[Box]) -> Scene:
-    """The boxes as one static mesh in the sensor frame, material i = box i."""
-    materials = MaterialTable([Material(f"obstacle_{b.object_id}", b.reflectivity, 0.0, Label.OBSTACLE) for b in boxes])
-    meshes = [box_mesh((b.length, b.width, b.height), i, b.object_id).transformed(b.pose()) for i, b in enumerate(boxes)]
-    return Scene(materials, TriangleMesh.concatenate(meshes))
+    """The obstacles (any kind, :func:`~lidar_weather_sim.gap.obstacle_meshes.obstacle_mesh`) as one
+    static mesh in the sensor frame; their materials one after the other (boxes alone: material i = box i)."""
+    materials, meshes = [], []
+    for b in boxes:
+        mesh, own = obstacle_mesh(b)
+        mesh.material += len(materials)
+        materials += own
+        meshes.append(mesh.transformed(b.pose()))
+    return Scene(MaterialTable(materials), TriangleMesh.concatenate(meshes))
 
 
 class ObstacleCaster:
