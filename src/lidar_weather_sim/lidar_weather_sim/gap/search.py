@@ -32,6 +32,7 @@ frames per round, whatever the length of the recording.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Callable
@@ -151,11 +152,14 @@ class GapSearch:
         self.screen_idx = self.fit_idx[:: max(1, len(self.fit_idx) // max(screen_frames, 1))][:screen_frames]
         self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.keep(name))
                           for name, idx in self._splits().items()}  # fmt: skip
-        self.data_candidates = self._read_off_data() if "sensor" in self.families else []
 
-    def _read_off_data(self) -> list[Effect]:
+    @functools.cached_property
+    def data_candidates(self) -> list[Effect]:
         """Effects whose value the calibration frames show (:mod:`lidar_weather_sim.gap.dead_channels`): the
-        recording against its re-simulation without effects."""
+        recording against its re-simulation without effects; sensor family only. Computed on first use, by
+        the driver's rounds (a worker that only evaluates gaps never pays the extra re-simulation)."""
+        if "sensor" not in self.families:
+            return []
         keep = self.keep("fit") or (lambda points: np.ones(len(points), bool))
         measured = [self.resim.recording.frames[i].points for i in sorted(self.fit_idx)]
         simulated = self.resim.frames([], self.fit_idx)
