@@ -1,4 +1,4 @@
-"""The volume return as the echo stage's pulses (lidar_weather_sim.physics.volume_return) against the
+"""The volume return as the echo stage's pulses (lidar_weather_sim.regions.volume_return) against the
 LIDAR-equation integral computed apart, by adaptive quadrature, for fog, rain and snow on scala4 and OS1."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 from scipy.integrate import quad
 
 from lidar_weather_sim.physics.coefficients import medium
-from lidar_weather_sim.physics.volume_return import VolumeReturn
+from lidar_weather_sim.regions.volume_return import VolumeReturn
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M
 

@@ -8,6 +8,11 @@ raises the receiver's noise floor in the simulator.
 
 Effects per batch (world frame rays, ranges in m along the ray):
 
+Two models (parameter ``model``). ``fitted`` (the default, described below) is a per-weather-class fit of
+one sensor's rooftop statistics; ``physical`` replaces the extinction, the near field and the path drops by
+physics at the profile's wavelength (:mod:`lidar_weather_sim.regions.physical_air`: drop-size distributions,
+Mie, the beam's volume, the volume return as pulses); the road surface is the same in both.
+
 - extinction: Beer-Lambert ``alpha`` = fog (Koschmieder) + rain/snow
   (:mod:`lidar_weather_sim.regions.extinction`); the echo stage applies exp(-2 alpha R);
 - near-field scatterers 0-5 m per beam (:mod:`lidar_weather_sim.regions.near_field`): cover
@@ -45,6 +50,7 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect, Scatterers
 from lidar_weather_sim.regions.extinction import total_alpha
 from lidar_weather_sim.regions.near_field import NearFieldModel, sample_near_field
+from lidar_weather_sim.regions.physical_air import PhysicalAir
 from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.sensor.radiometry import dark_level, reflectance_for_peak
@@ -52,6 +58,7 @@ from lidar_weather_sim.sensor.radiometry import dark_level, reflectance_for_peak
 WEATHER_CLASSES = ("clear", "rain", "fog", "snow")
 VOLUME_LABEL = {"clear": Label.NOISE, "rain": Label.RAIN, "fog": Label.FOG, "snow": Label.SNOW}
 FOG_VISUAL_RANGE_LIMIT_M = 1000.0  # fog: visibility below 1 km (WMO)
+PHYSICAL_FOG_LIMIT_M = 10000.0  # physical model: haze up to 10 km visual range is still a medium; beyond, clear air
 
 
 
@@ -100,6 +107,10 @@ class AtmosphereParams(ConfigModel):
     path_gap_m: float = Field(0.8, ge=0, description="Path scatterers end this far before the scene hit (m)")
     splash_depth_m: float = Field(1.5, gt=0, description="Splash drops lie up to this far (range) before the path gap (m)")
     air: bool = Field(True, description="Extinction and scatterers in the air; false: only the road surface changes")
+    model: Literal["fitted", "physical"] = Field(
+        "fitted", description="fitted: the near field and path drops fitted per weather class (fit_file); physical: "
+                              "drops and volume from the drop-size distribution at the profile's wavelength "
+                              "(regions.physical_air)")  # fmt: skip
     road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Overrides weather.road.water_film_mm "
                                              "for this region (mm); both none: the weather class's wetness")
 
@@ -148,6 +159,12 @@ class AtmosphereRegion:
         self._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** self.wetness
         self.snow_depth_m = self.c.snow_depth_m if w.road.snow_depth_m is None else w.road.snow_depth_m
         self._snow_refl = mats["snow"].reflectivity
+        self.physical = None
+        if params.model == "physical":
+            fog = self.visual_range_m if self.visual_range_m < PHYSICAL_FOG_LIMIT_M else None
+            precip = (self.precipitation, self.intensity) if self.precipitation != "dry" and self.intensity > 0 else None
+            self.physical = PhysicalAir(context.profile, fog, precip)
+            self.alpha = self.physical.alpha
         self.near_field = NearFieldModel(self.c.rate_per_beam, self.c.cover_share, self.c.cover_scale_m,
                                          self.c.amplitude_median, self.c.amplitude_sigma_ln,
                                          volume_range_m=(0.5, params.near_field_max_m),
@@ -160,7 +177,9 @@ class AtmosphereRegion:
         n, s = batch.shape
         label = VOLUME_LABEL[self.weather_class]
         scatterers = None
-        if self.p.air:
+        if self.p.air and self.physical is not None:
+            scatterers = self.physical.scatterers(batch, rng)
+        elif self.p.air:
             near = sample_near_field(self.near_field, n, batch.weights, self.profile, rng, Label.COVER, label,
                                      self.rate_scale)  # fmt: skip
             scatterers = Scatterers.concatenate([near, self._path_scatterers(batch, rng, label)])

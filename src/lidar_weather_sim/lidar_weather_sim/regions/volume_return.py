@@ -25,6 +25,7 @@ than a tenth of their range: the sum is then within 0.2 % of the integral.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,30 +43,41 @@ class VolumeReturn:
     sigma_m: float  # the pulse's Gaussian sigma in range (m)
     overlap_start_m: float
     overlap_full_m: float
+    overlap_fn: Callable[[np.ndarray], np.ndarray] | None = None  # O(r) itself (else the smoothstep of the two)
+
+    def overlap(self, range_m: np.ndarray) -> np.ndarray:
+        """O(r): ``overlap_fn`` when given, else the simulator's smoothstep from start to full."""
+        if self.overlap_fn is not None:
+            return self.overlap_fn(range_m)
+        return overlap_factor(range_m, self.overlap_start_m, self.overlap_full_m)
 
     def density(self, range_m: np.ndarray) -> np.ndarray:
         """The integrand without the pulse: ``C pi beta O(r) exp(-2 alpha r) / r^2`` (noise units per m)."""
         r = np.maximum(np.asarray(range_m, dtype=np.float64), MIN_RANGE_M)
-        overlap = overlap_factor(r, self.overlap_start_m, self.overlap_full_m)
+        overlap = self.overlap(r)
         return self.power_constant * np.pi * self.beta * overlap * np.exp(-2.0 * self.alpha * r) / (r * r)
 
-    def pulses(self, hit_m: float, spacing_m: float | None = None, r_max_m: float | None = None,
-               floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-        """(ranges, amplitudes) of the slabs' pulses in front of a hit at ``hit_m`` (inf: none) out to
-        ``r_max_m`` (default: the hit, or 20 / alpha), one per ``spacing_m`` (default s / 2); pulses below
-        ``floor`` (noise units) are left out."""
+    def slabs(self, hit_m: float, spacing_m: float | None = None, r_max_m: float | None = None):
+        """(centres, thicknesses) in m of the slabs in front of a hit at ``hit_m`` (inf: none) out to ``r_max_m``
+        (default: the hit, or 20 / alpha): ``spacing_m`` thick (default s / 2) and, near the sensor, where
+        1/r^2 changes fast, no thicker than a tenth of their range."""
         h = float(spacing_m or self.sigma_m / 2.0)
         end = min(hit_m, r_max_m if r_max_m is not None else 20.0 / max(self.alpha, 1e-6))
         start = max(self.overlap_start_m, MIN_RANGE_M)
         if end <= start:
             return np.zeros(0), np.zeros(0)
-        # slabs no thicker than a tenth of their range near the sensor, where 1/r^2 changes fast; h beyond
         switch = max(start, 10.0 * h)
         near = np.geomspace(start, switch, max(int(np.ceil(np.log(switch / start) / np.log(1.1))), 1) + 1)
         edges = np.unique(np.concatenate([near, np.arange(switch, end, h), [end]]))
         edges = edges[edges <= end]
-        centres = 0.5 * (edges[1:] + edges[:-1])
-        amplitude = self.density(centres) * np.diff(edges)
+        return 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
+
+    def pulses(self, hit_m: float, spacing_m: float | None = None, r_max_m: float | None = None,
+               floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """(ranges, amplitudes) of the slabs' pulses (:meth:`slabs`); pulses below ``floor`` (noise units) are
+        left out."""
+        centres, width = self.slabs(hit_m, spacing_m, r_max_m)
+        amplitude = self.density(centres) * width
         keep = amplitude > floor
         return centres[keep], amplitude[keep]
 

@@ -1,0 +1,158 @@
+"""The atmosphere as physics per beam (issue 22, item 1): the scatterers of region ``atmosphere`` with
+``model: physical``.
+
+The media are fog (its visual range) and one precipitation (rain or snow, mm/h) from
+:mod:`lidar_weather_sim.physics` at the profile's wavelength (``optics.wavelength_nm``): drop-size
+distribution, Mie or geometric cross-sections, extinction ``alpha`` and backscatter ``beta``. Nothing
+is fitted to a sensor: what changes from one profile to another is its wavelength, beam, pulse, overlap
+and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
+
+- **extinction**: the media's ``alpha`` (1/m), summed; the echo stage applies exp(-2 alpha R);
+- **drops one by one** (rain drops, snow flakes): Poisson in the beam's volume ``S(r) dr`` in front of
+  each beam's hit (the central sub-ray's), ``S(r) = pi (a + r tan(theta / 2))^2`` the beam's cross-section
+  (exit radius ``a``, divergence theta the geometric mean of the profile's two): the drops that reach
+  ``NEAR_FRACTION`` of the threshold on their own (in full overlap, before extinction of the pulse's own
+  path beyond r) out to ``NEAR_M``, ``INDIVIDUAL_FRACTION`` beyond it; diameters from the distribution above
+  that size. The smaller drops join the volume: a beam holds a few drops in its first metres, so drops too
+  weak to be seen alone rarely meet in one pulse. A drop of differential backscatter cross-section sigma (m^2/sr) on a
+  sub-ray of weight w is a surface of reflectance ``pi sigma / (S(r) w)`` (its peak
+  ``C pi sigma / (S(r) r^2)`` before extinction and overlap), blocking its geometric cross-section's share
+  of that sub-ray;
+- **the volume**: fog and the drops too small to be seen one by one, as the echo stage's own pulses
+  (:class:`lidar_weather_sim.regions.volume_return.VolumeReturn`: one per slab of one pulse sigma, the slab
+  a surface of reflectance ``pi beta h``; at that spacing the pulses' sum is smooth to 1e-8) on the central
+  sub-ray in front of its hit; where the volume's waveform stays below ``VOLUME_FLOOR`` of the threshold
+  it is left out.
+
+The overlap O(r) is the profile's biaxial geometry (:func:`lidar_weather_sim.physics.overlap.biaxial_overlap`:
+lens separation, receiver field of view, apertures) where its optics give it, else the echo stage's
+smoothstep; it is part of each volume pulse's reflectance, and a drop is seen (inside the receiver's field
+of view) with probability O(r) (``bypass_overlap``: the echo stage does not apply its own). The threshold is the dark one (no sun). This is the
+model :mod:`lidar_weather_sim.gap.reference` computes slowly, drop by drop, with a geometric overlap and
+fog droplet statistics: the fast model is checked against it (``benchmarks/atmosphere_reference.py
+--fast-model physical``). Not modelled: multiple scattering, the fog's fluctuation from cell to cell.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+
+from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.physics.coefficients import Medium, medium
+from lidar_weather_sim.physics.overlap import biaxial_overlap
+from lidar_weather_sim.regions.base import RayBatch, Scatterers
+from lidar_weather_sim.regions.volume_return import VolumeReturn
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M, dark_level
+
+NEAR_M = 5.0  # the near field (m), as the reference's
+NEAR_FRACTION = 0.01  # in the near field: drops reaching this share of the threshold alone are placed
+INDIVIDUAL_FRACTION = 0.05  # beyond NEAR_M: the same, as the reference
+VOLUME_FLOOR = 0.02  # the volume's waveform below this share of the threshold is left out
+DEFAULT_WAVELENGTH_NM = 905.0
+GRID_M = 0.02  # the range grid of the per-beam drop volumes (m)
+LABELS = {"fog": Label.FOG, "rain": Label.RAIN, "snow": Label.SNOW}
+
+
+class PhysicalAir:
+    """Fog (visual range m, or None) and precipitation ((``rain`` | ``snow``, mm/h), or None) seen by ``profile``."""
+
+    def __init__(self, profile, fog_visual_range_m: float | None, precipitation: tuple[str, float] | None) -> None:
+        o, det = profile.optics, profile.detection
+        wavelength = float(o.wavelength_nm or DEFAULT_WAVELENGTH_NM)
+        self.fog = medium("fog", float(fog_visual_range_m), wavelength) if fog_visual_range_m else None
+        self.precip = medium(precipitation[0], float(precipitation[1]), wavelength) if precipitation else None
+        self.alpha = sum(m.alpha for m in (self.fog, self.precip) if m is not None)
+        self.power = float(det.power_constant)
+        self.threshold = dark_level(det)
+        self.r_max = float(profile.range.max_m)
+        self.divergence = 1e-3 * float(np.sqrt(o.divergence_h_mrad * o.divergence_v_mrad))
+        self.exit_radius = float(o.tx_aperture_radius_m)
+        overlap = None
+        if o.lens_separation_m is not None and o.receiver_fov_mrad is not None:
+            overlap = partial(biaxial_overlap, separation_m=o.lens_separation_m, divergence_rad=self.divergence,
+                              fov_rad=1e-3 * o.receiver_fov_mrad, tx_radius_m=o.tx_aperture_radius_m,
+                              rx_radius_m=o.rx_aperture_radius_m)  # fmt: skip
+        start = 0.0 if overlap is not None else o.overlap_start_m
+        self.volume = VolumeReturn(self.power, self.alpha, 1.0, profile.pulse.fwhm_m * FWHM_TO_SIGMA, start,
+                                   o.overlap_full_m, overlap)  # fmt: skip
+        self._grid = np.arange(max(start, MIN_RANGE_M), self.r_max + GRID_M, GRID_M)
+        if self.precip is not None:
+            self._cum, self._d_min = self._drop_tables(self.precip)
+        self._volume_pulses = self._volume_table()
+
+    # -- tables, built once --------------------------------------------------------------------------
+    def area(self, r: np.ndarray) -> np.ndarray:
+        """The beam's cross-section S(r) (m^2) at range ``r`` (m)."""
+        return np.pi * (self.exit_radius + np.asarray(r) * np.tan(0.5 * self.divergence)) ** 2
+
+    def _drop_tables(self, m: Medium) -> tuple[np.ndarray, np.ndarray]:
+        """On the range grid: the expected drops per beam from the start that are placed one by one (those that
+        reach their range's share of the threshold alone), and that size limit (distribution diameter, m)."""
+        r = self._grid
+        s = self.area(r)
+        per_sigma = self.power * np.pi / (s * np.maximum(r, MIN_RANGE_M) ** 2) * np.exp(-2.0 * self.alpha * r)
+        per_d2 = float(np.median(m.sigma_back / np.maximum(m.diameters, 1e-12) ** 2))  # geometric optics: constant
+        fraction = np.where(r <= NEAR_M, NEAR_FRACTION, INDIVIDUAL_FRACTION)
+        d_min = np.sqrt(fraction * self.threshold / np.maximum(per_sigma, 1e-300) / per_d2)
+        f = m.number_above(d_min) * s
+        return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(r))]), d_min
+
+    def _volume_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(centres m, reflectance per unit sub-ray weight, label) of the volume pulses of a beam without a
+        hit, those that reach VOLUME_FLOOR of the threshold."""
+        centres, width = self.volume.slabs(np.inf, spacing_m=self.volume.sigma_m, r_max_m=self.r_max)
+        beta = np.zeros(len(centres))
+        labels = np.zeros(len(centres), np.uint8)
+        if self.precip is not None:  # the drops too small to be placed one by one
+            beta += self.precip.beta_below(np.interp(centres, self._grid, self._d_min))
+            labels[:] = LABELS[self.precip.kind]
+        if self.fog is not None:
+            beta += self.fog.beta
+            labels[:] = LABELS["fog"]
+        level = self.volume.density(centres) * beta * np.sqrt(2.0 * np.pi) * self.volume.sigma_m  # waveform (smooth)
+        keep = level > VOLUME_FLOOR * self.threshold
+        return centres[keep], (np.pi * beta * width * self.volume.overlap(centres))[keep], labels[keep]
+
+    # -- per batch -----------------------------------------------------------------------------------
+    def scatterers(self, batch: RayBatch, rng: np.random.Generator) -> Scatterers | None:
+        """Drops and volume pulses of the batch's beams in front of each beam's hit."""
+        w = np.asarray(batch.weights, dtype=np.float64)
+        core = int(np.argmax(w))
+        hit = np.where(np.isfinite(batch.distance[:, core]), batch.distance[:, core], self.r_max)
+        parts = [self._volume(hit, core, w[core])]
+        if self.precip is not None:
+            parts.append(self._drops(hit, w, rng))
+        return Scatterers.concatenate(parts)
+
+    def _volume(self, hit: np.ndarray, core: int, weight: float) -> Scatterers | None:
+        centres, refl, labels = self._volume_pulses
+        if not len(centres):
+            return None
+        beam, k = np.nonzero(centres[None, :] < hit[:, None])
+        n = len(beam)
+        return Scatterers(beam=beam, subray=np.full(n, core), range_m=centres[k], reflectance=refl[k] / weight,
+                          occlusion=np.zeros(n), label=labels[k], object_id=np.zeros(n, np.uint32),
+                          bypass_overlap=np.ones(n, bool))  # fmt: skip
+
+    def _drops(self, hit: np.ndarray, w: np.ndarray, rng: np.random.Generator) -> Scatterers | None:
+        m, r = self.precip, self._grid
+        expected = np.interp(hit, r, self._cum)  # drops per beam in front of its hit
+        beam = np.repeat(np.arange(len(hit)), rng.poisson(expected))
+        if not len(beam):
+            return None
+        # ranges by the inverse of the cumulative count, each in front of its beam's hit
+        rng_m = np.interp(rng.random(len(beam)) * expected[beam], self._cum, r)
+        # a drop is inside the receiver's field of view or not: the share O(r) of them is seen, at full strength
+        seen = rng.random(len(beam)) < self.volume.overlap(rng_m)
+        beam, rng_m = beam[seen], rng_m[seen]
+        diameter, sigma = m.sample(len(beam), rng, np.interp(rng_m, r, self._d_min))
+        subray = rng.choice(len(w), size=len(beam), p=w / w.sum())
+        patch = self.area(rng_m) * w[subray]
+        optical = m.dsd.optical(diameter)
+        n = len(beam)
+        return Scatterers(beam=beam, subray=subray, range_m=rng_m, reflectance=np.pi * sigma / patch,
+                          occlusion=np.clip(np.pi * optical**2 / 4.0 / patch, 0.0, 1.0),
+                          label=np.full(n, LABELS[m.kind], np.uint8), object_id=np.zeros(n, np.uint32),
+                          bypass_overlap=np.ones(n, bool))  # fmt: skip
