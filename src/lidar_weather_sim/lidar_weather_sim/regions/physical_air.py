@@ -2,7 +2,8 @@
 ``model: physical``.
 
 The media are fog (its visual range) and one precipitation (rain or snow, mm/h) from
-:mod:`lidar_weather_sim.physics` at the profile's wavelength (``optics.wavelength_nm``): drop-size
+:mod:`lidar_weather_sim.physics` at the profile's wavelength (``optics.wavelength_nm``; 905 nm for a
+profile that gives none): drop-size
 distribution, Mie or geometric cross-sections, extinction ``alpha`` and backscatter ``beta``. Nothing
 is fitted to a sensor: what changes from one profile to another is its wavelength, beam, pulse, overlap
 and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
