@@ -129,9 +129,9 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
     (out / "patched_scenario.yaml").write_text(patched_yaml)
 
     def params(effect) -> dict[str, float | str]:
-        main = effect.spec.main
-        return {k: (v if k == main and effect.spec.categorical else float(v)) for k, v in effect.params.items()
-                if not isinstance(v, str) or (k == main and effect.spec.categorical)}  # fmt: skip
+        """Numbers as floats; a categorical main parameter as its text; other texts (a dirt sample) left out."""
+        text = effect.spec.main if effect.spec.categorical else None
+        return {k: v if k == text else float(v) for k, v in effect.params.items() if k == text or not isinstance(v, str)}
 
     result = {
         "gap_before": diagnosis.gap_before,
