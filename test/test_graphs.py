@@ -8,6 +8,7 @@ compares the nodes it would start with what ``up`` starts for the same arguments
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import signal
 import sys
@@ -232,3 +233,41 @@ def test_up_fails_when_a_node_fails(processes, cli, tmp_path):
     assert up.wait(timeout=60) == 1, processes.output(up)
     out = processes.output(up)
     assert "lidar_sim_node exited with status 2 (failure)" in out and "weather_filter_node exited with status 0" in out
+
+
+
+STUCK_NODE = """
+import signal, time
+import rclpy
+from lidar_weather_sim.ros.node_main import run_node
+
+def stuck_where_no_python_handler_runs(node):
+    for sig in (signal.SIGINT, signal.SIGTERM):  # as inside a C call that never returns: no handler runs
+        signal.signal(sig, signal.SIG_IGN)
+    print("stuck", flush=True)
+    while True:
+        time.sleep(0.05)
+
+run_node("stuck_node", lambda: rclpy.create_node("stuck_node"), stuck_where_no_python_handler_runs)
+"""
+
+
+def test_up_prints_the_stacks_of_a_node_deaf_to_sigint_and_sigterm_before_killing_it(tmp_path, monkeypatch):
+    """A node stuck where no Python signal handler runs still answers SIGUSR1 with its threads' stacks (node_main)."""
+    from lidar_weather_sim.ros.graph import NodePlan, run
+
+    (tmp_path / "stuck_node.py").write_text(STUCK_NODE)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    plan = NodePlan("stuck_node", "test", "stuck_node", "stuck_node", (), {}, (), True)
+    lines: list[str] = []
+
+    def emit(line: str) -> None:
+        lines.append(line)
+        if line == "[stuck_node] stuck":  # stop the graph as Ctrl-C would
+            os.kill(os.getpid(), signal.SIGINT)
+
+    assert run([plan], tmp_path / "run", emit=emit, grace_s=1.0) == 1
+    out = "\n".join(lines)
+    assert "[up] still running after SIGTERM: stuck_node; their threads' Python stacks follow, then SIGKILL" in out
+    assert "in stuck_where_no_python_handler_runs" in out, out  # faulthandler's dump from inside the stuck spin
+    assert f"[up] stuck_node exited with status {-signal.SIGKILL} (failure)" in out

@@ -335,7 +335,7 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
 
     SIGINT and SIGTERM received here are forwarded as SIGINT to every node (the
     ``ros2 launch`` behaviour); a node still running ``grace_s`` later gets
-    SIGTERM, then SIGKILL. The graph stops when a ``required`` node exits or
+    SIGTERM, then SIGUSR1 (it prints its threads' stacks: :mod:`.node_main`), then SIGKILL. The graph stops when a ``required`` node exits or
     when every node has exited. Then, unless interrupted or a node failed, the
     ``after`` steps (:func:`resolve_steps`) run one after the other. Returns 0
     if every node exited cleanly (status 0, or stopped by the forwarded signal)
@@ -373,8 +373,12 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
                 break
             time.sleep(0.05)
         stopped = {proc.pid for _, proc in procs if proc.poll() is None}
-        for sig, wait_s in ((signal.SIGINT, grace_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+        for sig, wait_s in ((signal.SIGINT, grace_s), (signal.SIGTERM, 5.0), (signal.SIGUSR1, 1.0),
+                            (signal.SIGKILL, 5.0)):  # fmt: skip
             alive = [proc for _, proc in procs if proc.poll() is None]
+            if sig == signal.SIGUSR1 and alive:  # node_main.STACKS_SIGNAL: a node prints its stacks
+                emit(f"[up] still running after SIGTERM: {', '.join(p.name for p, proc in procs if proc in alive)};"
+                     " their threads' Python stacks follow, then SIGKILL")  # fmt: skip
             for proc in alive:
                 try:
                     os.killpg(proc.pid, sig)

@@ -13,12 +13,16 @@ or a second SIGINT, raises ``KeyboardInterrupt`` at once, wherever the node
 is (a long numba compilation of a cold cache in its first cast can take 10 s
 or more on a loaded machine): the escalation of ``ros2 launch`` and
 ``lidar-weather-sim up`` (SIGINT, then SIGTERM after a grace period) ends
-even a busy node. ``finish`` always runs (the recorder closes its bag there). Every node starts with the Fast DDS
-profile for dense clouds (:mod:`lidar_weather_sim.ros.dds_profile`).
+even a busy node. ``finish`` always runs (the recorder closes its bag there), before the middleware
+is torn down. A node stuck in C code (where no Python signal handler can run) still answers SIGUSR1:
+it prints every thread's Python stack on stderr (``faulthandler``), which ``lidar-weather-sim up``
+asks for before its SIGKILL. Every node starts with the Fast DDS profile for dense clouds
+(:mod:`lidar_weather_sim.ros.dds_profile`).
 """
 
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 from collections.abc import Callable
@@ -33,6 +37,7 @@ from lidar_weather_sim.ros.dds_profile import use_large_message_profile
 
 N = TypeVar("N")
 POLL_S = 0.1  # longest wait in a spin loop (s): the reaction time to a signal
+STACKS_SIGNAL = signal.SIGUSR1  # prints every thread's Python stack on stderr, even from inside C code
 _requested: list[int] = []
 
 
@@ -55,20 +60,21 @@ def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] = spin
     ``spin`` must return soon after :func:`stop_requested` turns true. ``config_errors``
     raised by ``build`` print ``name: reason`` on stderr and exit with status 2.
     """
-    node = None
     use_large_message_profile()
+    faulthandler.register(STACKS_SIGNAL, all_threads=True)
     try:
         with rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO):
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, _on_signal)
             node = _build(name, build, config_errors)
-            if not stop_requested():
-                spin(node)
+            try:
+                if not stop_requested():
+                    spin(node)
+            finally:
+                if finish is not None:
+                    finish(node)  # before the middleware is torn down
     except (KeyboardInterrupt, ExternalShutdownException):  # escalated, or before the handlers were in place
         pass
-    finally:
-        if node is not None and finish is not None:
-            finish(node)
 
 
 def _on_signal(signum: int, _frame) -> None:
