@@ -194,51 +194,59 @@ def _sample(r, a, c0, c1, s, x):
 
 
 #: Bound on the relative error of :func:`_fill_estimates` (its error stays below 1e-9: ~k^2
-#: roundings of 1.1e-16 after k steps, k < 480 as every sample is within 30 widths of every
-#: pulse, and ~1e-11 from rounding the exact samples' arguments).
+#: roundings of 1.1e-16 after k steps, k < 480 as each pulse is estimated only within 30 widths
+#: of its centre, and ~1e-11 from rounding the exact samples' arguments).
 ESTIMATE_TOLERANCE = 1e-7
-#: Longest window (samples) and farthest sample (pulse widths from a pulse) estimated by recurrence.
+#: Longest window (samples) estimated by recurrence, and how far from its centre (pulse widths) a
+#: pulse is estimated: beyond, it adds less than exp(-30^2 / 2) ~ 1e-196 of its amplitude, which
+#: :func:`_fill_estimates` leaves out (its absolute bound).
 ESTIMATE_SAMPLES = 4096
 ESTIMATE_REACH = 30.0
 
 
 @numba.njit(cache=True, inline="always")
 def _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf):
-    """Waveform samples first..first+n (at ``lo + k dx``) into buf[:n]; returns their relative error
-    bound. A Gaussian on a uniform grid is a recurrence, two products a sample (e_k+1 = e_k q_k,
-    q_k+1 = q_k exp(-h^2), h = dx / s; run as two chains, even and odd k): after k steps its
-    error is a few k^2 ulps. Exact samples (:func:`_sample`, bound 0) when the window is longer
-    or reaches where the recurrence would underflow."""
-    h = dx / s
-    x0 = lo + first * dx
-    exact = n > ESTIMATE_SAMPLES
-    for i in range(c0, c1):
-        d0 = (x0 - r[i]) / s
-        exact = exact or max(abs(d0), abs(d0 + n * h)) > ESTIMATE_REACH
-    if exact:
+    """Waveform samples first..first+n (at ``lo + k dx``) into buf[:n]; returns (relative, absolute)
+    error bounds: the exact sample lies in [est (1 - rel), est (1 + rel) + abs]. A Gaussian on a
+    uniform grid is a recurrence, two products a sample (e_k+1 = e_k q_k, q_k+1 = q_k exp(-h^2),
+    h = dx / s; run as two chains, even and odd k), run for each pulse over the samples within
+    ESTIMATE_REACH widths of its centre: after k steps its error is a few k^2 ulps, and what it
+    leaves out is below the pulses' total amplitude times exp(-ESTIMATE_REACH^2 / 2). A long cluster
+    (fog's volume, many pulses over metres) thus costs each pulse its own ~480 samples, not the
+    window's. Exact samples (:func:`_sample`, bounds 0) when the window is longer than
+    ESTIMATE_SAMPLES."""
+    if n > ESTIMATE_SAMPLES:
         for j in range(n):
             buf[j] = _sample(r, a, c0, c1, s, lo + (first + j) * dx)
-        return 0.0
+        return 0.0, 0.0
+    h = dx / s
+    x0 = lo + first * dx
     buf[:n] = 0.0
     c = np.exp(-h * h)
     c4 = c * c * c * c
+    total = 0.0
     for i in range(c0, c1):
-        d0 = (x0 - r[i]) / s
+        total += a[i]
+        ja = max(int(np.ceil((r[i] - ESTIMATE_REACH * s - x0) / dx)), 0)
+        jb = min(int(np.floor((r[i] + ESTIMATE_REACH * s - x0) / dx)) + 1, n)
+        if jb <= ja:
+            continue
+        d0 = (x0 + ja * dx - r[i]) / s
         e0 = a[i] * np.exp(-0.5 * d0 * d0)
         q0 = np.exp(-d0 * h - 0.5 * h * h)
         # two interleaved chains (even and odd samples, e_k+2 = e_k q_k q_k+1) that the CPU runs side by side
         e1, q1 = e0 * q0, q0 * c
         p0, p1 = q0 * q1, q1 * (q1 * c)
-        for j in range(0, n - 1, 2):
+        for j in range(ja, jb - 1, 2):
             buf[j] += e0
             buf[j + 1] += e1
             e0 *= p0
             e1 *= p1
             p0 *= c4
             p1 *= c4
-        if n % 2:
-            buf[n - 1] += e0
-    return ESTIMATE_TOLERANCE
+        if (jb - ja) % 2:
+            buf[jb - 1] += e0
+    return ESTIMATE_TOLERANCE, total * np.exp(-0.5 * ESTIMATE_REACH * ESTIMATE_REACH)
 
 
 @numba.njit(cache=True, inline="always")
@@ -278,8 +286,8 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
         return 0
     if n > len(buf):
         buf = np.empty(n)
-    tol = _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf)
-    up, down = 1.0 + tol, 1.0 - tol  # the exact sample lies in [est * down, est * up]
+    tol, eps = _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf)
+    up, down = 1.0 + tol, 1.0 - tol  # the exact sample lies in [est * down, est * up + eps]
     written = 0
     inside = False
     ks = 0
@@ -287,7 +295,7 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
         est = buf[j]
         if est * down > thr:
             over = True
-        elif est * up < thr:
+        elif est * up + eps < thr:
             over = False
         else:
             over = _sample(r, a, c0, c1, s, lo + (first + j) * dx) > thr
@@ -306,7 +314,7 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
             best_w = -1.0
             best_x = 0.0
             for m in range(ks, j):  # the first highest exact sample among those that may be highest
-                if buf[m] * up >= peak * down:
+                if buf[m] * up + eps >= peak * down:
                     x = lo + (first + m) * dx
                     w = _sample(r, a, c0, c1, s, x)
                     if w > best_w:
