@@ -7,6 +7,7 @@ import subprocess
 
 import numpy as np
 import pytest
+import yaml
 
 from lidar_weather_sim.core.points import Label, empty_points
 from lidar_weather_sim.gap.effects import parse_effect
@@ -192,3 +193,20 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, tmp_path):
     assert near[0] == pytest.approx(near[1], rel=0.10), near
     assert total[0] == pytest.approx(total[1], rel=0.12), total
     assert np.corrcoef(*hist)[0, 1] >= 0.85, np.corrcoef(*hist)[0, 1]
+
+
+def test_gap_with_the_physical_model_names_the_reference_fog_and_fits_its_visual_range(tmp_path):
+    """Fog made by the reference (written apart from the simulator): `gap --atmosphere-model physical` names
+    atmosphere.fog alone, its visual range within 25 %, and at least halves the held-out gap."""
+    from lidar_weather_sim.gap.command import run_gap
+
+    scenario = load_scenario("highway_clear")
+    make_measured(scenario, [parse_effect("atmosphere.fog:visual_range=60")], tmp_path / "measured", frames=24,
+                  generator="reference")  # fmt: skip
+    result = run_gap(tmp_path / "measured", scenario, tmp_path / "gap", atmosphere_model="physical", fit_frames=8,
+                     heldout_frames=8, screen_frames=2)  # fmt: skip
+    (fog,) = result["effects"]
+    assert fog["name"] == "atmosphere.fog" and fog["params"]["visual_range"] == pytest.approx(60.0, rel=0.25)
+    assert result["gap_after"] <= 0.5 * result["gap_before"]
+    patched = yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text())
+    assert patched["region_params"]["atmosphere"]["model"] == "physical"  # what `run` then simulates

@@ -127,6 +127,14 @@ def test_bad_hide_specs_exit_2_with_one_line(cli, tmp_path, hide, reason):
     assert not (tmp_path / "x").exists()
 
 
+def test_atmosphere_model_of_another_generator_exits_2_with_one_line(cli, tmp_path):
+    done = subprocess.run([*cli, "make-measured", "highway_clear", "--reference", "--atmosphere-model", "physical",
+                           "--hide", "atmosphere.fog:visual_range=60", "--out", str(tmp_path / "x")],
+                          capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert "the reference generator makes its own" in done.stderr and not (tmp_path / "x").exists()
+
+
 def test_compare_writes_metrics_report_and_plots(highway, tmp_path, cli):
     make_measured(highway, [parse_effect("atmosphere.rain:intensity=10")], tmp_path / "measured", frames=20)
     make_measured(highway, [], tmp_path / "clear", frames=20)

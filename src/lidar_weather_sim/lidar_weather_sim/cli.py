@@ -20,7 +20,7 @@ from lidar_weather_sim.core.argtypes import (
     seed_int,
     workers_int,
 )
-from lidar_weather_sim.core.names import RETURN_MODES, TOPIC_POINTS
+from lidar_weather_sim.core.names import ATMOSPHERE_MODELS, RETURN_MODES, TOPIC_POINTS
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES
 
 
@@ -208,6 +208,9 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     from lidar_weather_sim.scenario.schema import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
+    if args.atmosphere_model and args.generator != "fast":
+        raise ValueError(f"--atmosphere-model chooses the simulator's atmosphere: the {args.generator} generator "
+                         "makes its own (use it with --generator fast)")  # fmt: skip
     if args.on and (args.generator != "fast" or args.labels or args.beams_per_frame):
         raise ValueError("--on puts the project's own effects on a recording: --reference / --generator, --labels "
                          "and --beams-per-frame apply only without --on")  # fmt: skip
@@ -221,12 +224,14 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
             raise ValueError("--on needs at least one --hide effect to put on top of the recording")
 
         frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
-                                   topic=args.topic, overwrite=args.overwrite)  # fmt: skip
+                                   topic=args.topic, overwrite=args.overwrite,
+                                   atmosphere_model=args.atmosphere_model)  # fmt: skip
         print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)} on top to {args.out}")
         return 0
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
                            profile=args.profile, overwrite=args.overwrite, generator=args.generator,
-                           ground_truth=args.labels, beams_per_frame=args.beams_per_frame)  # fmt: skip
+                           ground_truth=args.labels, beams_per_frame=args.beams_per_frame,
+                           atmosphere_model=args.atmosphere_model)  # fmt: skip
     hidden = ", ".join(e.label() for e in effects) or "nothing"
     hidden += "" if args.generator == "fast" else f" (weather by the {args.generator} generator)"
     lost = f", {report.dropped} dropped by the nuisance model" if report.dropped else ""
@@ -304,7 +309,7 @@ def _cmd_gap(args: argparse.Namespace) -> int:
         result = run_gap(args.measured, load_scenario(args.scenario), args.out, profile=args.profile, topic=args.topic,
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
                          scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")),
-                         split=split)  # fmt: skip
+                         split=split, atmosphere_model=args.atmosphere_model)  # fmt: skip
     from lidar_weather_sim.gap.report import format_params
 
     found = ", ".join(f"{e['name']} ({format_params(e['params'])})" for e in result["effects"]) or "no effect"
@@ -445,6 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
                                "reference (gap/reference.py) or the simplified Hahner et al. 2021 fog (gap/hahner.py)")
     measured.add_argument("--reference", dest="generator", action="store_const", const="reference",
                           help="same as --generator reference")
+    measured.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, help="the simulator's atmosphere model "
+                          "for fog, rain and snow (generator fast; default: the scenario's, else fitted)")  # fmt: skip
     measured.add_argument("--labels", action="store_true", help="keep label and object_id (ground truth) in the points")
     measured.add_argument("--beams-per-frame", type=positive_int,
                           help="beams the reference simulates per frame (default: all of a profile with <= 4096 beams "
@@ -490,6 +497,8 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--effects", default="weather", choices=["weather", "sensor", "weather,sensor"],
                      help="effect families to search: weather (default; the sun included), sensor (the unit's "
                           "intensity response, range bias and noise, ray drop: for real recordings) or both")  # fmt: skip
+    gap.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, help="the atmosphere region's model the fog, "
+                     "rain and snow effects are fitted with (default: the scenario's, else fitted)")  # fmt: skip
     gap_engine = gap.add_mutually_exclusive_group()
     gap_engine.add_argument("--workers", type=workers_int, default=0, help="run the search's evaluations on N local "
                             "Dask worker processes (default 0: in this process; the result is the same)")  # fmt: skip

@@ -51,10 +51,12 @@ def augment_frame(real: np.ndarray, base: np.ndarray, effect: np.ndarray, column
 
 
 def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect], output: str | Path, *,
-                      profile: str | None = None, topic: str | None = None, overwrite: bool = False) -> int:  # fmt: skip
-    """Write ``path`` with ``effects`` simulated on top of its frames to ``output``; returns the frames written."""
+                      profile: str | None = None, topic: str | None = None, overwrite: bool = False,
+                      atmosphere_model: str | None = None) -> int:  # fmt: skip
+    """Write ``path`` with ``effects`` simulated on top of its frames to ``output`` (fog, rain and snow by the
+    atmosphere region's ``atmosphere_model``, None: the scenario's); returns the frames written."""
     recording = Recording.load(path, topic)
-    resim = Resimulator(recording, scenario, profile)
+    resim = Resimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
     columns = resim.world.profile.scan.columns
     everything = range(len(recording.frames))
     weather = [e for e in effects if e.spec.family != "sensor"]

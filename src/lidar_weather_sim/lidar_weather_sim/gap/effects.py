@@ -219,8 +219,11 @@ def conflicts(effects: list[Effect]) -> str | None:
     return None
 
 
-def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
-    """``scenario`` with ``effects`` added (a new, validated Scenario; raises ValueError on conflicts)."""
+def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: str | None = None) -> Scenario:
+    """``scenario`` with ``effects`` added (a new, validated Scenario; raises ValueError on conflicts).
+
+    ``atmosphere_model`` (``fitted`` | ``physical``): the ``model`` of the atmosphere region the effects
+    turn on (None: the scenario's own, else the region's default)."""
     problem = conflicts(effects)
     if problem:
         raise ValueError(f"cannot apply {', '.join(e.label() for e in effects)}: {problem}")
@@ -239,6 +242,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
         atmo = region("atmosphere")
         atmo["air"] = bool(air)
         atmo.setdefault("road_water_film_mm", 0.0)
+        if atmosphere_model is not None:
+            atmo["model"] = atmosphere_model
     spray_actors = []
     for e in effects:
         if e.name == "sensor.dead_channels":

@@ -59,10 +59,11 @@ def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator, ground
 
 
 def weather_transform(scenario: Scenario, effects: list[Effect], generator: str, profile: str | None,
-                      seed: int, beams_per_frame: int | None = None):  # fmt: skip
-    """(scenario with the effects the simulator makes, ``transform(frame) -> points`` or None) of ``generator``."""
+                      seed: int, beams_per_frame: int | None = None, atmosphere_model: str | None = None):  # fmt: skip
+    """(scenario with the effects the simulator makes, ``transform(frame) -> points`` or None) of ``generator``;
+    ``atmosphere_model``: the atmosphere region's model when the simulator makes the weather (``fast``)."""
     if generator == "fast":
-        return apply_effects(scenario, effects), None
+        return apply_effects(scenario, effects, atmosphere_model), None
     if generator not in GENERATORS:
         raise ValueError(f"generator {generator!r}: one of {', '.join(GENERATORS)}")
     from lidar_weather_sim.gap.reference import Atmosphere
@@ -107,11 +108,14 @@ def make_measured(
     generator: str = "fast",
     ground_truth: bool = False,
     beams_per_frame: int | None = None,
+    atmosphere_model: str | None = None,
 ) -> RunReport:
     """Record ``scenario`` with ``effects`` hidden in it by ``generator`` (see module doc) and ``nuisance`` added
-    to ``output``; ``beams_per_frame``: the reference's sampled beams (default: all of a small profile)."""
+    to ``output``; ``beams_per_frame``: the reference's sampled beams (default: all of a small profile);
+    ``atmosphere_model`` (``fitted`` | ``physical``): the simulator's, for the ``fast`` generator."""
     run_seed = scenario.seed + nuisance.seed_offset if seed is None else seed
-    hidden, transform = weather_transform(scenario, effects, generator, profile, run_seed, beams_per_frame)
+    hidden, transform = weather_transform(scenario, effects, generator, profile, run_seed, beams_per_frame,
+                                          atmosphere_model)  # fmt: skip
     rng = np.random.default_rng([run_seed & 0xFFFFFFFF, 0x6D6561])  # "mea": the nuisance's own stream
 
     def measure(frame: Frame) -> np.ndarray | None:

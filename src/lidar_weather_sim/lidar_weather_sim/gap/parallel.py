@@ -26,6 +26,7 @@ class SearchSource:
     topic: str | None
     budgets: tuple[tuple[str, object], ...]  # GapSearch keywords (fit_frames, heldout_frames, families, ...)
     split: str | None = None  # a twin's DataSplit as JSON (its to_dict), or None
+    atmosphere_model: str | None = None  # the atmosphere region's model (Resimulator)
 
     def build(self):
         from lidar_weather_sim.gap.resim import Resimulator
@@ -35,7 +36,7 @@ class SearchSource:
         from lidar_weather_sim.scenario.schema import Scenario
 
         resim = Resimulator(Recording.load(self.measured, self.topic), Scenario.model_validate(json.loads(self.scenario)),
-                            self.profile)  # fmt: skip
+                            self.profile, atmosphere_model=self.atmosphere_model)  # fmt: skip
         split = DataSplit.from_dict(json.loads(self.split)) if self.split else None
         return GapSearch(resim, split=split, **dict(self.budgets))
 
