@@ -96,6 +96,11 @@ def test_each_hidden_effect_changes_only_itself(highway):
     both = apply_effects(highway, [parse_effect("atmosphere.rain:intensity=10"),
                                    parse_effect("atmosphere.road_wet:water_film=0.7")])  # fmt: skip
     assert both.region_params["atmosphere"]["road_water_film_mm"] == 0.7
+    snow = parse_effect("atmosphere.snow:intensity=1")
+    assert apply_effects(highway, [snow]).weather.road.snow_depth_m == 0.0  # snowfall does not cover the road
+    covered = highway.model_copy(update={"weather": highway.weather.model_copy(update={
+        "road": highway.weather.road.model_copy(update={"snow_depth_m": 0.05})})})  # fmt: skip
+    assert apply_effects(covered, [snow]).weather.road.snow_depth_m == 0.05  # a scenario's snow cover stays
     with pytest.raises(ValueError, match="rain or snow"):
         apply_effects(highway, [parse_effect("atmosphere.rain:intensity=1"), parse_effect("atmosphere.snow:intensity=1")])
     sample = parse_effect("cover.dirt:sample=3l")

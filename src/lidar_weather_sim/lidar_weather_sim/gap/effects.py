@@ -34,8 +34,9 @@ search tries one by one (:func:`search_grid` gives their indices) instead of fit
 channels are *read off the data*: the search proposes the one set the recording shows and tries it.
 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
-unless ``atmosphere.road_wet`` is applied too) and does not feed spray, so the effects
-hidden in a recording are exactly the ones named. :func:`apply_effects` returns a new,
+unless ``atmosphere.road_wet`` is applied too) and does not feed spray, and snow falls without
+covering the road (``weather.road.snow_depth_m: 0`` unless the scenario sets a snow cover: a scene
+state, not the snowfall), so the effects hidden in a recording are exactly the ones named. :func:`apply_effects` returns a new,
 validated :class:`~lidar_weather_sim.scenario.schema.Scenario`.
 """
 
@@ -242,6 +243,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: s
         atmo = region("atmosphere")
         atmo["air"] = bool(air)
         atmo.setdefault("road_water_film_mm", 0.0)
+        road = data["weather"]["road"]
+        road["snow_depth_m"] = 0.0 if road.get("snow_depth_m") is None else road["snow_depth_m"]
         if atmosphere_model is not None:
             atmo["model"] = atmosphere_model
     spray_actors = []
