@@ -65,7 +65,8 @@ def main() -> None:
             density = air.volume.density(r) * air.fog.beta * (r >= air.volume.overlap_start_m)
             w = np.convolve(highpass(density, tau), pulse, mode="same") * DR
             echo = first_echo(r, w, thr)
-            cells.append("none" if echo is None else f"{echo[0]:.2f} / {echo[1]:.2f} / {echo[2]:.2f} ({w.max() / thr:.0f}x)")
+            shape = None if echo is None else " / ".join(f"{x:.2f}" for x in echo)
+            cells.append("none" if echo is None else f"{shape} ({w.max() / thr:.0f}x)")
         target = np.zeros_like(r)
         target[int(round(20.0 / DR))] = 10.0 * thr / DR / (s * np.sqrt(2.0 * np.pi))  # a pulse of peak 10 T at 20 m
         echo = first_echo(r, np.convolve(highpass(target, tau), pulse, mode="same") * DR, thr)

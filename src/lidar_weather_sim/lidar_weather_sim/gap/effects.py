@@ -36,8 +36,8 @@ channels are *read off the data*: the search proposes the one set the recording 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
 unless ``atmosphere.road_wet`` is applied too) and does not feed spray, and snow falls without
 covering the road (``weather.road.snow_depth_m: 0`` unless the scenario sets a snow cover: a scene
-state, not the snowfall), so the effects hidden in a recording are exactly the ones named. :func:`apply_effects` returns a new,
-validated :class:`~lidar_weather_sim.scenario.schema.Scenario`.
+state, not the snowfall), so the effects hidden in a recording are exactly the ones named.
+:func:`apply_effects` returns a new, validated :class:`~lidar_weather_sim.scenario.schema.Scenario`.
 """
 
 from __future__ import annotations

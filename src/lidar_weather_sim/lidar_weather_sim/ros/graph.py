@@ -335,11 +335,12 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
 
     SIGINT and SIGTERM received here are forwarded as SIGINT to every node (the
     ``ros2 launch`` behaviour); a node still running ``grace_s`` later gets
-    SIGTERM, then SIGUSR1 (it prints its threads' stacks: :mod:`.node_main`), then SIGKILL. The graph stops when a ``required`` node exits or
-    when every node has exited. Then, unless interrupted or a node failed, the
-    ``after`` steps (:func:`resolve_steps`) run one after the other. Returns 0
-    if every node exited cleanly (status 0, or stopped by the forwarded signal)
-    and every step with status 0, otherwise 1.
+    SIGTERM, then SIGUSR1 (it prints its threads' stacks: :mod:`.node_main`), then
+    SIGKILL. The graph stops when a ``required`` node exits or when every node has
+    exited. Then, unless interrupted or a node failed, the ``after`` steps
+    (:func:`resolve_steps`) run one after the other. Returns 0 if every node exited
+    cleanly (status 0, or stopped by the forwarded signal) and every step with
+    status 0, otherwise 1.
     """
     import os
     import subprocess
