@@ -1,7 +1,7 @@
 """Fast atmosphere model vs the independent reference (issue 22), per weather, on one profile.
 
     python benchmarks/atmosphere_reference.py [--frames 10] [--profile scala4] [--weathers fog:30,rain:10]
-        [--fast-model fitted|physical]
+        [--fast-model fitted|physical] [--columns N]
 
 For each weather, highway_clear is recorded twice with the same seed and no measurement nuisance:
 by the simulator's own atmosphere (make-measured, generator fast; its region's ``model``: ``--fast-model``) and
@@ -9,8 +9,10 @@ by the reference
 (make-measured --reference). Printed per weather: detections per frame in 0-5 m and in total (fast /
 reference), the Pearson correlation of the mean per-frame range histograms in 0-5 m (5 cm bins, as the
 thesis' paper 2) and 0-100 m (1 m bins), and the EPW distribution (median and 10-90 % of 0-5 m echoes,
-and of all echoes). Only scala4 (every beam sampled) compares beam for beam; larger profiles sample
-beams in the reference and are not supported here.
+and of all echoes). The reference simulates every beam of a profile with at most 4096 beams per frame and
+samples the beams of larger ones, which this comparison does not support: ``--columns N`` runs the profile
+with N columns instead (e.g. OS1-128 with 32: 4096 beams, every beam sampled; its beams, optics, pulse and
+threshold unchanged, each beam a beam of the full profile's physics).
 """
 
 from __future__ import annotations
@@ -21,11 +23,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from lidar_weather_sim.gap.effects import parse_effect
 from lidar_weather_sim.gap.measured import Nuisance, make_measured
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario
+from lidar_weather_sim.sensor.profile import load_profile
 
 WEATHERS = "fog:30,fog:100,fog:500,rain:1,rain:10,rain:50,snow:0.5,snow:5"
 MAIN = {"fog": "visual_range", "rain": "intensity", "snow": "intensity"}
@@ -62,7 +66,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--fast-model", choices=("fitted", "physical"), default="fitted",
                         help="the atmosphere region's model in the fast runs")
+    parser.add_argument("--columns", type=int, help="run the profile with this many columns (every beam sampled)")
     args = parser.parse_args()
+    workdir = tempfile.TemporaryDirectory()
+    profile = args.profile
+    if args.columns:
+        data = load_profile(args.profile).model_dump(mode="json")
+        data["name"] = f"{data['name']}_{args.columns}_columns"
+        data["scan"]["columns"] = args.columns
+        profile = Path(workdir.name) / f"{data['name']}.yaml"
+        profile.write_text(yaml.safe_dump(data, sort_keys=False))
+        profile = str(profile)
     scenario = load_scenario("highway_clear")
     if args.fast_model != "fitted":
         scenario = scenario.model_copy(update={"regions": [*scenario.regions, "atmosphere"],
@@ -77,10 +91,10 @@ def main() -> None:
         effect = parse_effect(f"atmosphere.{kind}:{MAIN[kind]}={value}")
         with tempfile.TemporaryDirectory() as tmp:
             fast, ref = Path(tmp) / "fast", Path(tmp) / "ref"
-            make_measured(scenario, [effect], fast, frames=args.frames, seed=args.seed, profile=args.profile,
+            make_measured(scenario, [effect], fast, frames=args.frames, seed=args.seed, profile=profile,
                           nuisance=quiet)  # fmt: skip
             start = time.perf_counter()
-            make_measured(scenario, [effect], ref, frames=args.frames, seed=args.seed, profile=args.profile,
+            make_measured(scenario, [effect], ref, frames=args.frames, seed=args.seed, profile=profile,
                           nuisance=quiet, generator="reference")  # fmt: skip
             seconds = time.perf_counter() - start
             f, r = frames_of(fast), frames_of(ref)
