@@ -210,3 +210,12 @@ def test_gap_with_the_physical_model_names_the_reference_fog_and_fits_its_visual
     assert result["gap_after"] <= 0.5 * result["gap_before"]
     patched = yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text())
     assert patched["region_params"]["atmosphere"]["model"] == "physical"  # what `run` then simulates
+
+
+def test_reference_fog_on_a_wide_beam_whose_near_field_is_all_bulk(tmp_path):
+    """OS1-128's 3.1 mrad beam holds so many fog droplets per near-field cell that none is placed one by one:
+    the reference then has no direct drops and still writes its fog (it used to fail unpacking them)."""
+    make_measured(load_scenario("highway_clear"), [parse_effect("atmosphere.fog:visual_range=30")], tmp_path / "os1",
+                  frames=1, profile="os1_128_2048", generator="reference", ground_truth=True, beams_per_frame=256)  # fmt: skip
+    (frame,) = Recording.load(tmp_path / "os1").frames
+    assert np.sum(frame.points["label"] == Label.FOG) > 100

@@ -234,7 +234,10 @@ class ReferenceAtmosphere:
                 drops.append(self._place(rng.poisson(np.broadcast_to(lam_far, (n_beams, K - near))), m, rng,
                                          first=near, d_lo=d_min))  # fmt: skip
                 volume[:, near:] = m.beta_below(d_min) * self.dx * self.overlap[near:]
-            beam, r_d, a_d = (np.concatenate(x) for x in zip(*drops))
+            if drops:
+                beam, r_d, a_d = (np.concatenate(x) for x in zip(*drops))
+            else:  # dense fog on a wide beam: every near-field cell holds enough droplets to be bulk
+                beam, r_d, a_d = np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
             out[label] = (beam, r_d, a_d, volume * scale)
         return out
 
