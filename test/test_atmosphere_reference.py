@@ -97,6 +97,20 @@ def test_dense_fog_hides_a_far_target_and_adds_near_echoes(scala4):
     assert np.all(out["label"] == Label.FOG) and np.all(out["distance"] < 30.0)
 
 
+def test_weather_behind_a_near_target_is_hidden(scala4):
+    """A wall 4 m ahead in fog of 100 m (whose volume echo alone is 16 m long) and in snow of 5 mm/h: nothing
+    of the beam's echoes lies behind the wall (its own pulse aside): fog and flakes there cannot be seen."""
+    s = scala4.pulse.fwhm_m
+    for weather in (Atmosphere(fog_m=100.0), Atmosphere(precipitation=("snow", 5.0))):
+        ref = ReferenceAtmosphere(scala4, weather)
+        for seed in range(5):
+            wall = _points(ref, [4.0], [50.0 * ref.threshold])
+            out = ref.apply(wall, 0, np.random.default_rng(seed))
+            out = out[(out["channel"] == 1) & (np.abs(out["azimuth"] - wall["azimuth"][0]) < 1e-4)]  # the wall's beam
+            assert len(out) and np.all(out["distance"] <= 4.0 + s), out["distance"]
+            assert np.all(out["distance"] + out["epw"] / 2 <= 4.0 + 2 * s)  # no echo reaching far behind it
+
+
 def test_unsampled_beams_keep_their_return_attenuated(scala4):
     ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=200.0), beams_per_frame=1)
     pts = np.concatenate([_points(ref, [25.0], [50.0 * ref.threshold], column=c) for c in range(100, 140)])

@@ -30,6 +30,8 @@ Then, for each weather (:mod:`lidar_weather_sim.physics`: DSD, Mie, biaxial over
   linearly), at most ``max_echoes`` nearest, none below ``range.min_m``; intensity on the profile's log
   scale. Label: the scene return's (label, object id) when it dominates the waveform at the peak, else
   FOG / RAIN / SNOW. Weather echoes get the profile's range noise.
+  Weather behind a beam's nearest scene return is hidden: its drops and volume cells there are left out
+  (the return is taken to block the whole beam, as the fast model takes its core sub-ray's hit).
 - **Other beams** keep their clear returns attenuated by ``exp(-2 alpha R)`` (EPW and intensity lowered,
   returns below the threshold removed), and get no near-field weather.
 
@@ -275,8 +277,14 @@ class ReferenceAtmosphere:
         scene_a = amplitude_from_points(pts, self.threshold, self.sigma, self.dark, self.log_span)
         scene_a = scene_a * np.exp(-2.0 * self.alpha * scene_r)
         scene = self._pulses(pos, scene_r, scene_a, n)
-        parts = {lab: fftconvolve(vol + self._deposit(b, r, a, n), self.kernel[None, :], mode="same", axes=1)
-                 for lab, (b, r, a, vol) in self._particles(n, rng).items()}  # fmt: skip
+        hit = np.full(n, np.inf)  # the beam's nearest scene return: the weather behind it is hidden
+        np.minimum.at(hit, pos, scene_r)
+        in_front = self.r[None, :] < hit[:, None]
+        parts = {}
+        for lab, (b, r, a, vol) in self._particles(n, rng).items():
+            seen = r < hit[b]
+            parts[lab] = fftconvolve(np.where(in_front, vol, 0.0) + self._deposit(b[seen], r[seen], a[seen], n),
+                                     self.kernel[None, :], mode="same", axes=1)  # fmt: skip
         wave = scene + sum(parts.values())
         # echoes: runs above the threshold, nearest max_echoes per beam
         above = wave > self.threshold
