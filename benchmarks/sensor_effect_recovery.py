@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Does `gap --effects sensor` find a sensor-side effect hidden in a re-simulation of a real recording?
 
-    python benchmarks/sensor_effect_recovery.py [--scenario TWIN_DIR/scenario.yaml] [--limit K] [--workers N]
+    python benchmarks/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
+        [--workers N]
 
 The cases are config/sensor_effect_cases.yaml's seeded draws (committed before any run): for each
 profile and sensor effect, ``draws_per_effect`` values of its main parameter, plus ``clear_cases``
@@ -13,6 +14,10 @@ the file's budgets) against SCENARIO with the same profile. Every case is printe
 what was named, the parameter error, the held-out gap before and after. A case is right when exactly
 the hidden effect is named and its main parameter is within ``parameter_within`` (range bias: or 1 cm);
 a clear case is right when nothing is named. Case k is simulated with seed 1000 + k.
+
+``--cases config/channel_effect_cases.yaml``: the per-channel effects read off the data (weak channels,
+elevation offsets): each draw hides its values on randomly drawn channels; right when exactly that effect is
+named on exactly those channels, each value within ``parameter_within`` (offsets: or ``offset_within_deg``).
 """
 
 from __future__ import annotations
@@ -30,8 +35,11 @@ CASES = ROOT / "config" / "sensor_effect_cases.yaml"
 MEASURED_SEED = 1000  # case k is drawn with seed 1000 + k: never the search's own draws (the scenario's seed, + 7919)
 
 
-def draw_cases(spec: dict) -> list[tuple[str, str | None, float | None]]:
-    """(profile, effect name or None for a clear case, main value) in the file's seeded order."""
+def draw_cases(spec: dict) -> list[tuple[str, str | None, float | str | None]]:
+    """(profile, effect name or None for a clear case, main value: a number, or for a per-channel effect its
+    ``channel:value`` text) in the file's seeded order."""
+    if "channel_effects" in spec:
+        return draw_channel_cases(spec)
     rng = np.random.default_rng(spec["seed"])
     values = {}
     for name, entry in spec["effects"].items():
@@ -45,6 +53,41 @@ def draw_cases(spec: dict) -> list[tuple[str, str | None, float | None]]:
             cases += [(profile, name, float(v)) for v in drawn[p * k : (p + 1) * k]]
         cases += [(profile, None, None)] * spec["clear_cases"]
     return cases
+
+
+def draw_channel_cases(spec: dict) -> list[tuple[str, str | None, str | None]]:
+    """The per-channel draws (``channel_effects``): channels uniformly from the profile's, values as the entry says."""
+    from lidar_weather_sim.gap.effects import format_channel_values
+    from lidar_weather_sim.sensor.profile import load_profile
+
+    rng = np.random.default_rng(spec["seed"])
+    cases = []
+    for profile in spec["profiles"]:
+        n_channels = len(load_profile(profile).beams)
+        for name, entry in spec["channel_effects"].items():
+            (lo, hi), k = entry["range"], entry["channels"]
+            for _ in range(spec["draws_per_effect"]):
+                channels = rng.choice(n_channels, k, replace=False)
+                u = rng.uniform(np.log(lo), np.log(hi), k) if entry["scale"] == "log" else rng.uniform(lo, hi, k)
+                values = np.exp(u) if entry["scale"] == "log" else u
+                if entry.get("signed"):
+                    values = values * rng.choice([-1.0, 1.0], k)
+                cases.append((profile, name, format_channel_values(dict(zip(channels.tolist(), np.round(values, 4))))))
+        cases += [(profile, None, None)] * spec["clear_cases"]
+    return cases
+
+
+def channel_error(name: str, hidden: str, named: str, success: dict) -> tuple[float, bool]:
+    """(largest relative error, right) of a per-channel effect named as ``named`` against ``hidden``."""
+    from lidar_weather_sim.gap.effects import parse_channel_values
+
+    want, got = parse_channel_values(name, hidden), parse_channel_values(name, named)
+    if set(want) != set(got):
+        return float("inf"), False
+    errors = [abs(got[c] - v) / abs(v) for c, v in want.items()]
+    slack = success.get("offset_within_deg", 0.0) if name == "sensor.elevation_offsets" else 0.0
+    ok = all(e <= success["parameter_within"] or abs(got[c] - v) <= slack for e, (c, v) in zip(errors, want.items()))
+    return max(errors), ok
 
 
 def resimulate(recording_path: Path, scenario, profile: str, effects, out: Path, seed: int) -> None:
@@ -73,20 +116,22 @@ def main() -> None:
     from lidar_weather_sim.scenario.schema import load_scenario
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=str(CASES), help="the committed draws (default: config/sensor_effect_cases.yaml)")
     parser.add_argument("--scenario", default="ouster_street", help="the twin's scenario (default: Ouster's mesh)")
     parser.add_argument("--recording", default=str(cache_dir() / "ouster_real" / "os1_128_street"))
     parser.add_argument("--limit", type=int, default=0, help="run only the first K draws of each profile and effect "
                                                             "(0: all)")
     parser.add_argument("--workers", type=int, default=0, help="the gap search's Dask workers (0: in this process)")
     args = parser.parse_args()
-    spec = yaml.safe_load(CASES.read_text())
+    cases_path = Path(args.cases)
+    spec = yaml.safe_load(cases_path.read_text())
     scenario = load_scenario(args.scenario)
     cases = draw_cases(spec)
     if args.limit:  # the first K draws of each profile and effect (and K clear cases)
         cases = [c for i, c in enumerate(cases) if sum(d[:2] == c[:2] for d in cases[:i]) < args.limit]
     budgets = {k: spec["measurement"][k] for k in ("fit_frames", "heldout_frames", "screen_frames")}
     within = spec["success"]["parameter_within"]
-    print(f"{len(cases)} cases from {CASES.name} (seed {spec['seed']}), scenario {scenario.name}, recording "
+    print(f"{len(cases)} cases from {cases_path.name} (seed {spec['seed']}), scenario {scenario.name}, recording "
           f"{args.recording}, budgets {budgets}")  # fmt: skip
     print(f"{'#':>3} {'profile':13} {'hidden':32} {'named':48} {'err':>7} {'gap before -> after':>20} ok")
     right: dict[str, list[bool]] = {}
@@ -100,14 +145,17 @@ def main() -> None:
                              workers=args.workers, **budgets)  # fmt: skip
             named = {e["name"]: e["params"] for e in result["effects"]}
             error = None
-            if name and name in named:
+            if name and name in named and EFFECTS[name].from_data:
+                error, ok = channel_error(name, value, str(named[name][EFFECTS[name].main]), spec["success"])
+                ok = ok and list(named) == [name]
+            elif name and name in named:
                 got = named[name][EFFECTS[name].main]
                 error = abs(got - value) / abs(value)
                 ok = list(named) == [name] and (error <= within or (name == "sensor.range_bias" and abs(got - value) <= 0.01))
             else:
                 ok = not named and name is None
             right.setdefault(f"{profile} {name or 'clear'}", []).append(ok)
-            hidden_text = f"{name}={value:.4g}" if name else "clear"
+            hidden_text = (f"{name}={value}" if isinstance(value, str) else f"{name}={value:.4g}") if name else "clear"
             named_text = ", ".join(f"{n}({format_params(p)})" for n, p in named.items()) or "nothing"
             print(f"{k:3d} {profile:13} {hidden_text:32} {named_text[:48]:48} "
                   f"{'' if error is None else f'{100 * error:6.1f}%':>7} "

@@ -227,4 +227,23 @@ def test_gap_reads_dead_channels_off_the_recording(highway, tmp_path):
     assert dead["gap_after"] <= 0.2 * dead["gap_before"]
     make_measured(vlp16, [], tmp_path / "clear", frames=16)
     clear = run_gap(tmp_path / "clear", vlp16, tmp_path / "gap_clear", **budgets)
-    assert "sensor.dead_channels" not in {e["name"] for e in clear["effects"] + clear["rejected"]}, clear
+    read_off = {"sensor.dead_channels", "sensor.weak_channels", "sensor.elevation_offsets"}
+    assert not read_off & {e["name"] for e in clear["effects"] + clear["rejected"]}, clear
+
+
+def test_gap_reads_weak_channels_and_elevation_offsets_off_the_recording(highway, tmp_path):
+    """A VLP-16 whose channel 5 has a third of its gain and whose channels 3 and 9 point 0.4 deg up and 0.3 deg
+    down: both are read off the recording and named first (gain within 5 %: intensity bytes are ~3.6 % apart;
+    offsets exact), then make-measured's own 2 cm range noise, and the gap closes."""
+    vlp16 = highway.model_copy(update={"sensor": highway.sensor.model_copy(update={"profile": "vlp16"})})
+    hidden = [parse_effect("sensor.weak_channels:gains=5:0.33"), parse_effect("sensor.elevation_offsets:offsets=3:0.4+9:-0.3")]
+    make_measured(vlp16, hidden, tmp_path / "measured", frames=16)
+    result = run_gap(tmp_path / "measured", vlp16, tmp_path / "gap", families=("sensor",), fit_frames=8,
+                     heldout_frames=8, screen_frames=2)  # fmt: skip
+    named = {e["name"]: e["params"] for e in result["effects"]}
+    assert set(named) == {"sensor.weak_channels", "sensor.elevation_offsets", "sensor.range_noise"}, result
+    assert named["sensor.elevation_offsets"] == {"offsets": "3:0.4+9:-0.3"}
+    channel, gain = named["sensor.weak_channels"]["gains"].split(":")
+    assert channel == "5" and abs(float(gain) / 0.33 - 1.0) < 0.05, named
+    assert abs(named["sensor.range_noise"]["sigma"] - 0.02) < 0.003  # make-measured's nuisance
+    assert result["gap_after"] <= 0.05 * result["gap_before"]

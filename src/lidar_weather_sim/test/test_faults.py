@@ -63,6 +63,21 @@ def test_random_dropout_keeps_its_share_of_beams_and_is_seeded(clear):
     assert not all(len(a) == len(b) and np.array_equal(a["x"], b["x"]) for a, b in zip(lossy, other))
 
 
+def test_a_weak_channel_reports_its_returns_weaker_by_its_gain_and_loses_the_faint_ones(clear):
+    weak = _frames(6, "vlp16", channel_gains={5: 0.25, 8: 0.05})
+    per_byte = np.log(1.0e4) / 255.0  # vlp16's intensity_dynamic_range
+    before = np.concatenate([p[p["channel"] == 5] for p in clear])
+    after = np.concatenate([p[p["channel"] == 5] for p in weak])
+    assert len(after) == len(before) > 5000  # the road near the car: strong enough to survive
+    unsaturated = (before["intensity"] < 250) & (before["intensity"] > 60)
+    drop = (before["intensity"][unsaturated].astype(float) - after["intensity"][unsaturated]) * per_byte
+    assert abs(np.median(drop) - np.log(4.0)) < 0.05, np.median(drop)  # ln(1 / 0.25), within ~1 intensity byte
+    n8 = [sum((p["channel"] == 8).sum() for p in frames) for frames in (clear, weak)]
+    assert 0.9 * n8[0] < n8[1] < 0.99 * n8[0], n8  # the faintest (far, dark) returns fall below the threshold
+    for c in (0, 3, 12):
+        assert sum((p["channel"] == c).sum() for p in weak) == sum((p["channel"] == c).sum() for p in clear)
+
+
 def test_a_periodic_mask_empties_the_first_frames_of_each_period():
     frames = _frames(8, mask_period_frames=4, mask_frames=2)
     assert [len(p) == 0 for p in frames] == [True, True, False, False] * 2
@@ -74,7 +89,9 @@ def test_a_periodic_mask_empties_the_first_frames_of_each_period():
     [({"dead_channels": [99]}, "dead_channels [99]: the profile has channels 0..3"),
      ({"blocked_sectors_deg": [[0, 200]]}, "outside -180..180"),
      ({"mask_period_frames": 2, "mask_frames": 2}, "must be below mask_period_frames"),
-     ({"dropout_probability": 1.5}, "dropout_probability")],
+     ({"dropout_probability": 1.5}, "dropout_probability"),
+     ({"channel_gains": {7: 0.5}}, "channel_gains [7]: the profile has channels 0..3"),
+     ({"channel_gains": {1: 1.5}}, "channel_gains: {1: 1.5}: channels from 0, gains 0-1")],
 )  # fmt: skip
 def test_impossible_faults_are_refused_naming_the_key(faults, reason):
     with pytest.raises(ConfigError, match="faults") as err:

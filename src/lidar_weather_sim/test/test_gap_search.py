@@ -72,7 +72,7 @@ def _frame(counts: dict[int, int]) -> np.ndarray:
 
 
 def test_dead_channels_are_the_silent_ones_the_model_sees():
-    from lidar_weather_sim.gap.dead_channels import dead_channels
+    from lidar_weather_sim.gap.channels import dead_channels
 
     simulated = [_frame({0: 100, 1: 100, 2: 100, 3: 4}) for _ in range(3)]
     measured = [_frame({0: 95, 1: 3, 2: 50, 3: 0}) for _ in range(3)]
@@ -93,3 +93,78 @@ def test_dead_channels_effect_parses_and_patches_the_faults_region():
     assert "faults" in patched.regions and patched.region_params["faults"]["dead_channels"] == [3, 17]
     with pytest.raises(ValueError, match="channel numbers from 0 joined by '\\+'"):
         parse_effect("sensor.dead_channels:channels=3+x")
+
+
+def test_effects_read_off_the_data_are_tried_first_and_must_earn_the_margin():
+    """A channel offset the recording shows is accepted before any fit (a fitted range noise would otherwise
+    win the first round and absorb it); one that does not shrink the held-out gap by the margin is not."""
+    offsets, weak = (parse_effect(t) for t in ("sensor.elevation_offsets:offsets=3:0.4", "sensor.weak_channels:gains=5:0.3"))
+    search = LandscapeSearch({_set(): 0.27, _set(offsets): 0.15, _set(offsets, weak): 0.148})
+    search.data_candidates = [offsets, weak]
+    diag = Diagnosis(0.27, 0.27)
+    current, accepted = search.data_round(diag, 0.27)
+    assert accepted == [offsets] and current == 0.15
+    assert [c.effect for c, _ in diag.accepted] == [offsets] and [c.heldout_gap for c in diag.rounds[0]] == [0.15, 0.148]
+
+
+def _channel_frames(rng, intensity_by_channel: dict[int, np.ndarray], frames: int = 3) -> list[np.ndarray]:
+    dtype = [("channel", "u2"), ("intensity", "u1")]
+    out = []
+    for _ in range(frames):
+        rows = [(c, i) for c, values in intensity_by_channel.items() for i in rng.permutation(values)]
+        out.append(np.array(rows, dtype=dtype))
+    return out
+
+
+@pytest.mark.parametrize("gain", [0.5, 0.2, 0.05])
+def test_weak_channels_give_the_gain_from_the_lost_share_or_the_intensity_shift(gain):
+    """Channel 2's returns made ``gain`` times weaker (survivors ln(gain) lower, the faintest lost), on top of an
+    intensity response every channel shares (+6 bytes): the gain comes back within 5 %, channel 2 alone."""
+    from lidar_weather_sim.gap.channels import weak_channels
+
+    rng = np.random.default_rng(4)
+    per_byte = np.log(1.0e4) / 255.0
+    simulated_bytes = {c: np.clip(rng.normal(110, 40, 400), 0, 255).round() for c in range(4)}
+
+    def measured(c):
+        values = simulated_bytes[c] + (np.log(gain) / per_byte if c == 2 else 0.0)
+        return np.clip(values[values >= 0] + 6.0, 0, 255).round()
+
+    sim = _channel_frames(np.random.default_rng(1), simulated_bytes)
+    meas = _channel_frames(np.random.default_rng(2), {c: measured(c) for c in range(4)})
+    found = weak_channels(meas, sim, 4, 1.0e4)
+    assert list(found) == [2] and abs(found[2] / gain - 1.0) < 0.05, found
+    assert weak_channels(sim, sim, 4, 1.0e4) == {}
+
+
+def test_elevation_offsets_are_the_median_departure_of_each_channel_from_the_table():
+    from lidar_weather_sim.gap.channels import elevation_offsets
+
+    rng = np.random.default_rng(5)
+    nominal = np.array([-15.0, -13.0, -11.0, -9.0])
+    true = np.array([0.0, 0.4, -0.01, -2.5])  # 0.01 deg: below MIN_OFFSET_DEG; -2.5 deg would pass below channel 2
+    n = 200
+    channel = np.repeat(np.arange(4), n)
+    rng_m, azimuth = rng.uniform(3.0, 40.0, 4 * n), rng.uniform(-np.pi, np.pi, 4 * n)
+    el = np.radians(nominal[channel] + true[channel] + rng.normal(0.0, 0.02, 4 * n))
+    points = np.zeros(4 * n, [("x", "f4"), ("y", "f4"), ("z", "f4"), ("channel", "u2")])
+    points["x"], points["y"] = rng_m * np.cos(el) * np.cos(azimuth), rng_m * np.cos(el) * np.sin(azimuth)
+    points["z"], points["channel"] = rng_m * np.sin(el), channel
+    found = elevation_offsets([points], nominal)
+    assert list(found) == [1] and abs(found[1] - 0.4) < 0.01, found
+
+
+def test_channel_value_effects_parse_patch_and_refuse_bad_pairs():
+    from lidar_weather_sim.gap.effects import apply_effects
+    from lidar_weather_sim.scenario.schema import load_scenario
+
+    weak = parse_effect("sensor.weak_channels:gains=17:0.25+3:0.5")
+    assert weak.label() == "sensor.weak_channels:gains=3:0.5+17:0.25"
+    offsets = parse_effect("sensor.elevation_offsets:offsets=2:-0.3")
+    patched = apply_effects(load_scenario("highway_clear"), [weak, offsets])
+    assert patched.region_params["faults"]["channel_gains"] == {3: 0.5, 17: 0.25}
+    assert patched.sensor.elevation_offsets_deg == {2: -0.3}
+    for bad in ("sensor.weak_channels:gains=3:1.5", "sensor.weak_channels:gains=3", "sensor.elevation_offsets:offsets=x:1",
+                "sensor.elevation_offsets:offsets=2:0.1+2:0.2"):
+        with pytest.raises(ValueError, match="must be CHANNEL:VALUE"):
+            parse_effect(bad)

@@ -83,3 +83,30 @@ def test_scan_pattern_columns_times_and_subray_weights():
     assert batch.directions.shape == (2, 3, 3, 3)
     np.testing.assert_allclose(np.linalg.norm(batch.directions, axis=-1), 1.0)
     assert list(pattern.columns_between(0.0, pattern.column_time_s[3])) == [0, 1, 2]
+
+
+def test_elevation_offsets_move_a_channel_in_the_cast_and_the_points_and_restart_takes_them_back():
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.scenario.world import World
+    from lidar_weather_sim.sim.simulator import LidarSimulator
+
+    world = World.build(load_scenario("highway_clear"), "vlp16")
+
+    def channel_elevation_and_range(sim, channel):
+        sim.restart()
+        points = sim.cast_frame(0, 0.0, world.player).points
+        mine = points[points["channel"] == channel]
+        el = np.degrees(np.arctan2(mine["z"], np.hypot(mine["x"], mine["y"])))
+        return float(np.median(el)), float(np.median(mine["distance"]))
+
+    sim = LidarSimulator.of_world(world, elevation_offsets_deg={3: 0.5})
+    raised, raised_range = channel_elevation_and_range(sim, 3)
+    sim.restart(elevation_offsets_deg={})
+    nominal, nominal_range = channel_elevation_and_range(sim, 3)
+    assert abs(nominal - (-9.0)) < 1e-3 and abs(raised - (-8.5)) < 1e-3, (nominal, raised)
+    # the road seen 0.5 deg higher from 1.9 m: farther, as 1 / sin(elevation)
+    assert raised_range / nominal_range == pytest.approx(np.sin(np.radians(9.0)) / np.sin(np.radians(8.5)), rel=0.02)
+    with pytest.raises(ConfigError, match=r"channels 2 and 3 would cross \(-11 and -11.5 deg\)"):
+        world.profile.with_elevation_offsets({3: -2.5})
+    with pytest.raises(ConfigError, match="channels \\[16\\] do not exist"):
+        world.profile.with_elevation_offsets({16: 0.1})

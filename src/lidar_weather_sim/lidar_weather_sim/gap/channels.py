@@ -1,11 +1,26 @@
-"""Dead channels read off a recording: the ``sensor.dead_channels`` candidate of the gap search.
+"""Per-channel departures read off a recording: the gap search's ``sensor.dead_channels``,
+``sensor.weak_channels`` and ``sensor.elevation_offsets`` candidates.
 
-A channel (scan-pattern row) is dead in the recording when the re-simulation of the same frames
-returns at least ``MIN_SIMULATED_PER_FRAME`` points on it per frame and the recording at most
-``MAX_MEASURED_SHARE`` of what the simulation has there: a channel the model sees but the unit does
-not report. The search then tries that one set (region ``faults``); it is kept only if it earns the
-same held-out margin as any other effect. Weak channels (a lower gain, not silence) are not named
-here: a channel with half its returns is left to the intensity and ray-drop effects.
+Each is proposed as one set, read off the calibration frames, and kept only if it earns the same held-out
+margin as any other effect. Channels are scan-pattern rows, 0 = lowest elevation.
+
+- **Dead**: the re-simulation of the same frames returns at least ``MIN_SIMULATED_PER_FRAME`` points per
+  frame on the channel and the recording at most ``MAX_MEASURED_SHARE`` of that: a channel the model sees
+  but the unit does not report.
+- **Weak** (a receiver with less gain ``g``, region ``faults``, ``channel_gains``): every return of the
+  channel is ``g`` times weaker. Points carry their peak ``A`` over the threshold ``T`` in their intensity
+  (0-255, logarithmic up to the profile's ``intensity_dynamic_range``): a return survives when ``g A >= T``
+  and is reported ``ln g`` lower. Against the re-simulated points of the same channel, ``g`` is found from
+  the share of returns the channel loses when that is more than what every channel loses (the median
+  channel: ray drop is not a weak channel), as the quantile of ``A / T`` that leaves the recording's share
+  above it; else (strong returns, e.g. the road near the car, all survive) from the median intensity,
+  less the median channel's shift (an intensity response every channel shares). Named when ``g`` is
+  ``MIN_GAIN``-``MAX_WEAK_GAIN``.
+- **Elevation offsets** (``sensor.elevation_offsets_deg``): the median elevation, atan2(z, hypot(x, y))
+  in the sensor frame, of the channel's recorded points at ``MIN_ELEVATION_RANGE_M`` or more (else all of
+  them) minus the profile's elevation for that channel, where it is at least ``MIN_OFFSET_DEG`` and the
+  channel has ``MIN_ELEVATION_POINTS`` points. Offsets that would move a channel past a neighbour are left
+  out (the channel's identity is then in doubt).
 """
 
 from __future__ import annotations
@@ -14,6 +29,11 @@ import numpy as np
 
 MIN_SIMULATED_PER_FRAME = 10.0
 MAX_MEASURED_SHARE = 0.05
+MAX_WEAK_GAIN = 0.8  # a channel at least this strong is not named weak
+MIN_GAIN = 0.02  # a weaker channel than this is as good as dead
+MIN_ELEVATION_POINTS = 20
+MIN_ELEVATION_RANGE_M = 5.0  # nearer points are used only when a channel has too few beyond
+MIN_OFFSET_DEG = 0.03
 
 
 def channel_counts(frames: list[np.ndarray], channels: int) -> np.ndarray:
@@ -24,11 +44,86 @@ def channel_counts(frames: list[np.ndarray], channels: int) -> np.ndarray:
     return counts
 
 
+def _seen(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int):
+    """(measured counts, simulated counts, channels the model sees well enough to judge), or None."""
+    if not measured or len(measured) != len(simulated):
+        return None
+    got, expected = channel_counts(measured, channels), channel_counts(simulated, channels)
+    return got, expected, expected >= MIN_SIMULATED_PER_FRAME * len(simulated)
+
+
 def dead_channels(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int) -> list[int]:
     """Channels the simulated frames return on (>= MIN_SIMULATED_PER_FRAME points per frame) and the
     measured frames, the same ones, (almost) never do (<= MAX_MEASURED_SHARE of the simulated count)."""
-    if not measured or len(measured) != len(simulated):
+    seen = _seen(measured, simulated, channels)
+    if seen is None:
         return []
-    got, expected = channel_counts(measured, channels), channel_counts(simulated, channels)
-    dead = (expected >= MIN_SIMULATED_PER_FRAME * len(simulated)) & (got <= MAX_MEASURED_SHARE * expected)
-    return [int(c) for c in np.flatnonzero(dead)]
+    got, expected, judged = seen
+    return [int(c) for c in np.flatnonzero(judged & (got <= MAX_MEASURED_SHARE * expected))]
+
+
+def weak_channels(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int,
+                  dynamic_range: float) -> dict[int, float]:  # fmt: skip
+    """Channel -> receiver gain (0-1) of the channels whose returns are weaker than the others' (module doc).
+    ``measured`` and ``simulated`` (the same frames re-simulated without effects): points with ``channel`` and
+    ``intensity``; ``dynamic_range``: the profile's ``detection.intensity_dynamic_range``."""
+    seen = _seen(measured, simulated, channels)
+    if seen is None:
+        return {}
+    got, expected, judged = seen
+    judged &= got > MAX_MEASURED_SHARE * expected  # dead ones are dead_channels'
+    if not judged.any():
+        return {}
+    per_byte = np.log(dynamic_range) / 255.0
+    log_measured, log_simulated = ([per_byte * np.concatenate([p["intensity"][p["channel"] == c] for p in frames])
+                                    .astype(np.float64) for c in range(channels)] for frames in (measured, simulated))  # fmt: skip
+    lost = 1.0 - got / np.maximum(expected, 1)
+    shift = np.array([np.median(log_measured[c]) - np.median(log_simulated[c]) if judged[c] and len(log_measured[c])
+                      else np.nan for c in range(channels)])  # fmt: skip
+    common_shift, common_lost = np.nanmedian(shift), np.median(lost[judged])  # what every channel shares
+    gains = {}
+    for c in np.flatnonzero(judged):
+        gain = _gain(log_measured[c] - common_shift, log_simulated[c], lost[c] - common_lost)
+        if MIN_GAIN <= gain <= MAX_WEAK_GAIN:
+            gains[int(c)] = round(gain, 4)
+    return gains
+
+
+def _gain(log_measured: np.ndarray, log_simulated: np.ndarray, lost: float) -> float:
+    """The gain g (0-1) under which the simulated log peak ratios ``log_simulated`` (ln A/T of each point)
+    match the measured ones: those with ln A/T + ln g >= 0 survive, shifted by ln g. Matched on the share
+    lost when the channel loses returns beyond what every channel does (``lost`` > MAX_MEASURED_SHARE),
+    else on the median."""
+    if lost > MAX_MEASURED_SHARE:
+        return float(min(1.0, 1.0 / np.exp(np.quantile(log_simulated, lost))))
+    grid = np.linspace(np.log(MIN_GAIN) - 0.1, 0.0, 400)
+    target = np.median(log_measured)
+    medians = np.array([np.median(kept) if len(kept := log_simulated[log_simulated + g >= 0] + g) else -np.inf
+                        for g in grid])  # fmt: skip
+    return float(np.exp(grid[int(np.argmin(np.abs(medians - target)))]))
+
+
+def elevation_offsets(measured: list[np.ndarray], nominal_deg: np.ndarray) -> dict[int, float]:
+    """Channel -> elevation offset (deg) of the measured points (sensor frame, with ``channel``) from the
+    profile's per-channel elevations ``nominal_deg`` (channel 0 first; module doc)."""
+    channels = len(nominal_deg)
+    if not measured:
+        return {}
+    points = np.concatenate([p[["x", "y", "z", "channel"]] for p in measured])
+    horizontal = np.hypot(points["x"].astype(np.float64), points["y"].astype(np.float64))
+    elevation = np.degrees(np.arctan2(points["z"].astype(np.float64), horizontal))
+    far = np.hypot(horizontal, points["z"]) >= MIN_ELEVATION_RANGE_M
+    channel = points["channel"].astype(np.int64)
+    offsets = np.zeros(channels)
+    for c in range(channels):
+        mine = channel == c
+        use = mine & far if np.count_nonzero(mine & far) >= MIN_ELEVATION_POINTS else mine
+        if np.count_nonzero(use) >= MIN_ELEVATION_POINTS:
+            offsets[c] = np.median(elevation[use]) - nominal_deg[c]
+    offsets[np.abs(offsets) < MIN_OFFSET_DEG] = 0.0
+    moved = np.asarray(nominal_deg, dtype=np.float64) + offsets
+    crossed = np.zeros(channels, bool)
+    crossed[:-1] |= np.diff(moved) < 0
+    crossed[1:] |= np.diff(moved) < 0
+    offsets[crossed] = 0.0
+    return {int(c): round(float(offsets[c]), 4) for c in np.flatnonzero(offsets)}

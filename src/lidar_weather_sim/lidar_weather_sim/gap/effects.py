@@ -22,8 +22,13 @@ sensor.ray_drop            probability     1, of a return at intensity 0; ``sens
 sensor.return_mode         mode            one of strongest, last, dual, first, all (chosen, not
                                            fitted); ``sensor.return_mode``
 sensor.dead_channels       channels        channels joined by ``+`` (e.g. ``3+17``), read off the
-                                           recording (:mod:`lidar_weather_sim.gap.dead_channels`);
+                                           recording (:mod:`lidar_weather_sim.gap.channels`);
                                            region ``faults``, ``dead_channels``
+sensor.weak_channels       gains           ``channel:gain`` joined by ``+`` (e.g. ``3:0.5+17:0.25``; gain
+                                           0-1 of the channel's receiver), read off the recording;
+                                           region ``faults``, ``channel_gains``
+sensor.elevation_offsets   offsets         ``channel:deg`` joined by ``+`` (e.g. ``3:0.2+17:-0.15``),
+                                           read off the recording; ``sensor.elevation_offsets_deg``
 =========================  ==============  ==================================================
 
 The ``sensor.intensity_*``, ``range_*`` and ``ray_drop`` effects are the unit's own departures from
@@ -31,7 +36,8 @@ the model (:mod:`lidar_weather_sim.sensor.response`), family ``sensor``, with th
 driver was set to; the others are the ``weather`` family (the sun included: it is light from outside).
 The return mode is *categorical*: its main parameter is one of the spec's ``choices``, which the
 search tries one by one (:func:`search_grid` gives their indices) instead of fitting a number. The dead
-channels are *read off the data*: the search proposes the one set the recording shows and tries it.
+and weak channels and the elevation offsets are *read off the data*: the search proposes the one set the
+recording shows and tries it.
 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
 unless ``atmosphere.road_wet`` is applied too) and does not feed spray, and snow falls without
@@ -90,6 +96,9 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor.return_mode", "mode", "", (0.0, len(RETURN_MODES) - 1.0), False, family="sensor",
                    choices=RETURN_MODES),
         EffectSpec("sensor.dead_channels", "channels", "", (0.0, 0.0), False, family="sensor", from_data=True),
+        EffectSpec("sensor.weak_channels", "gains", "", (0.0, 0.0), False, family="sensor", from_data=True),
+        EffectSpec("sensor.elevation_offsets", "offsets", "deg", (0.0, 0.0), False, family="sensor",
+                   from_data=True),
     )
 }
 FAMILIES = ("weather", "sensor")
@@ -158,7 +167,8 @@ def parse_effect(text: str) -> Effect:
             params[key] = value
             continue
         if key == spec.main and spec.from_data:
-            params[key] = "+".join(str(c) for c in parse_channels(value, text))
+            params[key] = (format_channel_values(parse_channel_values(name, value, text)) if name in CHANNEL_VALUES
+                           else "+".join(str(c) for c in parse_channels(value, text)))  # fmt: skip
             continue
         if key == spec.main and spec.categorical:
             if value not in spec.choices:
@@ -188,6 +198,34 @@ def parse_effect(text: str) -> Effect:
         else:
             raise ValueError(f"--hide {text!r}: effect '{name}' needs its main parameter '{spec.main}' ({spec.unit})")
     return Effect(name, params)
+
+
+#: effects read off the data whose main parameter is ``channel:value`` pairs -> (what the value is, its bounds)
+CHANNEL_VALUES = {"sensor.weak_channels": ("a gain", (0.0, 1.0)),
+                  "sensor.elevation_offsets": ("an offset in deg", (-10.0, 10.0))}  # fmt: skip
+
+
+def parse_channel_values(name: str, value: str, text: str = "") -> dict[int, float]:
+    """``3:0.5+17:0.25`` -> {3: 0.5, 17: 0.25} for effect ``name`` (:data:`CHANNEL_VALUES`); ValueError naming
+    ``text`` when a pair is not a channel from 0 and a value within the effect's bounds."""
+    what, (lo, hi) = CHANNEL_VALUES[name]
+    out: dict[int, float] = {}
+    for pair in value.split("+"):
+        channel, colon, number = pair.partition(":")
+        try:
+            c, v = int(channel), float(number)
+        except ValueError:
+            c, v = -1, float("nan")
+        if not colon or c < 0 or c in out or not lo <= v <= hi:
+            raise ValueError(f"--hide {text or value!r}: '{pair}' must be CHANNEL:VALUE, a channel from 0 (once) "
+                             f"and {what} within [{lo:g}, {hi:g}] (e.g. 3:0.5+17:0.25)")  # fmt: skip
+        out[c] = v
+    return dict(sorted(out.items()))
+
+
+def format_channel_values(values: dict[int, float]) -> str:
+    """{3: 0.5, 17: 0.25} -> ``3:0.5+17:0.25`` (channels in order)."""
+    return "+".join(f"{c}:{v:g}" for c, v in sorted(values.items()))
 
 
 def parse_channels(value: str, text: str = "") -> list[int]:
@@ -251,6 +289,12 @@ def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: s
     for e in effects:
         if e.name == "sensor.dead_channels":
             region("faults")["dead_channels"] = parse_channels(str(e.params["channels"]))
+            continue
+        if e.name == "sensor.weak_channels":
+            region("faults")["channel_gains"] = parse_channel_values(e.name, str(e.params["gains"]))
+            continue
+        if e.name == "sensor.elevation_offsets":
+            data["sensor"]["elevation_offsets_deg"] = parse_channel_values(e.name, str(e.params["offsets"]))
             continue
         if e.spec.categorical:  # the return mode
             data["sensor"]["return_mode"] = e.params[e.spec.main]

@@ -6,7 +6,12 @@
    ``heldout_frames`` held-out frames for every decision.
 2. The gap is :func:`lidar_weather_sim.gap.signatures.gap_value` between the measured frames
    and the same frames re-simulated from the recorded poses (:mod:`lidar_weather_sim.gap.resim`).
-3. Each round, every candidate effect the model knows (:data:`lidar_weather_sim.gap.effects.EFFECTS`;
+3. With the sensor family, the effects read off the recording (dead and weak channels, elevation offsets:
+   :mod:`lidar_weather_sim.gap.channels`) are tried first, each in turn on the held-out frames under the
+   rule of step 4: they are what the data shows, not fits, and a fitted effect accepted before them can
+   absorb their residual at a wrong value (a wide range noise smearing an offset channel's ranges), after
+   which they no longer earn the margin. One that does not earn it is tried again in the rounds.
+   Each round, every candidate effect the model knows (:data:`lidar_weather_sim.gap.effects.EFFECTS`;
    spray once per vehicle of the scenario) that does not conflict with those already
    accepted is screened: its main parameter is tried on a grid of ``grid`` values over its
    bounds (log-spaced where the effect spans decades) on ``screen_frames`` of the
@@ -42,8 +47,16 @@ from scipy.optimize import minimize_scalar
 
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
-from lidar_weather_sim.gap.dead_channels import dead_channels
-from lidar_weather_sim.gap.effects import EFFECTS, FAMILIES, Effect, conflicts, search_grid, spray_candidates
+from lidar_weather_sim.gap.channels import dead_channels, elevation_offsets, weak_channels
+from lidar_weather_sim.gap.effects import (
+    EFFECTS,
+    FAMILIES,
+    Effect,
+    conflicts,
+    format_channel_values,
+    search_grid,
+    spray_candidates,
+)
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.signatures import gap_value, residual_histogram, systematic_bray_curtis
@@ -155,16 +168,28 @@ class GapSearch:
 
     @functools.cached_property
     def data_candidates(self) -> list[Effect]:
-        """Effects whose value the calibration frames show (:mod:`lidar_weather_sim.gap.dead_channels`): the
-        recording against its re-simulation without effects; sensor family only. Computed on first use, by
-        the driver's rounds (a worker that only evaluates gaps never pays the extra re-simulation)."""
+        """Effects whose value the calibration frames show (:mod:`lidar_weather_sim.gap.channels`: dead and
+        weak channels, elevation offsets): the recording against its re-simulation without effects and the
+        profile's elevation table; sensor family only. Computed on first use, by the driver's rounds (a worker
+        that only evaluates gaps never pays the extra re-simulation)."""
         if "sensor" not in self.families:
             return []
         keep = self.keep("fit") or (lambda points: np.ones(len(points), bool))
-        measured = [self.resim.recording.frames[i].points for i in sorted(self.fit_idx)]
-        simulated = self.resim.frames([], self.fit_idx)
-        dead = dead_channels([m[keep(m)] for m in measured], [s[keep(s)] for s in simulated], self.resim.channels)
-        return [Effect("sensor.dead_channels", {"channels": "+".join(map(str, dead))})] if dead else []
+        measured = [m[keep(m)] for m in (self.resim.recording.frames[i].points for i in sorted(self.fit_idx))]
+        simulated = [s[keep(s)] for s in self.resim.frames([], self.fit_idx)]
+        profile, channels = self.resim.world.profile, self.resim.channels
+        out = []
+        dead = dead_channels(measured, simulated, channels)
+        if dead:
+            out.append(Effect("sensor.dead_channels", {"channels": "+".join(map(str, dead))}))
+        weak = weak_channels(measured, simulated, channels, profile.detection.intensity_dynamic_range)
+        if weak:
+            out.append(Effect("sensor.weak_channels", {"gains": format_channel_values(weak)}))
+        nominal = np.array([b.elevation_deg for b in profile.beams])[profile.channel_order]
+        offsets = elevation_offsets(measured, nominal)
+        if offsets:
+            out.append(Effect("sensor.elevation_offsets", {"offsets": format_channel_values(offsets)}))
+        return out
 
     def _splits(self) -> dict[str, list[int]]:
         return {"screen": self.screen_idx, "fit": self.fit_idx, "heldout": self.held_idx}
@@ -306,6 +331,7 @@ class GapSearch:
         diag = Diagnosis(before, before, fit_indices=self.fit_idx, heldout_indices=self.held_idx)
         current, accepted = before, []
         self.progress(f"gap before: {before:.4f}")
+        current, accepted = self.data_round(diag, current)
         while True:
             fitted = self.run_round(accepted)
             if not fitted:
@@ -334,6 +360,24 @@ class GapSearch:
             diag.rejected = [c for c in fitted if c is not best]
         diag.gap_after = self.prune(diag, current)
         return diag
+
+    def data_round(self, diag: Diagnosis, current: float) -> tuple[float, list[Effect]]:
+        """Step 3's first trial of the effects read off the data, in turn, each accepted under the rule of
+        step 4 on the held-out frames; returns the held-out gap and the effects accepted."""
+        accepted: list[Effect] = []
+        tried = []
+        for effect in self.data_candidates:
+            held = self.gap(accepted + [effect], "heldout")
+            self.progress(f"{effect.label()} (read off the recording): held-out gap {held:.4f}")
+            candidate = Candidate(effect, float("nan"), held, 1)
+            tried.append(candidate)
+            if held <= min(current * (1.0 - self.min_gain), current - self.min_abs_gain):
+                diag.accepted.append((candidate, current))
+                accepted.append(effect)
+                current = held
+        if tried:
+            diag.rounds.append(tried)
+        return current, accepted
 
     def prune(self, diag: Diagnosis, current: float) -> float:
         """Backward elimination: an accepted effect stays only if the held-out gap without it (the

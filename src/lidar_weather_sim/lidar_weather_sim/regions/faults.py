@@ -7,6 +7,9 @@ in every shipped profile) are not faulted. Angles are in the sensor frame (REP-1
 x, counter-clockwise positive, degrees); frames count from 0 in the run.
 
 - ``dead_channels``: channels (rows of the scan pattern) that output nothing;
+- ``channel_gains``: weak channels, channel -> gain (0-1) of its receiver: every return on the channel
+  (scene and scatterers) is that much weaker (one-way transmission sqrt(gain)), so the faint ones fall
+  below the threshold;
 - ``blocked_sectors_deg``: azimuth sectors ``[from, to]`` (a sector with from > to wraps through
   +-180) whose sub-rays keep ``blocked_transmission`` of their light (0: nothing; e.g. a sticker or
   a mount bracket in front of the cover);
@@ -30,6 +33,8 @@ from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect
 
 class FaultParams(ConfigModel):
     dead_channels: list[int] = Field(default_factory=list, description="Channels (scan-pattern rows, from 0) with no output")
+    channel_gains: dict[int, float] = Field(default_factory=dict, description="Weak channels: channel -> receiver gain "
+                                            "(0-1; every return on it that much weaker)")  # fmt: skip
     blocked_sectors_deg: list[tuple[float, float]] = Field(
         default_factory=list, description="Sensor-frame azimuth sectors [from, to] (deg, -180..180; from > to wraps "
                                           "through 180) whose light is blocked")  # fmt: skip
@@ -46,6 +51,9 @@ class FaultParams(ConfigModel):
                 raise ValueError(f"blocked_sectors_deg.{k}: [{lo}, {hi}] outside -180..180 deg")
         if any(c < 0 for c in self.dead_channels):
             raise ValueError(f"dead_channels: {self.dead_channels} has a negative channel")
+        bad = {c: g for c, g in self.channel_gains.items() if c < 0 or not 0.0 <= g <= 1.0}
+        if bad:
+            raise ValueError(f"channel_gains: {bad}: channels from 0, gains 0-1")
         if self.mask_period_frames and self.mask_frames >= self.mask_period_frames:
             raise ValueError(f"mask_frames {self.mask_frames} must be below mask_period_frames "
                              f"{self.mask_period_frames} (else every frame is empty)")  # fmt: skip
@@ -59,9 +67,12 @@ class FaultRegion:
     def __init__(self, params: FaultParams, context: RegionContext) -> None:
         self.p = params
         n_channels = len(context.profile.beams)
-        if any(c >= n_channels for c in params.dead_channels):
-            raise ConfigError(f"region 'faults': dead_channels {params.dead_channels}: the profile has channels "
-                              f"0..{n_channels - 1}")  # fmt: skip
+        for key, channels in (("dead_channels", params.dead_channels), ("channel_gains", list(params.channel_gains))):
+            if any(c >= n_channels for c in channels):
+                raise ConfigError(f"region 'faults': {key} {channels}: the profile has channels 0..{n_channels - 1}")
+        self._one_way = np.ones(n_channels)  # per channel: sqrt of its receiver gain
+        for channel, gain in params.channel_gains.items():
+            self._one_way[channel] = np.sqrt(gain)
 
     def step(self, t0_s: float, t1_s: float) -> None:
         """Faults do not evolve in time (the periodic mask counts frames)."""
@@ -83,4 +94,6 @@ class FaultRegion:
             transmission[blocked] = np.minimum(transmission[blocked], p.blocked_transmission)
         if p.dropout_probability > 0:
             transmission[rng.random(n) < p.dropout_probability] = 0.0
+        if p.channel_gains:
+            transmission *= self._one_way[batch.channel][:, None]
         return RegionEffect(transmission=transmission)

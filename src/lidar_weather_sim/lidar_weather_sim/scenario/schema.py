@@ -117,6 +117,9 @@ class SensorSetup(ConfigModel):
     response: SensorResponse = Field(
         default_factory=SensorResponse, description="How this unit's output departs from the sensor model after "
                                                      "detection (intensity response, range bias and noise, ray drop)")  # fmt: skip
+    elevation_offsets_deg: dict[int, float] = Field(
+        default_factory=dict, description="Channel (0 = lowest) -> degrees its beam points, and is reported, above "
+                                          "the profile's elevation table (a unit off its nominal calibration)")  # fmt: skip
 
 
 class TrajectoryPose(ConfigModel):

@@ -134,6 +134,31 @@ class SensorProfile(ConfigModel):
     def period_s(self) -> float:
         return 1.0 / self.scan.frame_rate_hz
 
+    def with_elevation_offsets(self, offsets_deg: dict[int, float]) -> "SensorProfile":
+        """This profile with channel ``c``'s beam raised by ``offsets_deg[c]`` (deg; channel 0 = lowest): a unit
+        whose beams point, and whose driver reports them, off the nominal table. ConfigError naming the channel
+        when it does not exist or when an offset would move a beam past a neighbour (channels keep their order)."""
+        if not offsets_deg:
+            return self
+        order = self.channel_order
+        bad = sorted(c for c in offsets_deg if not 0 <= c < len(order))
+        if bad:
+            raise ConfigError(f"elevation_offsets_deg: channels {bad} do not exist (the profile has channels "
+                              f"0..{len(order) - 1})")  # fmt: skip
+        elevation = np.array([b.elevation_deg for b in self.beams], dtype=np.float64)
+        for channel, offset in offsets_deg.items():
+            elevation[order[channel]] += offset
+        moved = elevation[order]
+        if np.any(np.abs(moved) > 90):
+            c = int(np.argmax(np.abs(moved)))
+            raise ConfigError(f"elevation_offsets_deg: channel {c} would point at {moved[c]:.4g} deg, beyond +-90 deg")
+        if np.any(np.diff(moved) < 0):
+            c = int(np.argmax(np.diff(moved) < 0))
+            raise ConfigError(f"elevation_offsets_deg: channels {c} and {c + 1} would cross ({moved[c]:.4g} and "
+                              f"{moved[c + 1]:.4g} deg): offsets must keep the channels' order")  # fmt: skip
+        beams = [b.model_copy(update={"elevation_deg": float(e)}) for b, e in zip(self.beams, elevation)]
+        return self.model_copy(update={"beams": beams})
+
     def with_return_mode(self, mode: str) -> "SensorProfile":
         """This profile reporting ``mode`` (one of :data:`~lidar_weather_sim.core.names.RETURN_MODES`; else a
         ConfigError naming ``return_mode`` and the valid modes)."""

@@ -77,10 +77,12 @@ class PoseSource(Protocol):
 
 def scenario_settings(scenario) -> dict:
     """What the simulator takes from a scenario besides its world: ``seed``, ``sun_irradiance_w_m2``
-    (W/m^2, from ``weather.sun``) and ``response`` (``sensor.response``), as keyword arguments of
-    :class:`LidarSimulator` and :meth:`~LidarSimulator.restart`."""
+    (W/m^2, from ``weather.sun``), ``response`` (``sensor.response``) and ``elevation_offsets_deg``
+    (``sensor.elevation_offsets_deg``), as keyword arguments of :class:`LidarSimulator` and
+    :meth:`~LidarSimulator.restart`."""
     return {"seed": int(scenario.seed), "sun_irradiance_w_m2": float(scenario.weather.sun.irradiance_w_m2),
-            "response": scenario.sensor.response}  # fmt: skip
+            "response": scenario.sensor.response,
+            "elevation_offsets_deg": dict(scenario.sensor.elevation_offsets_deg)}  # fmt: skip
 
 
 @dataclass
@@ -108,7 +110,9 @@ class LidarSimulator:
     :class:`~lidar_weather_sim.scenario.world.World` - and shared by every simulator of it); without
     one the scene's caster on ``backend`` is built here. ``scene`` gives the material table and the
     actors' labels; ``sun_irradiance_w_m2`` (W/m^2) raises the noise floor; ``response`` is the unit's
-    departure from the model after detection (:mod:`lidar_weather_sim.sensor.response`); ``seed`` seeds
+    departure from the model after detection (:mod:`lidar_weather_sim.sensor.response`);
+    ``elevation_offsets_deg`` (channel -> deg) raises channels off the profile's table
+    (:meth:`~lidar_weather_sim.sensor.profile.SensorProfile.with_elevation_offsets`); ``seed`` seeds
     every random stream (same seed and poses, same clouds).
     """
 
@@ -123,12 +127,14 @@ class LidarSimulator:
         seed: int = 0,
         sun_irradiance_w_m2: float = 0.0,
         response: SensorResponse | None = None,
+        elevation_offsets_deg: dict[int, float] | None = None,
         ground_truth: bool = True,
         max_catch_up_frames: int = 10,
     ) -> None:
-        self.profile = profile
-        self.pattern = ScanPattern(profile)
-        self._column_times = self.pattern.column_time_s.tolist()  # for bisect (s)
+        self._nominal_profile = profile  # the profile's own elevation table (offsets apply to it)
+        self.elevation_offsets_deg: dict[int, float] = {}
+        self._set_profile(profile.with_elevation_offsets(elevation_offsets_deg or {}))
+        self.elevation_offsets_deg = dict(elevation_offsets_deg or {})
         self.scene = scene
         self.caster = scene.caster(backend) if caster is None else caster
         self.regions = list(regions or [])
@@ -148,7 +154,6 @@ class LidarSimulator:
             self._actor_label[actor_id] = label
         self._frame: _FrameAccumulator | None = None
         self._last_time_s: float | None = None
-        self._geo: tuple[np.ndarray, ...] | None = None  # see _point_tables
         self._scratch = workers.Scratch()  # per-batch temporaries, reused
         self._noise = Reseedable()  # the receiver's noise streams (region_rng's), seeded per batch
         self._region_time_s: float | None = None  # simulated time the regions were last stepped to
@@ -163,6 +168,13 @@ class LidarSimulator:
         return cls(world.profile, world.scene, caster=world.caster(backend),
                    regions=world.regions() if regions is None else regions, **settings)  # fmt: skip
 
+    def _set_profile(self, profile: SensorProfile) -> None:
+        """Use ``profile`` (its scan pattern and point tables built anew)."""
+        self.profile = profile
+        self.pattern = ScanPattern(profile)
+        self._column_times = self.pattern.column_time_s.tolist()  # for bisect (s)
+        self._geo: tuple[np.ndarray, ...] | None = None  # see _point_tables
+
     # -- receiver ----------------------------------------------------------------
     def threshold(self) -> Threshold:
         """Noise mean and sigma raised by background light (sun irradiance, W/m^2)."""
@@ -174,10 +186,11 @@ class LidarSimulator:
     # -- time ----------------------------------------------------------------------
     def restart(self, *, regions: list[tuple[str, Region]] | None = None, sun_irradiance_w_m2: float | None = None,
                 seed: int | None = None, response: SensorResponse | None = None,
-                return_mode: str | None = None) -> None:  # fmt: skip
+                return_mode: str | None = None, elevation_offsets_deg: dict[int, float] | None = None) -> None:  # fmt: skip
         """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2), seed,
-        sensor response and return mode (:data:`~lidar_weather_sim.core.names.RETURN_MODES`) where given. The scene and its caster stay (no rebuild): re-simulating the same frames with
-        other weather costs only the casts."""
+        sensor response, return mode (:data:`~lidar_weather_sim.core.names.RETURN_MODES`) and the channels'
+        elevation offsets (channel -> deg, on the profile's own table; {}: none) where given. The scene and
+        its caster stay (no rebuild): re-simulating the same frames with other weather costs only the casts."""
         self._frame = None
         self._last_time_s = None
         self._region_time_s = None
@@ -189,6 +202,10 @@ class LidarSimulator:
             self.seed = int(seed)
         if response is not None:
             self.response = response
+        if elevation_offsets_deg is not None and dict(elevation_offsets_deg) != self.elevation_offsets_deg:
+            mode = self.profile.detection.return_mode
+            self._set_profile(self._nominal_profile.with_elevation_offsets(elevation_offsets_deg).with_return_mode(mode))
+            self.elevation_offsets_deg = dict(elevation_offsets_deg)
         if return_mode is not None and return_mode != self.profile.detection.return_mode:
             self.profile = self.profile.with_return_mode(return_mode)
 
