@@ -145,3 +145,28 @@ def test_the_real_street_is_cast_from_the_recorded_poses():
     # the mesh misses ~9 % of the returns and adds some where the sensor saw nothing (ouster_import)
     assert 0.7 < len(simulated) / len(measured) < 1.3
     assert np.median(simulated["distance"]) == pytest.approx(np.median(measured["distance"]), rel=0.2)
+
+
+def test_the_beams_origin_read_off_the_real_points_is_ousters_own():
+    """The real OS1-128's points are in Ouster's sensor frame: its beams fire from 36.18 mm above it
+    (lidar_to_sensor_transform) and 15.8 mm off the axis (lidar_origin_to_beam_origin_mm). Read off the points'
+    elevations alone (gap.channels.beam_origin), both come back within 1 mm, against the unit's own metadata;
+    with them taken out no channel shows an elevation offset (the profile's table is the unit's)."""
+    _street_cache()
+    import json
+
+    from lidar_weather_sim.gap.channels import beam_origin, elevation_offsets
+    from lidar_weather_sim.io.ouster_import import MEMBERS, _read_members, default_sdist
+    from lidar_weather_sim.io.ouster_pcap import OusterMetadata
+    from lidar_weather_sim.io.recording import Recording
+    from lidar_weather_sim.sensor.profile import load_profile
+
+    meta = OusterMetadata.from_json(json.loads(_read_members(default_sdist())["metadata"]), MEMBERS["metadata"])
+    recording = Recording.load(cache_dir() / STREET_BAG)
+    profile = load_profile("os1_128_1024")
+    nominal = np.array([b.elevation_deg for b in profile.beams])[profile.channel_order]
+    points = [frame.points for frame in recording.frames]
+    up, radial = beam_origin(points, nominal)
+    assert abs(up - meta.lidar_to_sensor[2, 3] / 1000.0) < 1e-3, (up, meta.lidar_to_sensor[2, 3])
+    assert abs(radial - meta.beam_origin_mm[0] / 1000.0) < 1e-3, (radial, meta.beam_origin_mm)
+    assert elevation_offsets(points, nominal) == {}

@@ -110,3 +110,26 @@ def test_elevation_offsets_move_a_channel_in_the_cast_and_the_points_and_restart
         world.profile.with_elevation_offsets({3: -2.5})
     with pytest.raises(ConfigError, match="channels \\[16\\] do not exist"):
         world.profile.with_elevation_offsets({16: 0.1})
+
+
+def test_a_beams_origin_off_the_point_frame_moves_the_cast_and_is_read_back_off_the_points():
+    """Beams fired from 36 mm above and 16 mm out of the frame the points are reported in (as a real Ouster's):
+    the points' elevations give both back within 1 mm, no channel offsets; the road seen from 36 mm higher
+    lies farther, and restart puts the origin back."""
+    from lidar_weather_sim.gap.channels import beam_origin, elevation_offsets
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.scenario.world import World
+    from lidar_weather_sim.sim.simulator import LidarSimulator
+
+    world = World.build(load_scenario("highway_clear"), "vlp16")
+    nominal = np.array([b.elevation_deg for b in world.profile.beams])[world.profile.channel_order]
+    sim = LidarSimulator.of_world(world, beam_origin_m=(0.016, 0.036))
+    moved = sim.cast_frame(0, 0.0, world.player).points
+    up, radial = beam_origin([moved], nominal)
+    assert abs(up - 0.036) < 1e-3 and abs(radial - 0.016) < 1e-3, (up, radial)
+    assert elevation_offsets([moved], nominal) == {}
+    sim.restart(beam_origin_m=(0.0, 0.0))
+    plain = sim.cast_frame(0, 0.0, world.player).points
+    assert beam_origin([plain], nominal) == (0.0, 0.0)
+    lowest = [np.median(p["distance"][p["channel"] == 0]) for p in (moved, plain)]
+    assert lowest[0] > lowest[1] + 0.05, lowest  # -15 deg from ~1.9 m: the road ~0.14 m farther (less the 16 mm)

@@ -1,5 +1,6 @@
 """Per-channel departures read off a recording: the gap search's ``sensor.dead_channels``,
-``sensor.weak_channels`` and ``sensor.elevation_offsets`` candidates.
+``sensor.weak_channels`` and ``sensor.elevation_offsets`` candidates, and the beams' origin
+(``sensor.beam_origin`` and ``sensor.beam_origin_radial``) those are read with.
 
 Each is proposed as one set, read off the calibration frames, and kept only if it earns the same held-out
 margin as any other effect. Channels are scan-pattern rows, 0 = lowest elevation.
@@ -16,10 +17,16 @@ margin as any other effect. Channels are scan-pattern rows, 0 = lowest elevation
   above it; else (strong returns, e.g. the road near the car, all survive) from the median intensity,
   less the median channel's shift (an intensity response every channel shares). Named when ``g`` is
   ``MIN_GAIN``-``MAX_WEAK_GAIN``.
-- **Elevation offsets** (``sensor.elevation_offsets_deg``): the median elevation, atan2(z, hypot(x, y))
-  in the sensor frame, of the channel's recorded points at ``MIN_ELEVATION_RANGE_M`` or more (else all of
-  them) minus the profile's elevation for that channel, where it is at least ``MIN_OFFSET_DEG`` and the
-  channel has ``MIN_ELEVATION_POINTS`` points. Offsets that would move a channel past a neighbour are left
+- **Elevation offsets** (``sensor.elevation_offsets_deg``): the median departure of the elevation,
+  atan2(z, hypot(x, y)) in the sensor frame, of the channel's recorded points at ``MIN_ELEVATION_RANGE_M``
+  or more from the profile's elevation for that channel, where it is at least ``MIN_OFFSET_DEG`` and the
+  channel has ``MIN_ELEVATION_POINTS`` points. A points' frame whose origin is not the beams' (the
+  ``sensor.beam_origin`` effects: dz above it, b off the spin axis; a real Ouster's points lie a few cm
+  below and inside its beams' origin) moves every point by (dz cos(e) - b sin(e)) / r in elevation, which
+  falls with range: that term, common to all channels, is fitted first and removed, so it is not taken for
+  offsets; the fit (:func:`beam_origin`) is proposed as the two beam-origin effects' starting values (on the
+  real OS1-128 recording it reads 36.2 mm up and 15.8 mm out: Ouster's os_sensor frame below os_lidar, and
+  its lidar_origin_to_beam_origin_mm). Offsets that would move a channel past a neighbour are left
   out (the channel's identity is then in doubt).
 """
 
@@ -32,8 +39,9 @@ MAX_MEASURED_SHARE = 0.05
 MAX_WEAK_GAIN = 0.8  # a channel at least this strong is not named weak
 MIN_GAIN = 0.02  # a weaker channel than this is as good as dead
 MIN_ELEVATION_POINTS = 20
-MIN_ELEVATION_RANGE_M = 5.0  # nearer points are used only when a channel has too few beyond
+MIN_ELEVATION_RANGE_M = 3.0
 MIN_OFFSET_DEG = 0.03
+MIN_ORIGIN_M = 0.002  # a beams' origin nearer than this to the points' frame is not proposed
 
 
 def channel_counts(frames: list[np.ndarray], channels: int) -> np.ndarray:
@@ -103,23 +111,58 @@ def _gain(log_measured: np.ndarray, log_simulated: np.ndarray, lost: float) -> f
     return float(np.exp(grid[int(np.argmin(np.abs(medians - target)))]))
 
 
-def elevation_offsets(measured: list[np.ndarray], nominal_deg: np.ndarray) -> dict[int, float]:
-    """Channel -> elevation offset (deg) of the measured points (sensor frame, with ``channel``) from the
-    profile's per-channel elevations ``nominal_deg`` (channel 0 first; module doc)."""
+def _elevation_fit(measured: list[np.ndarray], nominal_deg: np.ndarray):
+    """The measured points' elevation departures from the table and the beams' origin fitted to them (module
+    doc): (channel of each point, departure (rad), the two levers (2, n), points used, points per channel,
+    (dz, b) in m); None without enough points."""
     channels = len(nominal_deg)
     if not measured:
-        return {}
+        return None
     points = np.concatenate([p[["x", "y", "z", "channel"]] for p in measured])
-    horizontal = np.hypot(points["x"].astype(np.float64), points["y"].astype(np.float64))
-    elevation = np.degrees(np.arctan2(points["z"].astype(np.float64), horizontal))
-    far = np.hypot(horizontal, points["z"]) >= MIN_ELEVATION_RANGE_M
-    channel = points["channel"].astype(np.int64)
+    x, y, z = (points[k].astype(np.float64) for k in ("x", "y", "z"))
+    horizontal = np.hypot(x, y)
+    distance = np.hypot(horizontal, z)
+    channel = np.clip(points["channel"].astype(np.int64), 0, channels - 1)
+    nominal = np.radians(np.asarray(nominal_deg, dtype=np.float64))
+    departure = np.arctan2(z, horizontal) - nominal[channel]
+    # a beams' origin dz above the points' frame and b off its axis moves a point at range r by
+    # (dz cos(e) - b sin(e)) / r in elevation: common to every channel, fitted once within each channel (so the
+    # channels' own offsets do not enter)
+    levers = np.stack([np.cos(nominal[channel]), -np.sin(nominal[channel])]) / np.maximum(distance, 1e-3)
+    ok = distance >= MIN_ELEVATION_RANGE_M
+    counts = np.bincount(channel[ok], minlength=channels)
+    used = ok & (counts[channel] >= MIN_ELEVATION_POINTS)
+    if not used.any():
+        return None
+
+    def centred(v: np.ndarray) -> np.ndarray:
+        return v[used] - (np.bincount(channel[used], v[used], channels) / np.maximum(counts, 1))[channel[used]]
+
+    a = np.stack([centred(lever) for lever in levers], axis=1)
+    origin = np.linalg.lstsq(a, centred(departure), rcond=None)[0] if np.linalg.matrix_rank(a) == 2 else np.zeros(2)
+    return channel, departure, levers, used, counts, origin
+
+
+def beam_origin(measured: list[np.ndarray], nominal_deg: np.ndarray) -> tuple[float, float]:
+    """(dz, b) in m: the beams' origin above and off the axis of the measured points' frame, from how their
+    elevation departs from the table ``nominal_deg`` with range (module doc); (0, 0) without enough points."""
+    fit = _elevation_fit(measured, nominal_deg)
+    return (0.0, 0.0) if fit is None else (round(float(fit[5][0]), 5), round(float(fit[5][1]), 5))
+
+
+def elevation_offsets(measured: list[np.ndarray], nominal_deg: np.ndarray) -> dict[int, float]:
+    """Channel -> elevation offset (deg) of the measured points (sensor frame, with ``channel``) from the
+    profile's per-channel elevations ``nominal_deg`` (channel 0 first), the beams' origin term removed
+    (module doc)."""
+    fit = _elevation_fit(measured, nominal_deg)
+    if fit is None:
+        return {}
+    channel, departure, levers, used, counts, origin = fit
+    channels = len(nominal_deg)
+    residual = np.degrees(departure - origin @ levers)
     offsets = np.zeros(channels)
-    for c in range(channels):
-        mine = channel == c
-        use = mine & far if np.count_nonzero(mine & far) >= MIN_ELEVATION_POINTS else mine
-        if np.count_nonzero(use) >= MIN_ELEVATION_POINTS:
-            offsets[c] = np.median(elevation[use]) - nominal_deg[c]
+    for c in np.flatnonzero(counts >= MIN_ELEVATION_POINTS):
+        offsets[c] = np.median(residual[used & (channel == c)])
     offsets[np.abs(offsets) < MIN_OFFSET_DEG] = 0.0
     moved = np.asarray(nominal_deg, dtype=np.float64) + offsets
     crossed = np.zeros(channels, bool)

@@ -29,6 +29,10 @@ sensor.weak_channels       gains           ``channel:gain`` joined by ``+`` (e.g
                                            region ``faults``, ``channel_gains``
 sensor.elevation_offsets   offsets         ``channel:deg`` joined by ``+`` (e.g. ``3:0.2+17:-0.15``),
                                            read off the recording; ``sensor.elevation_offsets_deg``
+sensor.beam_origin         z               m, signed: the beams' origin above the points' frame origin;
+                                           ``sensor.beam_origin_z_m``
+sensor.beam_origin_radial  radius          m: the beams' origin off the spin axis, in the points' frame;
+                                           ``sensor.beam_origin_radial_m``
 =========================  ==============  ==================================================
 
 The ``sensor.intensity_*``, ``range_*`` and ``ray_drop`` effects are the unit's own departures from
@@ -99,6 +103,8 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor.weak_channels", "gains", "", (0.0, 0.0), False, family="sensor", from_data=True),
         EffectSpec("sensor.elevation_offsets", "offsets", "deg", (0.0, 0.0), False, family="sensor",
                    from_data=True),
+        EffectSpec("sensor.beam_origin", "z", "m", (-0.15, 0.15), False, family="sensor", signed=True),
+        EffectSpec("sensor.beam_origin_radial", "radius", "m", (0.002, 0.1), True, family="sensor"),
     )
 }
 FAMILIES = ("weather", "sensor")
@@ -316,6 +322,10 @@ def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: s
                 region("cover").update(texture=f"dirt:{v:.6g}", mean_transmission=None)
         elif e.name == "cover.water":
             region("cover").update(texture="water_film", mean_transmission=v)
+        elif e.name == "sensor.beam_origin":
+            data["sensor"]["beam_origin_z_m"] = v
+        elif e.name == "sensor.beam_origin_radial":
+            data["sensor"]["beam_origin_radial_m"] = v
         elif e.name == "sensor.sun":
             data["weather"]["sun"]["irradiance_w_m2"] = v
         elif e.name in RESPONSE_FIELDS:

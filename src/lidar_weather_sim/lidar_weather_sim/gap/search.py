@@ -6,8 +6,9 @@
    ``heldout_frames`` held-out frames for every decision.
 2. The gap is :func:`lidar_weather_sim.gap.signatures.gap_value` between the measured frames
    and the same frames re-simulated from the recorded poses (:mod:`lidar_weather_sim.gap.resim`).
-3. With the sensor family, the effects read off the recording (dead and weak channels, elevation offsets:
-   :mod:`lidar_weather_sim.gap.channels`) are tried first, each in turn on the held-out frames under the
+3. With the sensor family, the effects read off the recording (dead and weak channels, elevation offsets, and
+   the beams' origin at the value the points' elevations show: :mod:`lidar_weather_sim.gap.channels`) are
+   tried first, each in turn on the held-out frames under the
    rule of step 4: they are what the data shows, not fits, and a fitted effect accepted before them can
    absorb their residual at a wrong value (a wide range noise smearing an offset channel's ranges), after
    which they no longer earn the margin. One that does not earn it is tried again in the rounds.
@@ -47,7 +48,7 @@ from scipy.optimize import minimize_scalar
 
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
-from lidar_weather_sim.gap.channels import dead_channels, elevation_offsets, weak_channels
+from lidar_weather_sim.gap.channels import MIN_ORIGIN_M, beam_origin, dead_channels, elevation_offsets, weak_channels
 from lidar_weather_sim.gap.effects import (
     EFFECTS,
     FAMILIES,
@@ -189,6 +190,11 @@ class GapSearch:
         offsets = elevation_offsets(measured, nominal)
         if offsets:
             out.append(Effect("sensor.elevation_offsets", {"offsets": format_channel_values(offsets)}))
+        up, radial = beam_origin(measured, nominal)
+        if abs(up) >= MIN_ORIGIN_M:
+            out.append(Effect("sensor.beam_origin", {"z": up}))
+        if radial >= MIN_ORIGIN_M:
+            out.append(Effect("sensor.beam_origin_radial", {"radius": radial}))
         return out
 
     def _splits(self) -> dict[str, list[int]]:
@@ -306,7 +312,8 @@ class GapSearch:
     def run_round(self, accepted: list[Effect]) -> list[Candidate]:
         """Screen every candidate on its grid, refine the best ``refine``, score all on the held-out frames;
         the evaluations of each step are independent (and run on the engine's workers when there is one)."""
-        options = [c for c in candidate_effects(self.resim, self.families) + self.data_candidates
+        read_off = [c for c in self.data_candidates if c.spec.from_data]  # the others: on the rounds' grids anyway
+        options = [c for c in candidate_effects(self.resim, self.families) + read_off
                    if not any(_same(c, a) for a in accepted) and conflicts(accepted + [c]) is None]  # fmt: skip
         grids = [self._grid(c) for c in options]
         gaps = iter(self.gaps([(accepted + [self._value(c, x)], "screen") for c, xs in zip(options, grids) for x in xs]))

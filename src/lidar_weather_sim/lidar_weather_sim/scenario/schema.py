@@ -117,6 +117,13 @@ class SensorSetup(ConfigModel):
     response: SensorResponse = Field(
         default_factory=SensorResponse, description="How this unit's output departs from the sensor model after "
                                                      "detection (intensity response, range bias and noise, ray drop)")  # fmt: skip
+    beam_origin_radial_m: float = Field(
+        0.0, ge=0, le=1, description="Distance of the beams' origin from the spin axis, along the firing azimuth, "
+                                     "in the frame the points are reported in (m; Ouster: lidar_origin_to_beam_"
+                                     "origin_mm)")  # fmt: skip
+    beam_origin_z_m: float = Field(
+        0.0, ge=-1, le=1, description="Height of the beams' origin above the origin of the frame the points are "
+                                      "reported in (m; e.g. Ouster's os_lidar above os_sensor, ~0.036)")  # fmt: skip
     elevation_offsets_deg: dict[int, float] = Field(
         default_factory=dict, description="Channel (0 = lowest) -> degrees its beam points, and is reported, above "
                                           "the profile's elevation table (a unit off its nominal calibration)")  # fmt: skip

@@ -40,7 +40,7 @@ import numpy as np
 
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.geometry import quaternion_matrices
-from lidar_weather_sim.core.points import Label, empty_points, point_dtype
+from lidar_weather_sim.core.points import Label, empty_points, fill_polar, point_dtype
 from lidar_weather_sim.core.seeding import Reseedable
 from lidar_weather_sim.regions.base import RayBatch, Region, RegionEffect, combine, region_entropy, region_rng
 from lidar_weather_sim.sensor.echo import Echoes, detect_echoes, select_returns
@@ -77,12 +77,13 @@ class PoseSource(Protocol):
 
 def scenario_settings(scenario) -> dict:
     """What the simulator takes from a scenario besides its world: ``seed``, ``sun_irradiance_w_m2``
-    (W/m^2, from ``weather.sun``), ``response`` (``sensor.response``) and ``elevation_offsets_deg``
-    (``sensor.elevation_offsets_deg``), as keyword arguments of :class:`LidarSimulator` and
-    :meth:`~LidarSimulator.restart`."""
+    (W/m^2, from ``weather.sun``), ``response`` (``sensor.response``), ``elevation_offsets_deg``
+    (``sensor.elevation_offsets_deg``) and ``beam_origin_m`` (``sensor.beam_origin_radial_m`` and
+    ``beam_origin_z_m``), as keyword arguments of :class:`LidarSimulator` and :meth:`~LidarSimulator.restart`."""
     return {"seed": int(scenario.seed), "sun_irradiance_w_m2": float(scenario.weather.sun.irradiance_w_m2),
             "response": scenario.sensor.response,
-            "elevation_offsets_deg": dict(scenario.sensor.elevation_offsets_deg)}  # fmt: skip
+            "elevation_offsets_deg": dict(scenario.sensor.elevation_offsets_deg),
+            "beam_origin_m": (float(scenario.sensor.beam_origin_radial_m), float(scenario.sensor.beam_origin_z_m))}  # fmt: skip
 
 
 @dataclass
@@ -112,7 +113,10 @@ class LidarSimulator:
     actors' labels; ``sun_irradiance_w_m2`` (W/m^2) raises the noise floor; ``response`` is the unit's
     departure from the model after detection (:mod:`lidar_weather_sim.sensor.response`);
     ``elevation_offsets_deg`` (channel -> deg) raises channels off the profile's table
-    (:meth:`~lidar_weather_sim.sensor.profile.SensorProfile.with_elevation_offsets`); ``seed`` seeds
+    (:meth:`~lidar_weather_sim.sensor.profile.SensorProfile.with_elevation_offsets`); ``beam_origin_m``
+    (radial, up; m) puts the beams' origin that far out from the axis (along the column's azimuth, turning with
+    the head) and above the sensor frame's origin (the pose), in which the points are still reported (a
+    driver whose point frame is not the beams' origin, as Ouster's); ``seed`` seeds
     every random stream (same seed and poses, same clouds).
     """
 
@@ -128,6 +132,7 @@ class LidarSimulator:
         sun_irradiance_w_m2: float = 0.0,
         response: SensorResponse | None = None,
         elevation_offsets_deg: dict[int, float] | None = None,
+        beam_origin_m: tuple[float, float] = (0.0, 0.0),
         ground_truth: bool = True,
         max_catch_up_frames: int = 10,
     ) -> None:
@@ -135,6 +140,7 @@ class LidarSimulator:
         self.elevation_offsets_deg: dict[int, float] = {}
         self._set_profile(profile.with_elevation_offsets(elevation_offsets_deg or {}))
         self.elevation_offsets_deg = dict(elevation_offsets_deg or {})
+        self.beam_origin_m = (float(beam_origin_m[0]), float(beam_origin_m[1]))
         self.scene = scene
         self.caster = scene.caster(backend) if caster is None else caster
         self.regions = list(regions or [])
@@ -186,10 +192,12 @@ class LidarSimulator:
     # -- time ----------------------------------------------------------------------
     def restart(self, *, regions: list[tuple[str, Region]] | None = None, sun_irradiance_w_m2: float | None = None,
                 seed: int | None = None, response: SensorResponse | None = None,
-                return_mode: str | None = None, elevation_offsets_deg: dict[int, float] | None = None) -> None:  # fmt: skip
+                return_mode: str | None = None, elevation_offsets_deg: dict[int, float] | None = None,
+                beam_origin_m: tuple[float, float] | None = None) -> None:  # fmt: skip
         """Forget the scan in progress and the regions' clock; replace regions, sun (W/m^2), seed,
-        sensor response, return mode (:data:`~lidar_weather_sim.core.names.RETURN_MODES`) and the channels'
-        elevation offsets (channel -> deg, on the profile's own table; {}: none) where given. The scene and
+        sensor response, return mode (:data:`~lidar_weather_sim.core.names.RETURN_MODES`), the channels'
+        elevation offsets (channel -> deg, on the profile's own table; {}: none) and the beams' origin (radial,
+        up; m) where given. The scene and
         its caster stay (no rebuild): re-simulating the same frames with other weather costs only the casts."""
         self._frame = None
         self._last_time_s = None
@@ -208,6 +216,8 @@ class LidarSimulator:
             self.elevation_offsets_deg = dict(elevation_offsets_deg)
         if return_mode is not None and return_mode != self.profile.detection.return_mode:
             self.profile = self.profile.with_return_mode(return_mode)
+        if beam_origin_m is not None:
+            self.beam_origin_m = (float(beam_origin_m[0]), float(beam_origin_m[1]))
 
     def cast_frame(self, index: int, start_s: float, poses: PoseSource, batch_s: float | None = None) -> Frame:
         """Cast the whole frame ``index`` (its scan pattern: scala4 alternates layers by index) whose
@@ -269,6 +279,13 @@ class LidarSimulator:
 
     def _finish(self, acc: _FrameAccumulator) -> Frame:
         points = acc.points[: acc.count] if acc.points is not None else empty_points(0, self.ground_truth)
+        radial, up = self.beam_origin_m
+        if (radial or up) and len(points):  # cast from the beams' origin, reported in the sensor frame
+            azimuth = points["azimuth"].astype(np.float64)
+            points["x"] += radial * np.cos(azimuth)
+            points["y"] += radial * np.sin(azimuth)
+            points["z"] += up
+            fill_polar(points)
         if not self.response.identity:
             rng = np.random.default_rng(region_entropy(self.seed, acc.index, "sensor_response", 0))
             points = apply_response(points, self.response, rng, float(self.profile.range.min_m))
@@ -280,6 +297,11 @@ class LidarSimulator:
         """Cast ``columns`` (a run) of frame ``acc`` fired at ``times`` (s) from the sensor poses
         (translations (C, 3) m, rotation matrices (C, 3, 3), map frame) with the actors at ``actor_poses``."""
         directions = self._directions(acc.index, columns)
+        radial, up = self.beam_origin_m
+        if radial or up:  # the beams' origin in the sensor frame, turning with the head
+            azimuth = self.pattern.column_azimuth[columns]
+            local = np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), np.full(len(columns), up)], axis=1)
+            translation = translation + np.einsum("cij,cj->ci", rotation, local)
         origins32, dirs32, dirs64 = world_rays(directions, rotation, translation, bool(self.regions), self._scratch)
         hits = self._cast_rays(origins32, dirs32, actor_poses)
         ray_batch, effect = self._regions(acc.index, columns, times, translation, directions, dirs64, hits)
