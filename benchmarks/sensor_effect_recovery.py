@@ -2,7 +2,7 @@
 """Does `gap --effects sensor` find a sensor-side effect hidden in a re-simulation of a real recording?
 
     python benchmarks/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
-        [--workers N]
+        [--profiles P,...] [--workers N]
 
 The cases are config/sensor_effect_cases.yaml's seeded draws (committed before any run): for each
 profile and sensor effect, ``draws_per_effect`` values of its main parameter, plus ``clear_cases``
@@ -121,12 +121,15 @@ def main() -> None:
     parser.add_argument("--recording", default=str(cache_dir() / "ouster_real" / "os1_128_street"))
     parser.add_argument("--limit", type=int, default=0, help="run only the first K draws of each profile and effect "
                                                             "(0: all)")
+    parser.add_argument("--profiles", help="comma-separated: only the cases of these profiles (default: all)")
     parser.add_argument("--workers", type=int, default=0, help="the gap search's Dask workers (0: in this process)")
     args = parser.parse_args()
     cases_path = Path(args.cases)
     spec = yaml.safe_load(cases_path.read_text())
     scenario = load_scenario(args.scenario)
     cases = draw_cases(spec)
+    if args.profiles:
+        cases = [c for c in cases if c[0] in args.profiles.split(",")]
     if args.limit:  # the first K draws of each profile and effect (and K clear cases)
         cases = [c for i, c in enumerate(cases) if sum(d[:2] == c[:2] for d in cases[:i]) < args.limit]
     budgets = {k: spec["measurement"][k] for k in ("fit_frames", "heldout_frames", "screen_frames")}
