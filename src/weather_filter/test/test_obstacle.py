@@ -13,13 +13,17 @@ from weather_filter.cli import main as wf_main
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 from weather_filter.obstacle import (
     AUGMENT_TEST_RUNS,
+    AUGMENT_TEST_RUNS_V2,
     AUGMENT_TRAIN_RUNS,
+    AUGMENT_TRAIN_RUNS_WIDE,
+    HELDOUT_ONLY_SCENARIOS,
     PAPER_FEATURES,
     ObstacleClassifier,
     ObstacleFeatures,
     feature_region_mask,
     obstacle_scores,
     parse_run,
+    parse_run_options,
 )
 from weather_filter.obstacle_data import simulated_box_bag, simulated_box_spec
 from weather_filter.simdata import frames_of
@@ -66,6 +70,30 @@ def test_run_lists_are_disjoint_and_parse():
     assert not {a for _, a in train} & {a for _, a in test}
     with pytest.raises(ValueError):
         parse_run("highway_spray:1:4")
+
+
+TRAIN_LISTS = (AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE)
+
+
+def test_v2_heldout_runs_are_in_no_training_list():
+    test = [parse_run_options(r) for r in AUGMENT_TEST_RUNS_V2]
+    old = {parse_run(r) for r in AUGMENT_TEST_RUNS}
+    for runs in TRAIN_LISTS:
+        train = [parse_run_options(r) for r in runs]
+        assert not {t[0] for t in train} & {t[0] for t in test}  # simulation runs
+        assert not {t[1] for t in train} & {t[1] for t in test}  # augmentation seeds
+        assert not {t[0].split(":")[0] for t in train} & set(HELDOUT_ONLY_SCENARIOS)
+    assert not {t[0] for t in test} & {s for s, _ in old} and not {t[1] for t in test} & {a for _, a in old}
+    assert {t[0].split(":")[0] for t in test} >= set(HELDOUT_ONLY_SCENARIOS)
+    assert all(t[2] == "lead" and t[3] == ("box",) for t in test)
+
+
+def test_run_options_parse():
+    assert parse_run_options("highway_spray:1:4@7") == ("highway_spray:1:4", 7, "none", ("box",))
+    assert parse_run_options("highway_spray:1:4:scala4@7:lead") == ("highway_spray:1:4:scala4", 7, "lead", ("box",))
+    assert parse_run_options("a:1:4@7:none:box,vehicle") == ("a:1:4", 7, "none", ("box", "vehicle"))
+    with pytest.raises(ValueError):
+        parse_run("highway_spray:1:4@7:maybe")
 
 
 def test_simulated_boxes_are_inside_the_roi_and_found(tmp_path):
