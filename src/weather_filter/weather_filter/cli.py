@@ -165,9 +165,15 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
         AUGMENT_VALIDATION_RUNS_V2,
         DEFAULT_OBSTACLE_MODEL,
         OBSTACLE_MODEL_V1,
+        PAPER_FEATURES,
+        SIM_BOXES_TRAIN_V2,
+        SIM_BOXES_VALIDATION_V2,
+        V2_FEATURES,
+        V2_HIDDEN,
+        sim_boxes_text,
         train_obstacle,
     )
-    from weather_filter.obstacle_data import augmented_bag
+    from weather_filter.obstacle_data import augmented_bag, simulated_box_bag
     from weather_filter.simdata import frames_of
 
     if args.sim or args.bags or args.synthetic_frames:
@@ -183,18 +189,26 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
     if out is None and args.out is None:
         raise ValueError("--preset augmentation-wide is an experiment: give --out FILE.joblib")
 
-    def sequences(run_list):
+    def sequences(run_list, boxes=None):
         sources = []
         for run in run_list:
             bag = augmented_bag(run, args.cache)
             print(f"augmented run {run}: {bag}", file=sys.stderr)
             sources.append(frames_of(bag, args.topic))
+        if boxes:  # simulator-raycast boxes (v2)
+            sources += [frames_of(simulated_box_bag(i, args.cache, seed=boxes[0]), args.topic) for i in range(boxes[1])]
+            print(f"{sim_boxes_text(boxes)}", file=sys.stderr)
         return sources
 
     command = f"weather-filter train --preset {args.preset} --seed {args.seed}"
-    report = train_obstacle(sequences(runs), args.out or out, trained_on=", ".join(runs), command=command,
-                            seed=args.seed, validation=sequences(validation) if validation else None,
-                            validated_on=", ".join(validation), version=version)  # fmt: skip
+    v2 = version == 2
+    trained_on = ", ".join(runs) + (f", {sim_boxes_text(SIM_BOXES_TRAIN_V2)}" if v2 else "")
+    report = train_obstacle(sequences(runs, SIM_BOXES_TRAIN_V2 if v2 else None), args.out or out, trained_on=trained_on,
+                            command=command, seed=args.seed,
+                            validation=sequences(validation, SIM_BOXES_VALIDATION_V2) if v2 else None,
+                            validated_on=", ".join(validation) + f", {sim_boxes_text(SIM_BOXES_VALIDATION_V2)}" if v2 else "",
+                            version=version, features=V2_FEATURES if v2 else PAPER_FEATURES,
+                            hidden=V2_HIDDEN if v2 else None)  # fmt: skip
     s = report.scores
     val = ""
     if report.validation_scores is not None:
