@@ -7,14 +7,21 @@ bird's-eye histograms, the radial count's change from the previous frame, and th
 convolved with the horizontal, corner, rotated corner and impulse matrices), computed by the learned
 weather filter's extractor (:class:`weather_filter.features.PointFeatures`) on the detections of the
 paper's feature region only (``feature_region_m``: x 0-20 m, |y| <= 6 m, sensor frame); detections
-outside it are never classified as obstacle. Classifier: StandardScaler + MLP with
-``classifier.hidden_units`` hidden units, fitted with the paper's class weights (``weight_no_box``,
-``weight_box``), a detection is "box" when its probability is >= 0.5. Every value is read from
-``thesis_tables.yaml`` (``augmentation``). The paper trained with scaled conjugate gradient; scikit-learn
-has none, so Adam (its default) is used.
+outside it are never classified as obstacle. Classifier: StandardScaler + MLP fitted with the paper's class
+weights (``weight_no_box``, ``weight_box``). Every paper value is read from ``thesis_tables.yaml``
+(``augmentation``). The paper trained with scaled conjugate gradient; scikit-learn has none, so Adam (its
+default) is used.
 
-Training data (``weather-filter train --preset augmentation``): simulated spray runs augmented with
-``lidar-weather-sim augment``'s boxes, the lists below fixed before the first training.
+Two models: v1 (``models/obstacle_point_mlp_v1.joblib``) is the paper's: its 15 features,
+``classifier.hidden_units`` hidden units, "box" at probability >= 0.5. v2 (the default,
+``models/obstacle_point_mlp_v2.joblib``) DEVIATES from the paper, each choice made on a validation split of
+training scenarios (:data:`AUGMENT_VALIDATION_RUNS_V2`, :data:`SIM_BOXES_VALIDATION_V2`), never on a held-out
+list: all extractor columns (:data:`V2_FEATURES`), :data:`V2_HIDDEN` hidden units, and the threshold of the best
+box F-score on the validation data (:func:`best_threshold`), stored in the model.
+
+Training data (``weather-filter train --preset augmentation`` / ``augmentation-v2``): simulated spray runs
+augmented with ``lidar-weather-sim augment``'s boxes (v2: also boxes raycast by the simulator), the lists
+below each fixed before its model's first training.
 """
 
 from __future__ import annotations
