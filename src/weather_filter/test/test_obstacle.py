@@ -13,15 +13,30 @@ from weather_filter.cli import main as wf_main
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 from weather_filter.obstacle import (
     AUGMENT_TEST_RUNS,
+    AUGMENT_TEST_RUNS_V2,
     AUGMENT_TRAIN_RUNS,
+    AUGMENT_TRAIN_RUNS_V2,
+    AUGMENT_TRAIN_RUNS_WIDE,
+    AUGMENT_VALIDATION_RUNS_V2,
+    DEFAULT_OBSTACLE_MODEL,
+    HELDOUT_ONLY_SCENARIOS,
+    OBSTACLE_MODEL_V1,
     PAPER_FEATURES,
+    SIM_BOXES_TRAIN_V2,
+    SIM_BOXES_VALIDATION_V2,
+    V2_FEATURES,
+    V2_HIDDEN,
     ObstacleClassifier,
     ObstacleFeatures,
+    best_threshold,
     feature_region_mask,
     obstacle_scores,
     parse_run,
+    parse_run_options,
+    sim_boxes_text,
+    train_obstacle,
 )
-from weather_filter.obstacle_data import simulated_box_bag, simulated_box_spec
+from weather_filter.obstacle_data import augmented_bag, simulated_box_bag, simulated_box_spec
 from weather_filter.simdata import frames_of
 
 
@@ -51,12 +66,45 @@ def test_features_are_the_learned_filters_in_the_feature_region():
     assert len(PAPER_FEATURES) == 15
 
 
-def test_shipped_model_has_the_papers_settings():
+def test_shipped_model_settings():
     c = ObstacleClassifier.load()
     table = augmentation_table()["classifier"]
-    assert c.bundle["model"][-1].hidden_layer_sizes == (table["hidden_units"],)
+    # the paper's class weights; deviations (README): 32 hidden units, all 27 extractor features, validated threshold
     assert c.bundle["class_weights"] == {"no_box": table["weight_no_box"], "box": table["weight_box"]}
+    assert c.bundle["model"][-1].hidden_layer_sizes == V2_HIDDEN and tuple(c.bundle["feature_names"]) == V2_FEATURES
+    assert set(PAPER_FEATURES) < set(V2_FEATURES) and len(V2_FEATURES) == 27
+    assert DEFAULT_OBSTACLE_MODEL.name == "obstacle_point_mlp_v2.joblib" and c.bundle["version"] == 2
+    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V2) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
+    # the threshold chosen on validation runs of training scenarios and other box seeds, never on a held-out list
+    assert c.bundle["threshold_chosen_on"] == ", ".join(AUGMENT_VALIDATION_RUNS_V2) + ", " + sim_boxes_text(
+        SIM_BOXES_VALIDATION_V2)
+    assert 0.05 <= c.bundle["threshold"] <= 0.95
+    assert c.bundle["command"] == "weather-filter train --preset augmentation-v2 --seed 0"
+
+
+def test_first_model_stays_loadable_by_path():
+    c = ObstacleClassifier.load(OBSTACLE_MODEL_V1)
+    table = augmentation_table()["classifier"]
+    assert c.bundle["version"] == 1 and c.bundle["threshold"] == 0.5
+    assert c.bundle["model"][-1].hidden_layer_sizes == (table["hidden_units"],)
+    assert tuple(c.bundle["feature_names"]) == PAPER_FEATURES and c.features.names == PAPER_FEATURES
     assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS)
+
+
+def test_simulated_box_seeds_are_apart():
+    bench = set(range(500, 550))  # benchmarks/obstacle_classifier.py: 50 boxes of seed 500 (run seeds 500 + i)
+    train = set(range(SIM_BOXES_TRAIN_V2[0], sum(SIM_BOXES_TRAIN_V2)))
+    val = set(range(SIM_BOXES_VALIDATION_V2[0], sum(SIM_BOXES_VALIDATION_V2)))
+    assert not bench & train and not bench & val and not train & val
+
+
+def test_best_threshold_with_numbers():
+    truth = np.array([1, 1, 1, 0, 0, 0, 0, 0], bool)
+    prob = np.array([0.9, 0.35, 0.3, 0.2, 0.1, 0.1, 0.05, 0.05])
+    t, s = best_threshold(truth, prob)
+    assert t == 0.3 and s["obstacle_f1"] == 1.0  # every threshold in (0.2, 0.3] is perfect: the nearest to 0.5
+    t, s = best_threshold(np.array([1, 0, 1, 0], bool), np.array([0.8, 0.6, 0.55, 0.1]))
+    assert t == 0.5 and s["obstacle_f1"] == pytest.approx(0.8)  # (0.1, 0.55]: P 2/3 R 1, the best; nearest 0.5
 
 
 def test_run_lists_are_disjoint_and_parse():
@@ -66,6 +114,53 @@ def test_run_lists_are_disjoint_and_parse():
     assert not {a for _, a in train} & {a for _, a in test}
     with pytest.raises(ValueError):
         parse_run("highway_spray:1:4")
+
+
+TRAIN_LISTS = (AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE, AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2)
+
+
+def test_v2_heldout_runs_are_in_no_training_list():
+    test = [parse_run_options(r) for r in AUGMENT_TEST_RUNS_V2]
+    old = {parse_run(r) for r in AUGMENT_TEST_RUNS}
+    for runs in TRAIN_LISTS:
+        train = [parse_run_options(r) for r in runs]
+        assert not {t[0] for t in train} & {t[0] for t in test}  # simulation runs
+        assert not {t[1] for t in train} & {t[1] for t in test}  # augmentation seeds
+        assert not {t[0].split(":")[0] for t in train} & set(HELDOUT_ONLY_SCENARIOS)
+    assert not {t[0] for t in test} & {s for s, _ in old} and not {t[1] for t in test} & {a for _, a in old}
+    assert {t[0].split(":")[0] for t in test} >= set(HELDOUT_ONLY_SCENARIOS)
+    assert all(t[2] == "lead" and t[3] == ("box",) for t in test)
+
+
+def test_v2_validation_runs_are_not_fitted_on():
+    train = {parse_run_options(r)[0] for r in AUGMENT_TRAIN_RUNS_V2}
+    val = {parse_run_options(r)[0] for r in AUGMENT_VALIDATION_RUNS_V2}
+    assert not train & val
+    seeds = [parse_run_options(r)[1] for r in AUGMENT_TRAIN_RUNS_V2 + AUGMENT_VALIDATION_RUNS_V2]
+    assert len(seeds) == len(set(seeds))
+
+
+def test_train_with_validation_threshold_is_reproducible(tmp_path):
+    runs, val = ("highway_spray:9:3@9:lead", "wf_train_snow:9:3@10"), ("highway_spray:8:3@8:lead",)
+    bags = {r: augmented_bag(r, tmp_path) for r in runs + val}
+    reports = []
+    for name in ("a", "b"):
+        reports.append(train_obstacle([frames_of(bags[r]) for r in runs], tmp_path / f"{name}.joblib", trained_on="t",
+                                      command="c", seed=3, validation=[frames_of(bags[r]) for r in val],
+                                      validated_on="v", version=2, features=V2_FEATURES, hidden=(4,)))  # fmt: skip
+    assert (tmp_path / "a.joblib").read_bytes() == (tmp_path / "b.joblib").read_bytes()
+    assert 0.05 <= reports[0].threshold <= 0.95 and reports[0].validation_scores["obstacle_points"] > 0
+    bundle = ObstacleClassifier.load(tmp_path / "a.joblib").bundle
+    assert bundle["threshold"] == reports[0].threshold and bundle["threshold_chosen_on"] == "v"
+    assert tuple(bundle["feature_names"]) == V2_FEATURES and bundle["hidden"] == [4]
+
+
+def test_run_options_parse():
+    assert parse_run_options("highway_spray:1:4@7") == ("highway_spray:1:4", 7, "none", ("box",))
+    assert parse_run_options("highway_spray:1:4:scala4@7:lead") == ("highway_spray:1:4:scala4", 7, "lead", ("box",))
+    assert parse_run_options("a:1:4@7:none:box,vehicle") == ("a:1:4", 7, "none", ("box", "vehicle"))
+    with pytest.raises(ValueError):
+        parse_run("highway_spray:1:4@7:maybe")
 
 
 def test_simulated_boxes_are_inside_the_roi_and_found(tmp_path):

@@ -157,41 +157,74 @@ def _apply_preset(args: argparse.Namespace) -> None:
 
 
 def _cmd_train_obstacle(args: argparse.Namespace) -> int:
-    """``train --preset augmentation``: paper 4's obstacle classifier on the fixed augmented runs."""
+    """``train --preset augmentation[-v2|-wide]``: paper 4's obstacle classifier on fixed augmented runs."""
     from weather_filter.obstacle import (
         AUGMENT_TRAIN_RUNS,
+        AUGMENT_TRAIN_RUNS_V2,
         AUGMENT_TRAIN_RUNS_WIDE,
+        AUGMENT_VALIDATION_RUNS_V2,
         DEFAULT_OBSTACLE_MODEL,
+        OBSTACLE_MODEL_V1,
+        PAPER_FEATURES,
+        SIM_BOXES_TRAIN_V2,
+        SIM_BOXES_VALIDATION_V2,
+        V2_FEATURES,
+        V2_HIDDEN,
+        sim_boxes_text,
         train_obstacle,
     )
-    from weather_filter.obstacle_data import augmented_bag
+    from weather_filter.obstacle_data import augmented_bag, simulated_box_bag
     from weather_filter.simdata import frames_of
 
     if args.sim or args.bags or args.synthetic_frames:
-        raise ValueError("--preset augmentation trains on its own runs (weather_filter.obstacle.AUGMENT_TRAIN_RUNS) "
+        raise ValueError(f"--preset {args.preset} trains on its own runs (weather_filter.obstacle.AUGMENT_TRAIN_RUNS*) "
                          "only: no --sim, bags or --synthetic-frames")  # fmt: skip
-    runs = AUGMENT_TRAIN_RUNS if args.preset == "augmentation" else AUGMENT_TRAIN_RUNS_WIDE
-    if args.preset != "augmentation" and args.out is None:
+    # augmentation: the v1 model (threshold 0.5); augmentation-v2: the shipped v2 model (threshold chosen on
+    # its validation runs, taken from training scenarios); augmentation-wide: an experiment (--out required)
+    runs, validation, out, version = {
+        "augmentation": (AUGMENT_TRAIN_RUNS, (), OBSTACLE_MODEL_V1, 1),
+        "augmentation-v2": (AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2, DEFAULT_OBSTACLE_MODEL, 2),
+        "augmentation-wide": (AUGMENT_TRAIN_RUNS_WIDE, (), None, 1),
+    }[args.preset]
+    if out is None and args.out is None:
         raise ValueError("--preset augmentation-wide is an experiment: give --out FILE.joblib")
-    sources = []
-    for run in runs:
-        bag = augmented_bag(run, args.cache)
-        print(f"augmented run {run}: {bag}", file=sys.stderr)
-        sources.append(frames_of(bag, args.topic))
+
+    def sequences(run_list, boxes=None):
+        sources = []
+        for run in run_list:
+            bag = augmented_bag(run, args.cache)
+            print(f"augmented run {run}: {bag}", file=sys.stderr)
+            sources.append(frames_of(bag, args.topic))
+        if boxes:  # simulator-raycast boxes (v2)
+            sources += [frames_of(simulated_box_bag(i, args.cache, seed=boxes[0]), args.topic) for i in range(boxes[1])]
+            print(f"{sim_boxes_text(boxes)}", file=sys.stderr)
+        return sources
+
     command = f"weather-filter train --preset {args.preset} --seed {args.seed}"
-    report = train_obstacle(sources, args.out or DEFAULT_OBSTACLE_MODEL, trained_on=", ".join(runs),
-                            command=command, seed=args.seed)  # fmt: skip
+    v2 = version == 2
+    trained_on = ", ".join(runs) + (f", {sim_boxes_text(SIM_BOXES_TRAIN_V2)}" if v2 else "")
+    report = train_obstacle(sequences(runs, SIM_BOXES_TRAIN_V2 if v2 else None), args.out or out, trained_on=trained_on,
+                            command=command, seed=args.seed,
+                            validation=sequences(validation, SIM_BOXES_VALIDATION_V2) if v2 else None,
+                            validated_on=", ".join(validation) + f", {sim_boxes_text(SIM_BOXES_VALIDATION_V2)}" if v2 else "",
+                            version=version, features=V2_FEATURES if v2 else PAPER_FEATURES,
+                            hidden=V2_HIDDEN if v2 else None)  # fmt: skip
     s = report.scores
+    val = ""
+    if report.validation_scores is not None:
+        v = report.validation_scores
+        val = (f"; threshold {report.threshold:.2f} chosen on the validation runs (box F {v['obstacle_f1']:.4f}, "
+               f"no-box F {v['no_obstacle_f1']:.4f})")  # fmt: skip
     print(f"trained the obstacle classifier on {report.frames} frames ({report.points} feature-region points, "
           f"{report.box_points} obstacle): train obstacle F1 {s['obstacle_f1']:.4f}, no-obstacle F1 "
-          f"{s['no_obstacle_f1']:.4f}; wrote {report.output}")  # fmt: skip
+          f"{s['no_obstacle_f1']:.4f}{val}; wrote {report.output}")  # fmt: skip
     return 0
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from weather_filter.learned import DEFAULT_MODEL, train
 
-    if args.preset in ("augmentation", "augmentation-wide"):
+    if args.preset in ("augmentation", "augmentation-v2", "augmentation-wide"):
         return _cmd_train_obstacle(args)
     _apply_preset(args)
     _refuse_packaged_overwrite(args)
@@ -246,17 +279,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="geometry-only filter for clouds lacking the method's fields (default dror)")  # fmt: skip
     ev.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="filter parameter override")
     ev.add_argument("--obstacle-model", metavar="PATH", help="obstacle classifier run when the bag has label-3 points "
-                    "(default: the shipped models/obstacle_point_mlp_v1.joblib)")  # fmt: skip
+                    "(default: the shipped models/obstacle_point_mlp_v2.joblib; the first one: models/obstacle_point_mlp_v1.joblib)")  # fmt: skip
     ev.set_defaults(func=_cmd_eval)
 
     tr = commands.add_parser("train", help="train the learned per-point filter on labelled simulation runs / bags")
     tr.add_argument("bags", nargs="*", metavar="BAG", help="labelled rosbag2 directories or .mcap files")
     tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]",
                     help="simulate this labelled run (cached under --cache) and train on it; repeatable")  # fmt: skip
-    tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-wide"],
-                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation: train paper 4's "
-                         "obstacle classifier on its augmented runs (obstacle.AUGMENT_TRAIN_RUNS; default --out: "
-                         "models/obstacle_point_mlp_v1.joblib); augmentation-wide: an experiment on more runs (obstacle.AUGMENT_TRAIN_RUNS_WIDE)")  # fmt: skip
+    tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-v2", "augmentation-wide"],
+                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation-v2: train paper 4's "
+                         "obstacle classifier on its augmented runs (obstacle.AUGMENT_TRAIN_RUNS_V2, threshold chosen on "
+                         "obstacle.AUGMENT_VALIDATION_RUNS_V2; default --out: the shipped models/obstacle_point_mlp_v2.joblib); "
+                         "augmentation: the first model's runs (obstacle.AUGMENT_TRAIN_RUNS, threshold 0.5; default --out: "
+                         "models/obstacle_point_mlp_v1.joblib); augmentation-wide: an experiment on more runs "
+                         "(obstacle.AUGMENT_TRAIN_RUNS_WIDE)")  # fmt: skip
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     tr.add_argument("--synthetic-frames", type=number_in(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")

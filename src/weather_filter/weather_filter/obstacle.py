@@ -7,14 +7,21 @@ bird's-eye histograms, the radial count's change from the previous frame, and th
 convolved with the horizontal, corner, rotated corner and impulse matrices), computed by the learned
 weather filter's extractor (:class:`weather_filter.features.PointFeatures`) on the detections of the
 paper's feature region only (``feature_region_m``: x 0-20 m, |y| <= 6 m, sensor frame); detections
-outside it are never classified as obstacle. Classifier: StandardScaler + MLP with
-``classifier.hidden_units`` hidden units, fitted with the paper's class weights (``weight_no_box``,
-``weight_box``), a detection is "box" when its probability is >= 0.5. Every value is read from
-``thesis_tables.yaml`` (``augmentation``). The paper trained with scaled conjugate gradient; scikit-learn
-has none, so Adam (its default) is used.
+outside it are never classified as obstacle. Classifier: StandardScaler + MLP fitted with the paper's class
+weights (``weight_no_box``, ``weight_box``). Every paper value is read from ``thesis_tables.yaml``
+(``augmentation``). The paper trained with scaled conjugate gradient; scikit-learn has none, so Adam (its
+default) is used.
 
-Training data (``weather-filter train --preset augmentation``): simulated spray runs augmented with
-``lidar-weather-sim augment``'s boxes, the lists below fixed before the first training.
+Two models: v1 (``models/obstacle_point_mlp_v1.joblib``) is the paper's: its 15 features,
+``classifier.hidden_units`` hidden units, "box" at probability >= 0.5. v2 (the default,
+``models/obstacle_point_mlp_v2.joblib``) DEVIATES from the paper, each choice made on a validation split of
+training scenarios (:data:`AUGMENT_VALIDATION_RUNS_V2`, :data:`SIM_BOXES_VALIDATION_V2`), never on a held-out
+list: all extractor columns (:data:`V2_FEATURES`), :data:`V2_HIDDEN` hidden units, and the threshold of the best
+box F-score on the validation data (:func:`best_threshold`), stored in the model.
+
+Training data (``weather-filter train --preset augmentation`` / ``augmentation-v2``): simulated spray runs
+augmented with ``lidar-weather-sim augment``'s boxes (v2: also boxes raycast by the simulator), the lists
+below each fixed before its model's first training.
 """
 
 from __future__ import annotations
@@ -30,10 +37,18 @@ from lidar_weather_sim.gap.obstacle_boxes import augmentation_table
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
-DEFAULT_OBSTACLE_MODEL = MODELS_DIR / "obstacle_point_mlp_v1.joblib"
+#: The shipped model: v2 (trained on AUGMENT_TRAIN_RUNS_V2, threshold chosen on AUGMENT_VALIDATION_RUNS_V2).
+DEFAULT_OBSTACLE_MODEL = MODELS_DIR / "obstacle_point_mlp_v2.joblib"
+#: The first model (AUGMENT_TRAIN_RUNS, threshold 0.5), kept: load it with ``--obstacle-model`` / ``--model``.
+OBSTACLE_MODEL_V1 = MODELS_DIR / "obstacle_point_mlp_v1.joblib"
 PAPER_FEATURES = ("x", "y", "echo", "channel", "epw", "n_radial", "n_small", "n_rear", "n_side", "n_middle",
                   "d_radial", "conv_horizontal", "conv_corner", "conv_corner_rot90", "conv_impulse")  # fmt: skip
-_COLUMNS = [FEATURE_NAMES.index(n) for n in PAPER_FEATURES]
+#: The v2 model's features (a deviation from the paper, chosen on AUGMENT_VALIDATION_RUNS_V2): every column of the
+#: learned filter's extractor - the paper's 15 plus z, intensity, range, the range-image features ``ri_*`` and the
+#: heights in the 50 cm cell ``dz_min`` / ``dz_max`` (weather_filter.features).
+V2_FEATURES = tuple(FEATURE_NAMES)
+#: The v2 model's hidden layer (a deviation: the paper's 10 units underfit the v2 runs, train box F 0.80).
+V2_HIDDEN = (32,)
 
 #: Training runs: ``SCENARIO:SEED:FRAMES[:PROFILE]@AUGMENT_SEED`` - a simulated spray run (weather_filter.simdata
 #: spec) and the seed of ``lidar-weather-sim augment`` (1 box per frame, the paper's ranges). Fixed before training.
@@ -51,20 +66,92 @@ AUGMENT_TRAIN_RUNS_WIDE = AUGMENT_TRAIN_RUNS + (
     "highway_spray:22:40@25", "wf_train_rain_spray:22:40@26", "wf_train_crosswind_spray:22:40@27",
     "proving_ground_39:22:40@28", "wf_train_snow:23:40@29", "wf_train_fog:23:40@30",
 )  # fmt: skip
+#: v2 model's training runs (issue 24 retrain; chosen after AUGMENT_TEST_RUNS_V2 was committed, never looking at
+#: its figures): every simulation run of AUGMENT_TRAIN_RUNS_WIDE but the validation ones below, plus curved_clear
+#: (curved road, guard rail, car ahead in the ego lane), the wf_knn_highway* runs (dirt on the cover) and more
+#: snow / crosswind seeds; each simulation run augmented twice, once keeping the sensor model's EPW (``@SEED``,
+#: the v1 runs' own bags) and once with the paper's EPW matching to the car ahead (``@SEED:lead``).
+AUGMENT_TRAIN_RUNS_V2 = (
+    "highway_spray:11:40@11", "highway_spray:12:40@12", "wf_train_rain_spray:11:40@13", "wf_train_clear_spray:11:40@14",
+    "wf_train_crosswind_spray:11:40@15", "proving_ground_39:11:40@16", "proving_ground_48:11:40@17",
+    "highway_spray_crosswind:11:40@18", "wf_train_snow:21:40@21", "wf_train_fog:21:40@22",
+    "wf_train_fog_rain:21:40@23", "highway_clear:21:40@24", "wf_train_rain_spray:22:40@26",
+    "wf_train_crosswind_spray:22:40@27", "curved_clear:31:40@71", "wf_knn_highway:31:40@72",
+    "wf_knn_highway_dirt:31:40@73", "wf_knn_highway_heavy_dirt:31:40@74", "wf_train_snow:31:40@75",
+    "highway_spray_crosswind:31:40@76",
+    "highway_spray:11:40@41:lead", "highway_spray:12:40@42:lead", "wf_train_rain_spray:11:40@43:lead",
+    "wf_train_clear_spray:11:40@44:lead", "wf_train_crosswind_spray:11:40@45:lead", "proving_ground_39:11:40@46:lead",
+    "proving_ground_48:11:40@47:lead", "highway_spray_crosswind:11:40@48:lead", "wf_train_snow:21:40@49:lead",
+    "wf_train_fog:21:40@50:lead", "wf_train_fog_rain:21:40@51:lead", "highway_clear:21:40@52:lead",
+    "wf_train_rain_spray:22:40@54:lead", "wf_train_crosswind_spray:22:40@55:lead", "curved_clear:31:40@59:lead",
+    "wf_knn_highway:31:40@60:lead", "wf_knn_highway_dirt:31:40@61:lead", "wf_knn_highway_heavy_dirt:31:40@62:lead",
+    "wf_train_snow:31:40@63:lead", "highway_spray_crosswind:31:40@64:lead",
+)  # fmt: skip
+#: v2 model's validation runs: simulation runs of the training scenarios (4 of AUGMENT_TRAIN_RUNS_WIDE's, both
+#: augmentations), kept out of the fit; the decision threshold (and nothing else) is chosen on them - never on a
+#: held-out list. A deviation from the paper (its threshold: 0.5).
+AUGMENT_VALIDATION_RUNS_V2 = (
+    "highway_spray:22:40@25", "proving_ground_39:22:40@28", "wf_train_snow:23:40@29", "wf_train_fog:23:40@30",
+    "highway_spray:22:40@53:lead", "proving_ground_39:22:40@56:lead", "wf_train_snow:23:40@57:lead",
+    "wf_train_fog:23:40@58:lead",
+)  # fmt: skip
+#: v2 model's simulator-raycast boxes (``obstacle_data.simulated_box_bag(i, seed=SEED)``, i < COUNT: highway_spray
+#: with one box actor, 3 frames each): (SEED, COUNT) of the fit's and of the validation's. The augmented boxes
+#: alone left a gap to the simulator's own boxes (validation box F 0.76-0.83 on them vs 0.91-0.94 on augmented
+#: runs): these teach the physics' boxes. Other seeds than the benchmark's (500): that one stays held out.
+SIM_BOXES_TRAIN_V2 = (700, 40)
+SIM_BOXES_VALIDATION_V2 = (900, 20)
+
+
+def sim_boxes_text(seed_count: tuple[int, int]) -> str:
+    seed, count = seed_count
+    return f"simulated boxes 0-{count - 1} seed {seed}"
+
+
 #: Held-out runs: other simulation seeds, other augmentation seeds, and scenarios in no training run
 #: (proving_ground_55 / 60, wf_heldout_mixed).
 AUGMENT_TEST_RUNS = (
     "highway_spray:111:40@111", "proving_ground_55:111:40@112", "proving_ground_60:111:40@113",
     "wf_heldout_mixed:111:40@114", "highway_spray_crosswind:111:40@115",
 )  # fmt: skip
+#: Second held-out list (issue 24 retrain), fixed and committed BEFORE any model was trained on the retrain's
+#: data, never used to choose anything: new simulation seeds (211) and augmentation seeds (211-217) of the same
+#: held-out scenarios, plus two scenarios in no training run: wf_knn_spray_mist (highway spray in rain, the car
+#: 16 m ahead-left) and wf_knn_curved_dirt (curved road, snow, dirt on the cover, a car 15 m ahead in the ego
+#: lane: the v1 model's weak spot). Boxes with the paper's EPW matching to the car ahead's rear (``:lead``,
+#: augment's default) - the v1 list keeps the sensor model's EPW (``none``).
+AUGMENT_TEST_RUNS_V2 = (
+    "highway_spray:211:40@211:lead", "proving_ground_55:211:40@212:lead", "proving_ground_60:211:40@213:lead",
+    "wf_heldout_mixed:211:40@214:lead", "highway_spray_crosswind:211:40@215:lead",
+    "wf_knn_spray_mist:211:40@216:lead", "wf_knn_curved_dirt:211:40@217:lead",
+)  # fmt: skip
+#: Scenarios of the held-out lists never to be trained on (any training list).
+HELDOUT_ONLY_SCENARIOS = ("proving_ground_55", "proving_ground_60", "wf_heldout_mixed", "wf_knn_spray_mist",
+                          "wf_knn_curved_dirt")  # fmt: skip
 
 
 def parse_run(text: str) -> tuple[str, int]:
-    """``SPEC@SEED`` -> (simulation spec, augmentation seed)."""
-    spec, sep, seed = text.rpartition("@")
-    if not sep or not spec or not seed.isdigit():
-        raise ValueError(f"augmented run {text!r}: expected SCENARIO:SEED:FRAMES[:PROFILE]@AUGMENT_SEED")
-    return spec, int(seed)
+    """``SPEC@SEED[:EPW_MATCH[:KINDS]]`` -> (simulation spec, augmentation seed)."""
+    spec, seed, _, _ = parse_run_options(text)
+    return spec, seed
+
+
+#: ``SPEC@SEED`` alone: the shipped v1 model's augmentation (``--epw-match none``, boxes only).
+RUN_DEFAULT_EPW_MATCH = "none"
+RUN_DEFAULT_KINDS = ("box",)
+
+
+def parse_run_options(text: str) -> tuple[str, int, str, tuple[str, ...]]:
+    """``SCENARIO:SEED:FRAMES[:PROFILE]@AUGMENT_SEED[:EPW_MATCH[:KINDS]]`` -> (simulation spec, augmentation
+    seed, ``augment --epw-match`` (``none`` or ``lead``; default none), ``augment --kinds`` (default box))."""
+    spec, sep, tail = text.rpartition("@")
+    seed, _, options = tail.partition(":")
+    epw, _, kinds = options.partition(":")
+    if not sep or not spec or not seed.isdigit() or (options and epw not in ("none", "lead")):
+        raise ValueError(f"augmented run {text!r}: expected SCENARIO:SEED:FRAMES[:PROFILE]@AUGMENT_SEED"
+                         "[:none|lead[:KIND,...]]")  # fmt: skip
+    kinds_t = tuple(k for k in kinds.split(",") if k) or RUN_DEFAULT_KINDS
+    return spec, int(seed), epw or RUN_DEFAULT_EPW_MATCH, kinds_t
 
 
 def feature_region_mask(points: np.ndarray) -> np.ndarray:
@@ -75,20 +162,26 @@ def feature_region_mask(points: np.ndarray) -> np.ndarray:
 
 
 class ObstacleFeatures:
-    """The paper's features of the feature region's detections, frame after frame of one sequence."""
+    """The features ``names`` (default: the paper's) of the feature region's detections, frame after frame of one
+    sequence."""
 
-    def __init__(self) -> None:
+    def __init__(self, names: tuple[str, ...] = PAPER_FEATURES) -> None:
         region = augmentation_table()["feature_region_m"]
         extent = max(abs(v) for v in (*region["x"], *region["y"]))
         self._extractor = PointFeatures(extent_m=extent, radial_bin_deg=augmentation_table()["histogram_cells_m"]["radial_deg"])
+        unknown = [n for n in names if n not in FEATURE_NAMES]
+        if unknown:
+            raise ValueError(f"unknown obstacle features {unknown} (weather_filter.features.FEATURE_NAMES)")
+        self.names = tuple(names)
+        self._columns = [FEATURE_NAMES.index(n) for n in names]
 
     def reset(self) -> None:
         self._extractor.reset()
 
     def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(mask of the region's detections, (M, 15) float32 features of those)."""
+        """(mask of the region's detections, (M, len(names)) float32 features of those)."""
         mask = feature_region_mask(points)
-        return mask, np.ascontiguousarray(self._extractor(points[mask])[:, _COLUMNS])
+        return mask, np.ascontiguousarray(self._extractor(points[mask])[:, self._columns])
 
 
 def class_weights() -> tuple[float, float]:
@@ -97,11 +190,12 @@ def class_weights() -> tuple[float, float]:
     return float(c["weight_no_box"]), float(c["weight_box"])
 
 
-def training_arrays(sequences: Iterable[Iterable[np.ndarray]]) -> tuple[np.ndarray, np.ndarray, int]:
+def training_arrays(sequences: Iterable[Iterable[np.ndarray]],
+                    names: tuple[str, ...] = PAPER_FEATURES) -> tuple[np.ndarray, np.ndarray, int]:
     """(X, y, frames) of labelled frame sequences; y = 1 for label 3 (obstacle), 0 else; region only."""
     xs, ys, frames = [], [], 0
     for sequence in sequences:
-        features = ObstacleFeatures()
+        features = ObstacleFeatures(names)
         for points in sequence:
             mask, x = features(points)
             xs.append(x)
@@ -119,31 +213,54 @@ class ObstacleTrainingReport:
     box_points: int
     scores: dict
     output: Path
+    threshold: float = 0.5
+    validation_scores: dict | None = None
 
 
-def train_obstacle(sequences, output: str | Path, *, trained_on: str, command: str, seed: int = 0) -> ObstacleTrainingReport:
-    """Fit the paper's classifier on labelled frame sequences and write the model bundle to ``output``."""
+def best_threshold(truth: np.ndarray, probability: np.ndarray) -> tuple[float, dict]:
+    """The probability threshold (grid 0.05, 0.06, ..., 0.95) of the best box F-score on labelled points, ties
+    to the one nearest 0.5; (threshold, :func:`obstacle_scores` at it)."""
+    grid = np.round(np.arange(5, 96) / 100.0, 2)
+    f = [obstacle_scores(truth, probability >= t)["obstacle_f1"] for t in grid]
+    best = max(range(len(grid)), key=lambda i: (round(f[i], 12), -abs(grid[i] - 0.5)))
+    return float(grid[best]), obstacle_scores(truth, probability >= grid[best])
+
+
+def train_obstacle(sequences, output: str | Path, *, trained_on: str, command: str, seed: int = 0,
+                   validation=None, validated_on: str = "", version: int = 1, features: tuple[str, ...] = PAPER_FEATURES,
+                   hidden: tuple[int, ...] | None = None) -> ObstacleTrainingReport:  # fmt: skip
+    """Fit the classifier on labelled frame sequences and write the model bundle to ``output``.
+
+    Defaults: the paper's (its 15 features, its hidden units, threshold 0.5: the v1 model). With ``validation``
+    (labelled frame sequences of other runs than the fit's) the threshold is the one of the best box F-score on
+    those (:func:`best_threshold`); ``features`` / ``hidden`` other than the paper's (the v2 model)."""
     import joblib
     import sklearn
     from sklearn.neural_network import MLPClassifier
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    x, y, frames = training_arrays(sequences)
+    x, y, frames = training_arrays(sequences, features)
     if y.min() == y.max():
         raise ValueError("training data holds only one class (need obstacle and other points)")
-    hidden = int(augmentation_table()["classifier"]["hidden_units"])
+    hidden = tuple(hidden) if hidden else (int(augmentation_table()["classifier"]["hidden_units"]),)
     w_nb, w_b = class_weights()
-    model = make_pipeline(StandardScaler(), MLPClassifier(hidden_layer_sizes=(hidden,), max_iter=500,
+    model = make_pipeline(StandardScaler(), MLPClassifier(hidden_layer_sizes=hidden, max_iter=500,
                                                           early_stopping=True, random_state=seed))  # fmt: skip
     model.fit(x, y, mlpclassifier__sample_weight=np.where(y == 1, w_b, w_nb))
-    scores = obstacle_scores(y.astype(bool), model.predict_proba(x)[:, 1] >= 0.5)
+    threshold, extra = 0.5, {}
+    if validation is not None:
+        xv, yv, frames_v = training_arrays(validation, features)
+        threshold, val_scores = best_threshold(yv.astype(bool), model.predict_proba(xv)[:, 1])
+        extra = {"threshold_chosen_on": validated_on, "validation_frames": frames_v, "validation_scores": val_scores,
+                 "validation_scores_at_0.5": obstacle_scores(yv.astype(bool), model.predict_proba(xv)[:, 1] >= 0.5)}  # fmt: skip
+    scores = obstacle_scores(y.astype(bool), model.predict_proba(x)[:, 1] >= threshold)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    joblib.dump({"model": model, "feature_names": PAPER_FEATURES, "threshold": 0.5, "hidden": [hidden],
+    joblib.dump({"model": model, "feature_names": tuple(features), "threshold": threshold, "hidden": list(hidden),
                  "class_weights": {"no_box": w_nb, "box": w_b}, "sklearn_version": sklearn.__version__,
-                 "trained_on": trained_on, "command": command, "version": 1}, output, compress=3)  # fmt: skip
-    return ObstacleTrainingReport(frames, len(y), int(y.sum()), scores, output)
+                 "trained_on": trained_on, "command": command, "version": version, **extra}, output, compress=3)  # fmt: skip
+    return ObstacleTrainingReport(frames, len(y), int(y.sum()), scores, output, threshold, extra.get("validation_scores"))
 
 
 class ObstacleClassifier:
@@ -152,12 +269,12 @@ class ObstacleClassifier:
     def __init__(self, bundle: dict) -> None:
         from weather_filter.learned import FastMLP
 
-        if tuple(bundle["feature_names"]) != PAPER_FEATURES:
-            raise ValueError("obstacle model built on other features than weather_filter.obstacle.PAPER_FEATURES")
+        self.features = ObstacleFeatures(tuple(bundle["feature_names"]))  # v1: PAPER_FEATURES; v2: V2_FEATURES
+        if bundle["model"][0].n_features_in_ != len(self.features.names):
+            raise ValueError("obstacle model's input size differs from its feature_names")
         self.bundle = bundle
         self._fast = FastMLP(bundle["model"])
         self._logit_threshold = float(np.log(bundle["threshold"] / (1.0 - bundle["threshold"])))
-        self.features = ObstacleFeatures()
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> "ObstacleClassifier":

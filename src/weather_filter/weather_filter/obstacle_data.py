@@ -6,27 +6,30 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from weather_filter.obstacle import parse_run
+from weather_filter.obstacle import RUN_DEFAULT_KINDS, parse_run_options
 from weather_filter.simdata import SimSpec, default_cache_dir, simulate
 
 
 def augmented_bag(run: str, cache_dir: str | Path | None = None) -> Path:
-    """The bag of ``run`` (``SPEC@AUGMENT_SEED``), augmented now unless already in the cache."""
+    """The bag of ``run`` (``SPEC@AUGMENT_SEED[:EPW_MATCH[:KINDS]]``), augmented now unless already in the cache
+    (``SPEC@SEED`` alone keeps its v1 cache name ``<bag>_a<SEED>``; other options add ``_<epw>`` / ``_<kinds>``)."""
     from lidar_weather_sim.gap.augment_obstacles import augment_bag
     from lidar_weather_sim.sensor.profile import load_profile
 
-    text, seed = parse_run(run)
+    text, seed, epw_match, kinds = parse_run_options(run)
     spec = SimSpec.parse(text)
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    out = cache / "augmented" / f"{spec.bag_name}_a{seed}"
+    suffix = ("" if epw_match == "none" else f"_{epw_match}") + ("" if kinds == RUN_DEFAULT_KINDS else "_" + "-".join(kinds))
+    out = cache / "augmented" / f"{spec.bag_name}_a{seed}{suffix}"
     if (out / "metadata.yaml").exists():
         return out
     bag = simulate(spec, cache)
     name = spec.profile or spec.load_scenario().sensor.profile
     out.parent.mkdir(parents=True, exist_ok=True)
-    # the shipped classifier was trained on boxes with the sensor model's EPW: keep these bags so (the
-    # paper's EPW matching, augment's default, would need a new cache key and a retrained model)
-    augment_bag(bag, out, load_profile(name), name, objects=1, seed=seed, overwrite=True, epw_match="none")
+    # ``SPEC@SEED`` alone: the v1 classifier's data, boxes with the sensor model's EPW (``none``); ``:lead`` is the
+    # paper's EPW matching to the car ahead's rear (augment's default)
+    augment_bag(bag, out, load_profile(name), name, objects=1, seed=seed, overwrite=True, kinds=kinds,
+                epw_match=epw_match)
     return out
 
 
