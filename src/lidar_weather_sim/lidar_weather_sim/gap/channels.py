@@ -11,12 +11,13 @@ margin as any other effect. Channels are scan-pattern rows, 0 = lowest elevation
 - **Weak** (a receiver with less gain ``g``, region ``faults``, ``channel_gains``): every return of the
   channel is ``g`` times weaker. Points carry their peak ``A`` over the threshold ``T`` in their intensity
   (0-255, logarithmic up to the profile's ``intensity_dynamic_range``): a return survives when ``g A >= T``
-  and is reported ``ln g`` lower. Against the re-simulated points of the same channel, ``g`` is found from
-  the share of returns the channel loses when that is more than what every channel loses (the median
-  channel: ray drop is not a weak channel), as the quantile of ``A / T`` that leaves the recording's share
-  above it; else (strong returns, e.g. the road near the car, all survive) from the median intensity,
-  less the median channel's shift (an intensity response every channel shares). Named when ``g`` is
-  ``MIN_GAIN``-``MAX_WEAK_GAIN``.
+  and is reported ``ln g`` lower. Against the re-simulated points of the same channel, ``g`` is read beam by
+  beam where the channel has ``MIN_PAIRS`` beams that both return on off the same surface: their mean
+  intensity change, less the median channel's (an intensity response every channel shares). Otherwise it is
+  found from the share of returns the channel loses when that is more than what every channel loses (the
+  median channel: ray drop is not a weak channel), as the quantile of ``A / T`` that leaves the recording's
+  share above it; else (strong returns, e.g. the road near the car, all survive) from the median intensity,
+  less the median channel's shift. Named when ``g`` is ``MIN_GAIN``-``MAX_WEAK_GAIN``.
 - **Elevation offsets** (``sensor.elevation_offsets_deg``): the median departure of the elevation,
   atan2(z, hypot(x, y)) in the sensor frame, of the channel's recorded points at ``MIN_ELEVATION_RANGE_M``
   or more from the profile's elevation for that channel, where it is at least ``MIN_OFFSET_DEG`` and the
@@ -38,6 +39,8 @@ MIN_SIMULATED_PER_FRAME = 10.0
 MAX_MEASURED_SHARE = 0.05
 MAX_WEAK_GAIN = 0.8  # a channel at least this strong is not named weak
 MIN_GAIN = 0.02  # a weaker channel than this is as good as dead
+MIN_PAIRS = 50  # beams a channel must return on in both recordings for its paired intensity shift
+PAIRED_WINDOW_BYTES = 6.0
 MIN_ELEVATION_POINTS = 20
 MIN_ELEVATION_RANGE_M = 3.0
 MIN_OFFSET_DEG = 0.03
@@ -70,11 +73,12 @@ def dead_channels(measured: list[np.ndarray], simulated: list[np.ndarray], chann
     return [int(c) for c in np.flatnonzero(judged & (got <= MAX_MEASURED_SHARE * expected))]
 
 
-def weak_channels(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int,
-                  dynamic_range: float) -> dict[int, float]:  # fmt: skip
+def weak_channels(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int, dynamic_range: float,
+                  columns: int | None = None) -> dict[int, float]:  # fmt: skip
     """Channel -> receiver gain (0-1) of the channels whose returns are weaker than the others' (module doc).
     ``measured`` and ``simulated`` (the same frames re-simulated without effects): points with ``channel`` and
-    ``intensity``; ``dynamic_range``: the profile's ``detection.intensity_dynamic_range``."""
+    ``intensity`` (with ``columns``, the scan's azimuth columns, also ``azimuth`` and ``distance``: the shift is
+    then read beam by beam); ``dynamic_range``: the profile's ``detection.intensity_dynamic_range``."""
     seen = _seen(measured, simulated, channels)
     if seen is None:
         return {}
@@ -83,18 +87,48 @@ def weak_channels(measured: list[np.ndarray], simulated: list[np.ndarray], chann
     if not judged.any():
         return {}
     per_byte = np.log(dynamic_range) / 255.0
+    paired = _paired_shifts(measured, simulated, channels, columns) if columns else np.full(channels, np.nan)
     log_measured, log_simulated = ([per_byte * np.concatenate([p["intensity"][p["channel"] == c] for p in frames])
                                     .astype(np.float64) for c in range(channels)] for frames in (measured, simulated))  # fmt: skip
     lost = 1.0 - got / np.maximum(expected, 1)
     shift = np.array([np.median(log_measured[c]) - np.median(log_simulated[c]) if judged[c] and len(log_measured[c])
                       else np.nan for c in range(channels)])  # fmt: skip
     common_shift, common_lost = np.nanmedian(shift), np.median(lost[judged])  # what every channel shares
+    common_paired = np.nanmedian(paired[judged]) if np.isfinite(paired[judged]).any() else np.nan
     gains = {}
     for c in np.flatnonzero(judged):
-        gain = _gain(log_measured[c] - common_shift, log_simulated[c], lost[c] - common_lost)
+        if np.isfinite(paired[c]):
+            gain = float(min(1.0, np.exp(per_byte * (paired[c] - common_paired))))
+        else:
+            gain = _gain(log_measured[c] - common_shift, log_simulated[c], lost[c] - common_lost)
         if MIN_GAIN <= gain <= MAX_WEAK_GAIN:
             gains[int(c)] = round(gain, 4)
     return gains
+
+
+def _paired_shifts(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int, columns: int) -> np.ndarray:
+    """Per channel, the mean intensity change (bytes) from the simulated to the measured return of the same beam,
+    over the beams both return on off the same surface and neither at an end of the byte range (a surviving
+    return of a weak channel is ``ln g`` lower, whatever its strength): the mean within ``PAIRED_WINDOW_BYTES``
+    of the median, which averages the bytes' rounding out; NaN with fewer than ``MIN_PAIRS`` pairs."""
+    from lidar_weather_sim.gap.signatures import SAME_SURFACE_M, paired_beams
+
+    diffs, chans = [], []
+    for m, s in zip(measured, simulated):
+        im, is_ = paired_beams(m, s, columns)
+        a, b = m["intensity"][im].astype(np.float64), s["intensity"][is_].astype(np.float64)
+        ok = ((np.abs(m["distance"][im].astype(np.float64) - s["distance"][is_]) <= SAME_SURFACE_M)
+              & (a > 0) & (a < 255) & (b > 0) & (b < 255))  # fmt: skip
+        diffs.append(a[ok] - b[ok])
+        chans.append(m["channel"][im][ok].astype(np.int64))
+    diff, chan = np.concatenate(diffs), np.concatenate(chans)
+    out = np.full(channels, np.nan)
+    for c in range(channels):
+        d = diff[chan == c]
+        if len(d) >= MIN_PAIRS:
+            near = d[np.abs(d - np.median(d)) <= PAIRED_WINDOW_BYTES]
+            out[c] = near.mean()
+    return out
 
 
 def _gain(log_measured: np.ndarray, log_simulated: np.ndarray, lost: float) -> float:

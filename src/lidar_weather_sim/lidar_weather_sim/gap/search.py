@@ -60,7 +60,7 @@ from lidar_weather_sim.gap.effects import (
 )
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
-from lidar_weather_sim.gap.signatures import gap_value, residual_histogram, systematic_bray_curtis
+from lidar_weather_sim.gap.signatures import gap_value, paired_residuals, systematic_bray_curtis
 from lidar_weather_sim.gap.split import DataSplit
 
 MIN_GAIN = 0.10
@@ -183,7 +183,8 @@ class GapSearch:
         dead = dead_channels(measured, simulated, channels)
         if dead:
             out.append(Effect("sensor.dead_channels", {"channels": "+".join(map(str, dead))}))
-        weak = weak_channels(measured, simulated, channels, profile.detection.intensity_dynamic_range)
+        weak = weak_channels(measured, simulated, channels, profile.detection.intensity_dynamic_range,
+                             profile.scan.columns)
         if weak:
             out.append(Effect("sensor.weak_channels", {"gains": format_channel_values(weak)}))
         nominal = np.array([b.elevation_deg for b in profile.beams])[profile.channel_order]
@@ -210,32 +211,35 @@ class GapSearch:
     def gap(self, effects: list[Effect], split: str) -> float:
         """Gap between the measured and the simulated frames of ``split`` (screen, fit, heldout);
         on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
-        With the sensor family, plus the paired-beam range term (:meth:`range_term`)."""
+        With the sensor family, plus the paired-beam range and intensity terms (:meth:`paired_terms`)."""
         indices, keep, clip = self._splits()[split], self.keep(split), split == "heldout"
         if "sensor" not in self.families:
             return gap_value(self._measured[split], self.resim.signature(effects, indices, keep), clip=clip)
         frames = self.resim.frames(effects, indices)
         value = gap_value(self._measured[split], self.resim.signature(effects, indices, keep, frames), clip=clip)
-        return value + self.range_term(effects, indices, frames, keep, clip)
+        return value + self.paired_terms(effects, indices, frames, keep, clip)
 
-    def range_term(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray],
-                   keep: Callable[[np.ndarray], np.ndarray] | None, clip: bool) -> float:  # fmt: skip
-        """How the recorded ranges depart from the simulated ones beam by beam, beyond what the simulator's own
-        noise gives: the systematic Bray-Curtis (:func:`systematic_bray_curtis`) between the histogram of
-        recorded minus simulated range over the beams both return on, and the same histogram for a second,
-        independent simulation of the same frames minus the first. Equal when the simulation has the
-        recording's range bias (a shift) and noise (the width); costs a second simulation of the frames.
-        Histograms (:func:`~lidar_weather_sim.gap.signatures.residual_histogram`) of the sensor-frame
-        points (those ``keep`` selects), the recorded poses common to both sides."""
-        columns = self.resim.world.profile.scan.columns
+    def paired_terms(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray],
+                     keep: Callable[[np.ndarray], np.ndarray] | None, clip: bool) -> float:  # fmt: skip
+        """How the recorded returns depart from the simulated ones beam by beam, beyond what the simulator's own
+        noise gives: for the range and for the per-channel intensity histograms of
+        :func:`~lidar_weather_sim.gap.signatures.paired_residuals` (recorded minus simulated, over the beams both
+        return on), the systematic Bray-Curtis (:func:`systematic_bray_curtis`) against the same histogram for a
+        second, independent simulation of the same frames minus the first; the sum of the two. The range term
+        is equal when the simulation has the recording's range bias (a shift) and noise (the width); the
+        intensity term when it has its intensity response and every channel's gain (a weak channel that keeps
+        its returns shows nowhere else). Costs a second simulation of the frames. Sensor-frame points (those
+        ``keep`` selects), the recorded poses common to both sides."""
+        columns, channels = self.resim.world.profile.scan.columns, self.resim.channels
         recorded = [self.resim.recording.frames[i].points for i in sorted(indices)]
         again = self.resim.frames(effects, indices, redraw=REDRAW_SEED_OFFSET)
         if keep is not None:
             recorded, frames, again = ([p[keep(p)] for p in part] for part in (recorded, frames, again))
-        measured = sum(residual_histogram(r, f, columns) for r, f in zip(recorded, frames))
-        simulated = sum(residual_histogram(a, f, columns) for a, f in zip(again, frames))
+        measured = [paired_residuals(r, f, columns, channels) for r, f in zip(recorded, frames)]
+        simulated = [paired_residuals(a, f, columns, channels) for a, f in zip(again, frames)]
         n = len(indices)
-        return systematic_bray_curtis(measured, n, simulated, n, clip)
+        return sum(systematic_bray_curtis(sum(m[k] for m in measured), n, sum(s[k] for s in simulated), n, clip)
+                   for k in range(2))
 
     def _objective(self, accepted: list[Effect], candidate: Effect, split: str, cache: dict[float, float]):
         """The gap of ``accepted`` + ``candidate`` at search-space value x, memoised in ``cache``."""

@@ -249,6 +249,12 @@ def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> f
 #: Paired-beam range residuals (m): 2 mm bins over +-0.3 m, and one bin each for all beyond (other surfaces,
 #: or noise wider than the window: a beam that pairs up is counted whatever its residual).
 RESIDUAL_EDGES = np.concatenate([[-np.inf], np.linspace(-0.3, 0.3, 301), [np.inf]])
+#: Paired-beam intensity residuals (intensity bytes, per channel): 3-byte bins centred on -63, -60, ..., 63, and one
+#: bin each beyond. Centred on 0 and wider than a byte: intensities are whole bytes, so with a bin edge at 0 or 1
+#: byte wide a parameter a hair off (an intensity gamma 0.1 % off) would move whole rows of otherwise identical
+#: returns into the next bin and look like a systematic difference.
+INTENSITY_RESIDUAL_EDGES = np.concatenate([[-np.inf], np.arange(-64.5, 64.5 + 1e-9, 3.0), [np.inf]])
+SAME_SURFACE_M = 0.3  # paired returns this close in range are taken to be off the same surface
 
 
 def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
@@ -258,19 +264,37 @@ def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
 
 
 def nearest_returns(points: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
-    """(beam keys, range m) of each beam's nearest return, sorted by key."""
+    """(beam keys, index into ``points``) of each beam's nearest return, sorted by key."""
     keys = beam_keys(points, columns)
     order = np.lexsort((points["distance"], keys))
-    keys, ranges = keys[order], points["distance"][order].astype(np.float64)
+    keys = keys[order]
     first = np.ones(len(keys), bool)
     first[1:] = keys[1:] != keys[:-1]
-    return keys[first], ranges[first]
+    return keys[first], order[first]
 
 
-def residual_histogram(a: np.ndarray, b: np.ndarray, columns: int) -> np.ndarray:
-    """Histogram (:data:`RESIDUAL_EDGES`) of range(a) - range(b) over the beams both frames return on
-    (each beam's nearest return): a range bias shifts it, range noise widens it."""
-    ka, ra = nearest_returns(a, columns)
-    kb, rb = nearest_returns(b, columns)
-    _, ia, ib = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
-    return np.histogram(ra[ia] - rb[ib], RESIDUAL_EDGES)[0].astype(np.float64)
+def paired_beams(a: np.ndarray, b: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices into ``a`` and into ``b`` of each beam's nearest return, over the beams both frames return on."""
+    ka, ia = nearest_returns(a, columns)
+    kb, ib = nearest_returns(b, columns)
+    _, ja, jb = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
+    return ia[ja], ib[jb]
+
+
+def paired_residuals(a: np.ndarray, b: np.ndarray, columns: int, channels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two histograms over the beams both frames return on (each beam's nearest return):
+
+    - range(a) - range(b) (:data:`RESIDUAL_EDGES`): a range bias shifts it, range noise widens it;
+    - channel x (intensity(a) - intensity(b)) (:data:`INTENSITY_RESIDUAL_EDGES`, rows of the channels
+      0..``channels`` - 1) over the pairs within :data:`SAME_SURFACE_M` in range: a weak channel's row shifts
+      by its lost log gain, an intensity response shifts or stretches every row."""
+    ia, ib = paired_beams(a, b, columns)
+    dr = a["distance"][ia].astype(np.float64) - b["distance"][ib].astype(np.float64)
+    ranges = np.histogram(dr, RESIDUAL_EDGES)[0].astype(np.float64)
+    same = np.abs(dr) <= SAME_SURFACE_M
+    di = a["intensity"][ia[same]].astype(np.float64) - b["intensity"][ib[same]].astype(np.float64)
+    bins = len(INTENSITY_RESIDUAL_EDGES) - 1
+    idx = np.clip(np.searchsorted(INTENSITY_RESIDUAL_EDGES, di, side="right") - 1, 0, bins - 1)
+    channel = np.clip(a["channel"][ia[same]].astype(np.int64), 0, channels - 1)
+    intensities = np.bincount(channel * bins + idx, minlength=channels * bins).astype(np.float64)
+    return ranges, intensities
