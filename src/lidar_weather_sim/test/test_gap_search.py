@@ -179,44 +179,38 @@ def _beam_frame(rng, channels: int, columns: int, distance: np.ndarray, intensit
     return points[rng.permutation(len(points))]  # the pairing must not depend on the points' order
 
 
-def test_paired_residuals_show_a_weak_channel_that_keeps_its_returns_and_nothing_on_a_redraw():
-    """A channel 12 bytes weaker (gain 0.5 at a 1e4 dynamic range) that loses no return: its row of the paired
-    intensity histogram moves by 12 bytes, the other rows and the range histogram stay; a redraw of the same
-    beams with the same noise gives a systematic Bray-Curtis of ~0 against the simulation, the weak one about
-    1/channels."""
-    from lidar_weather_sim.gap.signatures import INTENSITY_RESIDUAL_EDGES, paired_residuals, systematic_bray_curtis
+def test_the_channel_shift_term_sees_a_weak_channel_that_keeps_its_returns_and_nothing_shared():
+    """A channel 12 bytes weaker (gain 0.65 at a 1e4 dynamic range) that loses no return: the term is its share of
+    the pairs times 12 / 16 bytes. A redraw, a +20-byte response every channel shares and a real scene's wide
+    scatter of intensities around the model's (sd 25 bytes) give ~0; pairs off another surface are not used."""
+    from lidar_weather_sim.gap.signatures import INTENSITY_SHIFT_SCALE_BYTES, channel_shift_term, paired_residuals
 
     rng = np.random.default_rng(7)
-    channels, columns = 8, 360
+    channels, columns, frames = 8, 360, 3
     distance = rng.uniform(5.0, 40.0, channels * columns)
-    intensity = rng.uniform(60.0, 200.0, channels * columns)
+    intensity = rng.uniform(60.0, 190.0, channels * columns)
     weak = np.repeat(np.arange(channels), columns) == 3
-    frames = 3
 
-    def draw(shift):
-        noise = rng.normal(0.0, 1.5, channels * columns)
+    def draw(shift=0.0, common=0.0, scatter=1.5):
+        noise = rng.normal(0.0, scatter, channels * columns)
         return _beam_frame(rng, channels, columns, distance + rng.normal(0.0, 0.01, len(distance)),
-                           intensity + noise - shift * weak)  # fmt: skip
+                           intensity + noise + common - shift * weak)  # fmt: skip
 
-    simulated = [draw(0.0) for _ in range(frames)]
-    recorded = [paired_residuals(draw(12.0), s, columns, channels) for s in simulated]
-    again = [paired_residuals(draw(0.0), s, columns, channels) for s in simulated]
-    bins = len(INTENSITY_RESIDUAL_EDGES) - 1
-    rows = sum(r[1] for r in recorded).reshape(channels, bins)
-    centre = 0.5 * (INTENSITY_RESIDUAL_EDGES[1:-2] + INTENSITY_RESIDUAL_EDGES[2:-1])
-    means = rows[:, 1:-1] @ centre / rows[:, 1:-1].sum(axis=1)
-    assert abs(means[3] + 12.0) < 1.0 and np.all(np.abs(np.delete(means, 3)) < 0.5), means
-    assert rows.sum() == frames * channels * columns  # every beam pairs, off the same surface
+    simulated = [draw() for _ in range(frames)]
 
-    def term(k, a):
-        return systematic_bray_curtis(sum(x[k] for x in a), frames, sum(s[k] for s in again), frames)
+    def term(**kwargs):
+        recorded = sum(paired_residuals(draw(**kwargs), s, columns, channels)[1] for s in simulated)
+        again = sum(paired_residuals(draw(), s, columns, channels)[1] for s in simulated)
+        return channel_shift_term(recorded, again)
 
-    assert term(0, recorded) < 0.01 and term(1, again) == 0.0
-    assert 0.8 / channels < term(1, recorded) < 1.1 / channels
-    moved = draw(0.0)
+    assert term() == 0.0 and term(common=20.0) == 0.0 and term(common=20.0, scatter=25.0) < 0.01
+    expected = 12.0 / INTENSITY_SHIFT_SCALE_BYTES / channels
+    assert abs(term(shift=12.0) - expected) < 0.1 * expected
+    assert abs(term(shift=12.0, common=20.0, scatter=25.0) - expected) < 0.25 * expected
+    moved = draw()
     moved["distance"][moved["channel"] == 5] += 2.0  # channel 5 sees another surface: no intensity pairs
-    ranges, intensities = paired_residuals(moved, simulated[0], columns, channels)
-    assert ranges[-1] == columns and intensities.reshape(channels, bins)[5].sum() == 0
+    ranges, moments = paired_residuals(moved, simulated[0], columns, channels)
+    assert ranges[-1] == columns and moments[0, 5] == 0 and moments[0].sum() == (channels - 1) * columns
 
 
 @pytest.mark.parametrize("gain", [0.7, 0.3, 0.12])

@@ -60,7 +60,7 @@ from lidar_weather_sim.gap.effects import (
 )
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
-from lidar_weather_sim.gap.signatures import gap_value, paired_residuals, systematic_bray_curtis
+from lidar_weather_sim.gap.signatures import channel_shift_term, gap_value, paired_residuals, systematic_bray_curtis
 from lidar_weather_sim.gap.split import DataSplit
 
 MIN_GAIN = 0.10
@@ -222,14 +222,17 @@ class GapSearch:
     def paired_terms(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray],
                      keep: Callable[[np.ndarray], np.ndarray] | None, clip: bool) -> float:  # fmt: skip
         """How the recorded returns depart from the simulated ones beam by beam, beyond what the simulator's own
-        noise gives: for the range and for the per-channel intensity histograms of
-        :func:`~lidar_weather_sim.gap.signatures.paired_residuals` (recorded minus simulated, over the beams both
-        return on), the systematic Bray-Curtis (:func:`systematic_bray_curtis`) against the same histogram for a
-        second, independent simulation of the same frames minus the first; the sum of the two. The range term
-        is equal when the simulation has the recording's range bias (a shift) and noise (the width); the
-        intensity term when it has its intensity response and every channel's gain (a weak channel that keeps
-        its returns shows nowhere else). Costs a second simulation of the frames. Sensor-frame points (those
-        ``keep`` selects), the recorded poses common to both sides."""
+        noise gives, from :func:`~lidar_weather_sim.gap.signatures.paired_residuals` of recorded minus simulated
+        and, as the reference, of a second, independent simulation of the same frames minus the first (costs a
+        second simulation of the frames). The sum of two terms:
+
+        - range: the systematic Bray-Curtis (:func:`systematic_bray_curtis`) between the two range-residual
+          histograms; equal when the simulation has the recording's range bias (a shift) and noise (the width);
+        - intensity: :func:`~lidar_weather_sim.gap.signatures.channel_shift_term`, each channel's own intensity
+          shift; zero when the simulation has every channel's gain (a weak channel that keeps its returns shows
+          nowhere else).
+
+        Sensor-frame points (those ``keep`` selects), the recorded poses common to both sides."""
         columns, channels = self.resim.world.profile.scan.columns, self.resim.channels
         recorded = [self.resim.recording.frames[i].points for i in sorted(indices)]
         again = self.resim.frames(effects, indices, redraw=REDRAW_SEED_OFFSET)
@@ -238,8 +241,8 @@ class GapSearch:
         measured = [paired_residuals(r, f, columns, channels) for r, f in zip(recorded, frames)]
         simulated = [paired_residuals(a, f, columns, channels) for a, f in zip(again, frames)]
         n = len(indices)
-        return sum(systematic_bray_curtis(sum(m[k] for m in measured), n, sum(s[k] for s in simulated), n, clip)
-                   for k in range(2))
+        ranges = systematic_bray_curtis(sum(m[0] for m in measured), n, sum(s[0] for s in simulated), n, clip)
+        return ranges + channel_shift_term(sum(m[1] for m in measured), sum(s[1] for s in simulated))
 
     def _objective(self, accepted: list[Effect], candidate: Effect, split: str, cache: dict[float, float]):
         """The gap of ``accepted`` + ``candidate`` at search-space value x, memoised in ``cache``."""

@@ -249,11 +249,6 @@ def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> f
 #: Paired-beam range residuals (m): 2 mm bins over +-0.3 m, and one bin each for all beyond (other surfaces,
 #: or noise wider than the window: a beam that pairs up is counted whatever its residual).
 RESIDUAL_EDGES = np.concatenate([[-np.inf], np.linspace(-0.3, 0.3, 301), [np.inf]])
-#: Paired-beam intensity residuals (intensity bytes, per channel): 3-byte bins centred on -63, -60, ..., 63, and one
-#: bin each beyond. Centred on 0 and wider than a byte: intensities are whole bytes, so with a bin edge at 0 or 1
-#: byte wide a parameter a hair off (an intensity gamma 0.1 % off) would move whole rows of otherwise identical
-#: returns into the next bin and look like a systematic difference.
-INTENSITY_RESIDUAL_EDGES = np.concatenate([[-np.inf], np.arange(-64.5, 64.5 + 1e-9, 3.0), [np.inf]])
 SAME_SURFACE_M = 0.3  # paired returns this close in range are taken to be off the same surface
 
 
@@ -282,19 +277,50 @@ def paired_beams(a: np.ndarray, b: np.ndarray, columns: int) -> tuple[np.ndarray
 
 
 def paired_residuals(a: np.ndarray, b: np.ndarray, columns: int, channels: int) -> tuple[np.ndarray, np.ndarray]:
-    """Two histograms over the beams both frames return on (each beam's nearest return):
+    """Over the beams both frames return on (each beam's nearest return):
 
-    - range(a) - range(b) (:data:`RESIDUAL_EDGES`): a range bias shifts it, range noise widens it;
-    - channel x (intensity(a) - intensity(b)) (:data:`INTENSITY_RESIDUAL_EDGES`, rows of the channels
-      0..``channels`` - 1) over the pairs within :data:`SAME_SURFACE_M` in range: a weak channel's row shifts
-      by its lost log gain, an intensity response shifts or stretches every row."""
+    - the histogram of range(a) - range(b) (:data:`RESIDUAL_EDGES`): a range bias shifts it, range noise
+      widens it;
+    - per channel (columns 0..``channels`` - 1) the count, sum and sum of squares of intensity(a) -
+      intensity(b) (bytes), over the pairs within :data:`SAME_SURFACE_M` in range and inside the byte range
+      (neither 0 nor 255) on both sides: a weak channel's mean moves by its lost log gain
+      (:func:`channel_shift_term`). Shape (3, ``channels``); sums over frames add up."""
     ia, ib = paired_beams(a, b, columns)
     dr = a["distance"][ia].astype(np.float64) - b["distance"][ib].astype(np.float64)
     ranges = np.histogram(dr, RESIDUAL_EDGES)[0].astype(np.float64)
-    same = np.abs(dr) <= SAME_SURFACE_M
-    di = a["intensity"][ia[same]].astype(np.float64) - b["intensity"][ib[same]].astype(np.float64)
-    bins = len(INTENSITY_RESIDUAL_EDGES) - 1
-    idx = np.clip(np.searchsorted(INTENSITY_RESIDUAL_EDGES, di, side="right") - 1, 0, bins - 1)
-    channel = np.clip(a["channel"][ia[same]].astype(np.int64), 0, channels - 1)
-    intensities = np.bincount(channel * bins + idx, minlength=channels * bins).astype(np.float64)
-    return ranges, intensities
+    ia_, ib_ = a["intensity"][ia].astype(np.float64), b["intensity"][ib].astype(np.float64)
+    ok = (np.abs(dr) <= SAME_SURFACE_M) & (ia_ > 0) & (ia_ < 255) & (ib_ > 0) & (ib_ < 255)
+    di = ia_[ok] - ib_[ok]
+    channel = np.clip(a["channel"][ia[ok]].astype(np.int64), 0, channels - 1)
+    moments = np.stack([np.bincount(channel, w, channels) for w in (np.ones_like(di), di, di * di)])
+    return ranges, moments
+
+
+INTENSITY_SHIFT_SCALE_BYTES = 16.0  # a channel's own shift this large counts fully (a zone intensity bin's width)
+MIN_CHANNEL_PAIRS = 20  # a channel with fewer pairs on either side is not judged
+
+
+def channel_shift_term(measured: np.ndarray, simulated: np.ndarray) -> float:
+    """How far each channel's mean paired intensity change departs from the median channel's in ``measured``
+    beyond what it does in ``simulated`` (moments of :func:`paired_residuals`): per channel
+    ``max(|d_m - d_s| - 2 se, 0) / INTENSITY_SHIFT_SCALE_BYTES``, capped at 1, with ``d`` the channel's mean
+    less the median channel's mean and ``se`` the standard error of the difference; averaged over the channels
+    judged, weighted by their measured pairs. 0 when every channel departs alike: an intensity response all
+    channels share, and the scatter of a real scene's reflectivity around the model's, do not count (the
+    zones' intensity histograms see those); a weak channel does, even when it loses no return."""
+
+    def shifts(moments: np.ndarray):
+        n, total, squares = moments
+        mean = total / np.maximum(n, 1)
+        variance = np.maximum(squares / np.maximum(n, 1) - mean**2, 0.0)
+        return mean, variance / np.maximum(n, 1), n
+
+    mean_m, var_m, n_m = shifts(measured)
+    mean_s, var_s, n_s = shifts(simulated)
+    judged = (n_m >= MIN_CHANNEL_PAIRS) & (n_s >= MIN_CHANNEL_PAIRS)
+    if not judged.any():
+        return 0.0
+    own_m, own_s = mean_m - np.median(mean_m[judged]), mean_s - np.median(mean_s[judged])
+    excess = np.maximum(np.abs(own_m - own_s) - 2.0 * np.sqrt(var_m + var_s), 0.0) / INTENSITY_SHIFT_SCALE_BYTES
+    weights = n_m[judged] / n_m[judged].sum()
+    return float(np.sum(weights * np.minimum(excess[judged], 1.0)))
