@@ -2,7 +2,7 @@
 """Does `gap --effects sensor` find a sensor-side effect hidden in a re-simulation of a real recording?
 
     python benchmarks/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
-        [--profiles P,...] [--workers N]
+        [--profiles P,...] [--effects E,...] [--workers N]
 
 The cases are config/sensor_effect_cases.yaml's seeded draws (committed before any run): for each
 profile and sensor effect, ``draws_per_effect`` values of its main parameter, plus ``clear_cases``
@@ -122,6 +122,8 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=0, help="run only the first K draws of each profile and effect "
                                                             "(0: all)")
     parser.add_argument("--profiles", help="comma-separated: only the cases of these profiles (default: all)")
+    parser.add_argument("--effects", help="comma-separated: only the cases hiding these effects (default: all, and "
+                                          "the clear cases)")
     parser.add_argument("--workers", type=int, default=0, help="the gap search's Dask workers (0: in this process)")
     args = parser.parse_args()
     cases_path = Path(args.cases)
@@ -130,16 +132,20 @@ def main() -> None:
     cases = draw_cases(spec)
     if args.profiles:
         cases = [c for c in cases if c[0] in args.profiles.split(",")]
+    numbered = list(enumerate(cases))  # a case keeps its number (and so its seed) under --effects and --limit
+    if args.effects:
+        numbered = [(k, c) for k, c in numbered if c[1] in args.effects.split(",")]
     if args.limit:  # the first K draws of each profile and effect (and K clear cases)
-        cases = [c for i, c in enumerate(cases) if sum(d[:2] == c[:2] for d in cases[:i]) < args.limit]
+        numbered = [(k, c) for i, (k, c) in enumerate(numbered)
+                    if sum(d[:2] == c[:2] for _, d in numbered[:i]) < args.limit]  # fmt: skip
     budgets = {k: spec["measurement"][k] for k in ("fit_frames", "heldout_frames", "screen_frames")}
     within = spec["success"]["parameter_within"]
-    print(f"{len(cases)} cases from {cases_path.name} (seed {spec['seed']}), scenario {scenario.name}, recording "
+    print(f"{len(numbered)} cases from {cases_path.name} (seed {spec['seed']}), scenario {scenario.name}, recording "
           f"{args.recording}, budgets {budgets}")  # fmt: skip
     print(f"{'#':>3} {'profile':13} {'hidden':32} {'named':48} {'err':>7} {'gap before -> after':>20} ok")
     right: dict[str, list[bool]] = {}
     with tempfile.TemporaryDirectory(prefix="sensor-effects-") as tmp:
-        for k, (profile, name, value) in enumerate(cases):
+        for k, (profile, name, value) in numbered:
             start = time.perf_counter()
             hidden = [Effect(name, {EFFECTS[name].main: value})] if name else []
             measured = Path(tmp) / f"case{k}"

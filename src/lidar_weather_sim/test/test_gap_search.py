@@ -170,12 +170,19 @@ def test_channel_value_effects_parse_patch_and_refuse_bad_pairs():
             parse_effect(bad)
 
 
-def _beam_frame(rng, channels: int, columns: int, distance: np.ndarray, intensity: np.ndarray) -> np.ndarray:
-    """One return per beam (channel x column, channel-major) at the given distance (m) and intensity (bytes)."""
-    points = np.zeros(channels * columns, [("channel", "u2"), ("azimuth", "f4"), ("distance", "f4"), ("intensity", "u1")])
+def _beam_frame(rng, channels: int, columns: int, distance: np.ndarray, intensity: np.ndarray,
+                elevation_deg: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """One return per beam (channel x column, channel-major) at the given distance (m), intensity (bytes) and
+    elevation (deg; default channel c at 2 c - 8 deg), in the sensor frame."""
+    points = np.zeros(channels * columns, [("x", "f4"), ("y", "f4"), ("z", "f4"), ("channel", "u2"),
+                                           ("azimuth", "f4"), ("distance", "f4"), ("intensity", "u1")])  # fmt: skip
     points["channel"] = np.repeat(np.arange(channels), columns)
     points["azimuth"] = np.tile(-np.pi + (np.arange(columns) + 0.5) * 2.0 * np.pi / columns, channels)
     points["distance"], points["intensity"] = distance, np.clip(intensity, 0, 255).round()
+    el = np.radians(2.0 * points["channel"] - 8.0 if elevation_deg is None else elevation_deg)
+    points["x"] = distance * np.cos(el) * np.cos(points["azimuth"])
+    points["y"] = distance * np.cos(el) * np.sin(points["azimuth"])
+    points["z"] = distance * np.sin(el)
     return points[rng.permutation(len(points))]  # the pairing must not depend on the points' order
 
 
@@ -201,7 +208,7 @@ def test_the_channel_shift_term_sees_a_weak_channel_that_keeps_its_returns_and_n
     def term(**kwargs):
         recorded = sum(paired_residuals(draw(**kwargs), s, columns, channels)[1] for s in simulated)
         again = sum(paired_residuals(draw(), s, columns, channels)[1] for s in simulated)
-        return channel_shift_term(recorded, again)
+        return channel_shift_term(recorded, again, INTENSITY_SHIFT_SCALE_BYTES)
 
     assert term() == 0.0 and term(common=20.0) == 0.0 and term(common=20.0, scatter=25.0) < 0.01
     expected = 12.0 / INTENSITY_SHIFT_SCALE_BYTES / channels
@@ -209,8 +216,62 @@ def test_the_channel_shift_term_sees_a_weak_channel_that_keeps_its_returns_and_n
     assert abs(term(shift=12.0, common=20.0, scatter=25.0) - expected) < 0.25 * expected
     moved = draw()
     moved["distance"][moved["channel"] == 5] += 2.0  # channel 5 sees another surface: no intensity pairs
-    ranges, moments = paired_residuals(moved, simulated[0], columns, channels)
+    ranges, moments, range_moments, _ = paired_residuals(moved, simulated[0], columns, channels)
     assert ranges[-1] == columns and moments[0, 5] == 0 and moments[0].sum() == (channels - 1) * columns
+    assert range_moments[0, 5] == 0 and range_moments[0].sum() == (channels - 1) * columns
+
+
+def test_the_channel_shift_term_sees_one_channel_moved_in_range_and_not_a_common_bias():
+    """Channel 2's returns 4 cm farther (a channel off its elevation, on the road): the range shift term is its
+    share of the pairs times 4 / 5 cm; a 3 cm range bias of every channel, and 1 cm range noise, give ~0."""
+    from lidar_weather_sim.gap.signatures import RANGE_SHIFT_SCALE_M, channel_shift_term, paired_residuals
+
+    rng = np.random.default_rng(8)
+    channels, columns, frames = 8, 360, 3
+    distance = rng.uniform(5.0, 40.0, channels * columns)
+    intensity = rng.uniform(60.0, 190.0, channels * columns)
+    moved_channel = np.repeat(np.arange(channels), columns) == 2
+
+    def draw(shift=0.0, bias=0.0):
+        noise = rng.normal(0.0, 0.01, channels * columns)
+        return _beam_frame(rng, channels, columns, distance + noise + bias + shift * moved_channel, intensity)
+
+    simulated = [draw() for _ in range(frames)]
+
+    def term(**kwargs):
+        recorded = sum(paired_residuals(draw(**kwargs), s, columns, channels)[2] for s in simulated)
+        again = sum(paired_residuals(draw(), s, columns, channels)[2] for s in simulated)
+        return channel_shift_term(recorded, again, RANGE_SHIFT_SCALE_M)
+
+    assert term() == 0.0 and term(bias=0.03) == 0.0
+    expected = 0.04 / RANGE_SHIFT_SCALE_M / channels
+    assert abs(term(shift=0.04) - expected) < 0.1 * expected
+
+
+def test_the_channel_shift_term_sees_one_channel_off_its_elevation_on_a_wall():
+    """Channel 6 cast 0.04 deg high at the same ranges (a wall: range and intensity unchanged): the elevation
+    shift term is its share of the pairs times 0.04 / 0.05 deg; every channel 0.04 deg high gives 0."""
+    from lidar_weather_sim.gap.signatures import ELEVATION_SHIFT_SCALE_DEG, channel_shift_term, paired_residuals
+
+    rng = np.random.default_rng(9)
+    channels, columns, frames = 8, 360, 3
+    distance = rng.uniform(5.0, 40.0, channels * columns)
+    nominal = 2.0 * np.repeat(np.arange(channels), columns) - 8.0
+
+    def draw(offset=0.0, common=0.0):
+        el = nominal + common + offset * (np.repeat(np.arange(channels), columns) == 6)
+        return _beam_frame(rng, channels, columns, distance, np.full(len(distance), 100.0), el)
+
+    simulated = [draw() for _ in range(frames)]
+
+    def term(**kwargs):
+        recorded = sum(paired_residuals(draw(**kwargs), s, columns, channels)[3] for s in simulated)
+        again = sum(paired_residuals(draw(), s, columns, channels)[3] for s in simulated)
+        return channel_shift_term(recorded, again, ELEVATION_SHIFT_SCALE_DEG)
+
+    assert term() == 0.0 and term(common=0.04) < 1e-3
+    expected = 0.04 / ELEVATION_SHIFT_SCALE_DEG / channels
+    assert abs(term(offset=0.04) - expected) < 0.1 * expected
 
 
 @pytest.mark.parametrize("gain", [0.7, 0.3, 0.12])

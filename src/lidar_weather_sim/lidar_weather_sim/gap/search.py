@@ -60,7 +60,15 @@ from lidar_weather_sim.gap.effects import (
 )
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
-from lidar_weather_sim.gap.signatures import channel_shift_term, gap_value, paired_residuals, systematic_bray_curtis
+from lidar_weather_sim.gap.signatures import (
+    ELEVATION_SHIFT_SCALE_DEG,
+    INTENSITY_SHIFT_SCALE_BYTES,
+    RANGE_SHIFT_SCALE_M,
+    channel_shift_term,
+    gap_value,
+    paired_residuals,
+    systematic_bray_curtis,
+)
 from lidar_weather_sim.gap.split import DataSplit
 
 MIN_GAIN = 0.10
@@ -224,13 +232,14 @@ class GapSearch:
         """How the recorded returns depart from the simulated ones beam by beam, beyond what the simulator's own
         noise gives, from :func:`~lidar_weather_sim.gap.signatures.paired_residuals` of recorded minus simulated
         and, as the reference, of a second, independent simulation of the same frames minus the first (costs a
-        second simulation of the frames). The sum of two terms:
+        second simulation of the frames). The sum of:
 
         - range: the systematic Bray-Curtis (:func:`systematic_bray_curtis`) between the two range-residual
           histograms; equal when the simulation has the recording's range bias (a shift) and noise (the width);
-        - intensity: :func:`~lidar_weather_sim.gap.signatures.channel_shift_term`, each channel's own intensity
-          shift; zero when the simulation has every channel's gain (a weak channel that keeps its returns shows
-          nowhere else).
+        - each channel's own intensity, range and elevation shifts
+          (:func:`~lidar_weather_sim.gap.signatures.channel_shift_term`); zero when the simulation has every
+          channel's gain and elevation (a weak channel that keeps its returns, or one 0.1 deg off on a
+          128-channel unit, shows nowhere else).
 
         Sensor-frame points (those ``keep`` selects), the recorded poses common to both sides."""
         columns, channels = self.resim.world.profile.scan.columns, self.resim.channels
@@ -242,7 +251,10 @@ class GapSearch:
         simulated = [paired_residuals(a, f, columns, channels) for a, f in zip(again, frames)]
         n = len(indices)
         ranges = systematic_bray_curtis(sum(m[0] for m in measured), n, sum(s[0] for s in simulated), n, clip)
-        return ranges + channel_shift_term(sum(m[1] for m in measured), sum(s[1] for s in simulated))
+        shifts = sum(channel_shift_term(sum(m[k] for m in measured), sum(s[k] for s in simulated), scale)
+                     for k, scale in enumerate((INTENSITY_SHIFT_SCALE_BYTES, RANGE_SHIFT_SCALE_M,
+                                                ELEVATION_SHIFT_SCALE_DEG), start=1))  # fmt: skip
+        return ranges + shifts
 
     def _objective(self, accepted: list[Effect], candidate: Effect, split: str, cache: dict[float, float]):
         """The gap of ``accepted`` + ``candidate`` at search-space value x, memoised in ``cache``."""
