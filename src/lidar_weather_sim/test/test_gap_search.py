@@ -190,7 +190,12 @@ def test_the_channel_shift_term_sees_a_weak_channel_that_keeps_its_returns_and_n
     """A channel 12 bytes weaker (gain 0.65 at a 1e4 dynamic range) that loses no return: the term is its share of
     the pairs times 12 / 16 bytes. A redraw, a +20-byte response every channel shares and a real scene's wide
     scatter of intensities around the model's (sd 25 bytes) give ~0; pairs off another surface are not used."""
-    from lidar_weather_sim.gap.signatures import INTENSITY_SHIFT_SCALE_BYTES, channel_shift_term, paired_residuals
+    from lidar_weather_sim.gap.signatures import (
+        INTENSITY_SHIFT_SCALE_BYTES,
+        SHIFT_NOISE_SE,
+        channel_shift_term,
+        paired_residuals,
+    )
 
     rng = np.random.default_rng(7)
     channels, columns, frames = 8, 360, 3
@@ -213,7 +218,9 @@ def test_the_channel_shift_term_sees_a_weak_channel_that_keeps_its_returns_and_n
     assert term() == 0.0 and term(common=20.0) == 0.0 and term(common=20.0, scatter=25.0) < 0.01
     expected = 12.0 / INTENSITY_SHIFT_SCALE_BYTES / channels
     assert abs(term(shift=12.0) - expected) < 0.1 * expected
-    assert abs(term(shift=12.0, common=20.0, scatter=25.0) - expected) < 0.25 * expected
+    se = 25.0 * np.sqrt(2.0 / (frames * columns))  # the wide scatter's standard error, 3 of which do not count
+    wide = (12.0 - SHIFT_NOISE_SE * se) / INTENSITY_SHIFT_SCALE_BYTES / channels
+    assert abs(term(shift=12.0, common=20.0, scatter=25.0) - wide) < 0.15 * wide
     moved = draw()
     moved["distance"][moved["channel"] == 5] += 2.0  # channel 5 sees another surface: no intensity pairs
     ranges, moments, range_moments, _ = paired_residuals(moved, simulated[0], columns, channels)
