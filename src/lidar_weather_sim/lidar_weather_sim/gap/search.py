@@ -219,7 +219,7 @@ class GapSearch:
     def gap(self, effects: list[Effect], split: str) -> float:
         """Gap between the measured and the simulated frames of ``split`` (screen, fit, heldout);
         on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
-        With the sensor family, plus the paired-beam range and intensity terms (:meth:`paired_terms`)."""
+        With the sensor family, plus the paired-beam range term and per-channel shift terms (:meth:`paired_terms`)."""
         indices, keep, clip = self._splits()[split], self.keep(split), split == "heldout"
         if "sensor" not in self.families:
             return gap_value(self._measured[split], self.resim.signature(effects, indices, keep), clip=clip)
