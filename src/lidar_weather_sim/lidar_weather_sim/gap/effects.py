@@ -33,6 +33,9 @@ sensor.beam_origin         z               m, signed: the beams' origin above th
                                            ``sensor.beam_origin_z_m``
 sensor.beam_origin_radial  radius          m: the beams' origin off the spin axis, in the points' frame;
                                            ``sensor.beam_origin_radial_m``
+sensor.near_field_ghost    rate            ghosts per beam and frame: returns of the clean window and
+                                           housing at 0-0.5 m; region ``cover``,
+                                           ``near_field_ghost_per_beam``
 =========================  ==============  ==================================================
 
 The ``sensor.intensity_*``, ``range_*`` and ``ray_drop`` effects are the unit's own departures from
@@ -105,6 +108,7 @@ EFFECTS: dict[str, EffectSpec] = {
                    from_data=True),
         EffectSpec("sensor.beam_origin", "z", "m", (-0.15, 0.15), False, family="sensor", signed=True),
         EffectSpec("sensor.beam_origin_radial", "radius", "m", (0.002, 0.1), True, family="sensor"),
+        EffectSpec("sensor.near_field_ghost", "rate", "1/beam", (0.003, 3.0), True, family="sensor"),
     )
 }
 FAMILIES = ("weather", "sensor")
@@ -326,6 +330,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: s
             data["sensor"]["beam_origin_z_m"] = v
         elif e.name == "sensor.beam_origin_radial":
             data["sensor"]["beam_origin_radial_m"] = v
+        elif e.name == "sensor.near_field_ghost":
+            region("cover")["near_field_ghost_per_beam"] = v
         elif e.name == "sensor.sun":
             data["weather"]["sun"]["irradiance_w_m2"] = v
         elif e.name in RESPONSE_FIELDS:

@@ -9,7 +9,11 @@ Per sub-ray (sensor frame direction -> u, v over the field of view):
 - Monte-Carlo range noise (Table II): extra Gaussian sigma
   ``sigma0 sqrt((1 + increase)^2 - 1)`` on scene hits, sigma0 = the profile's noise;
 - near-field cover returns (0-0.5 m, exponential, bypassing the biaxial overlap)
-  at a rate that grows with dirt or water (:mod:`lidar_weather_sim.regions.near_field`).
+  at a rate that grows with dirt or water (:mod:`lidar_weather_sim.regions.near_field`), plus the
+  sensor's own near-field ghosts at ``near_field_ghost_per_beam``: the same returns from the clean
+  window and housing (multiple reflection inside the sensor, thesis lines 329 and 498), the effect
+  ``sensor.near_field_ghost`` of the gap search. Only those beyond the profile's minimum range
+  (``range.min_m``) are reported.
 
 Textures can change over time: ``target_texture`` is blended in linearly from
 ``blend_start_s`` over ``blend_duration_s`` (simulated s), e.g. dirt building up.
@@ -42,6 +46,9 @@ class CoverParams(ConfigModel):
     near_field_scale_m: float = Field(0.1, gt=0, description="Exponential range scale of cover returns (m)")
     near_field_amplitude: float = Field(3.0, gt=0, description="Median cover-return peak over the dark threshold")
     near_field_sigma_ln: float = Field(0.8, ge=0, description="Log-sd of the cover-return peak amplitude")
+    near_field_ghost_per_beam: float = Field(0.0, ge=0, le=10, description="Mean near-field ghosts per beam and "
+                                             "frame: cover returns of the clean window and housing, added to the "
+                                             "texture's")  # fmt: skip
 
 
 class CoverRegion:
@@ -119,7 +126,7 @@ class CoverRegion:
         t = t * _forward_scatter_factors(np.asarray(batch.weights, dtype=np.float64), mix("forward_share"))[None, :]
         extra = mix("extra_range_sigma_m")
         offset = rng.normal(0.0, extra, (n, s)) if extra > 0 else None
-        rate = mix("near_field_per_beam")
+        rate = mix("near_field_per_beam") + self.p.near_field_ghost_per_beam
         scatterers = None
         if rate > 0:
             model = NearFieldModel(rate, 1.0, self.p.near_field_scale_m, self.p.near_field_amplitude,
