@@ -2,7 +2,7 @@
 """Does `gap --effects sensor` find a sensor-side effect hidden in a re-simulation of a real recording?
 
     python benchmarks/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
-        [--profiles P,...] [--effects E,...] [--workers N]
+        [--profiles P,...] [--effects E,...] [--only K,...] [--workers N]
 
 The cases are config/sensor_effect_cases.yaml's seeded draws (committed before any run): for each
 profile and sensor effect, ``draws_per_effect`` values of its main parameter, plus ``clear_cases``
@@ -124,6 +124,7 @@ def main() -> None:
     parser.add_argument("--profiles", help="comma-separated: only the cases of these profiles (default: all)")
     parser.add_argument("--effects", help="comma-separated: only the cases hiding these effects (default: all, and "
                                           "the clear cases)")
+    parser.add_argument("--only", help="comma-separated case numbers: run only these (numbered as in a run with the same --profiles)")
     parser.add_argument("--workers", type=int, default=0, help="the gap search's Dask workers (0: in this process)")
     args = parser.parse_args()
     cases_path = Path(args.cases)
@@ -135,6 +136,8 @@ def main() -> None:
     numbered = list(enumerate(cases))  # a case keeps its number (and so its seed) under --effects and --limit
     if args.effects:
         numbered = [(k, c) for k, c in numbered if c[1] in args.effects.split(",")]
+    if args.only:
+        numbered = [(k, c) for k, c in numbered if k in {int(x) for x in args.only.split(",")}]
     if args.limit:  # the first K draws of each profile and effect (and K clear cases)
         numbered = [(k, c) for i, (k, c) in enumerate(numbered)
                     if sum(d[:2] == c[:2] for _, d in numbered[:i]) < args.limit]  # fmt: skip
@@ -142,7 +145,7 @@ def main() -> None:
     within = spec["success"]["parameter_within"]
     print(f"{len(numbered)} cases from {cases_path.name} (seed {spec['seed']}), scenario {scenario.name}, recording "
           f"{args.recording}, budgets {budgets}")  # fmt: skip
-    print(f"{'#':>3} {'profile':13} {'hidden':32} {'named':48} {'err':>7} {'gap before -> after':>20} ok")
+    print(f"{'#':>3} {'profile':13} {'hidden':32} {'err':>7} {'gap before -> after':>20} ok  named")
     right: dict[str, list[bool]] = {}
     with tempfile.TemporaryDirectory(prefix="sensor-effects-") as tmp:
         for k, (profile, name, value) in numbered:
@@ -166,10 +169,9 @@ def main() -> None:
             right.setdefault(f"{profile} {name or 'clear'}", []).append(ok)
             hidden_text = (f"{name}={value}" if isinstance(value, str) else f"{name}={value:.4g}") if name else "clear"
             named_text = ", ".join(f"{n}({format_params(p)})" for n, p in named.items()) or "nothing"
-            print(f"{k:3d} {profile:13} {hidden_text:32} {named_text[:48]:48} "
-                  f"{'' if error is None else f'{100 * error:6.1f}%':>7} "
-                  f"{result['gap_before']:8.4f} -> {result['gap_after']:.4f} {'yes' if ok else 'NO'}"
-                  f"  ({time.perf_counter() - start:.0f} s)", flush=True)  # fmt: skip
+            print(f"{k:3d} {profile:13} {hidden_text:32} {'' if error is None else f'{100 * error:6.1f}%':>7} "
+                  f"{result['gap_before']:8.4f} -> {result['gap_after']:.4f} {'yes' if ok else 'NO ':3} "
+                  f"({time.perf_counter() - start:.0f} s) {named_text}", flush=True)  # fmt: skip
     print("\nper profile and effect: right / cases")
     for key, oks in right.items():
         print(f"  {key:40s} {sum(oks)}/{len(oks)}")
