@@ -303,3 +303,32 @@ def test_weak_channels_read_beam_by_beam_to_within_two_percent(gain):
     found = weak_channels(measured, simulated, channels, dynamic_range, columns)
     assert list(found) == [6] and abs(found[6] / gain - 1.0) < 0.02, found
     assert weak_channels(simulated, simulated, channels, dynamic_range, columns) == {}
+
+
+@pytest.mark.parametrize("gamma", [0.59, 1.6])
+def test_an_intensity_gamma_is_not_read_as_weak_channels_where_channels_see_different_brightness(gamma):
+    """Channels that see surfaces of different brightness (channel c's returns around byte 40 + 20 c) under an
+    intensity gamma every channel shares: each channel's mean byte change differs (the gamma moves dark and bright
+    returns by different amounts), yet no channel is named weak, and channel 2 at gain 0.4 on top still is, its
+    gain within 2 %: its recorded bytes are read back through the response all channels share."""
+    from lidar_weather_sim.gap.channels import weak_channels
+    from lidar_weather_sim.sensor.response import SensorResponse, intensity_table
+
+    rng = np.random.default_rng(12)
+    channels, columns, dynamic_range, gain = 8, 720, 1.0e4, 0.4
+    per_byte = np.log(dynamic_range) / 255.0
+    table = intensity_table(SensorResponse(intensity_gamma=gamma)).astype(np.float64)
+    channel = np.repeat(np.arange(channels), columns)
+    distance = rng.uniform(5.0, 60.0, channels * columns)
+    level = np.clip(40.0 + 20.0 * channel + rng.normal(0.0, 12.0, channels * columns), 1.0, 254.0)
+    shifts = []
+    for weak in (None, 2):
+        simulated, measured = [], []
+        for _ in range(2):
+            simulated.append(_beam_frame(rng, channels, columns, distance, level))
+            own = level + np.where(channel == weak, np.log(gain) / per_byte, 0.0)
+            frame = _beam_frame(rng, channels, columns, distance, table[np.clip(own, 0, 255).round().astype(int)])
+            measured.append(frame[frame["intensity"] > 0])
+        shifts.append(weak_channels(measured, simulated, channels, dynamic_range, columns))
+    assert shifts[0] == {}, shifts[0]
+    assert list(shifts[1]) == [2] and shifts[1][2] == pytest.approx(gain, rel=0.02), shifts[1]

@@ -13,7 +13,11 @@ margin as any other effect. Channels are scan-pattern rows, 0 = lowest elevation
   (0-255, logarithmic up to the profile's ``intensity_dynamic_range``): a return survives when ``g A >= T``
   and is reported ``ln g`` lower. Against the re-simulated points of the same channel, ``g`` is read beam by
   beam where the channel has ``MIN_PAIRS`` beams that both return on off the same surface: their mean
-  intensity change, less the median channel's (an intensity response every channel shares). Otherwise it is
+  intensity change, less the median channel's, on the model's byte scale: each recorded byte is first taken
+  back through the response every channel shares (the median recorded byte of all pairs at each simulated
+  byte, :func:`_shared_response`). An intensity gamma or scale moves dark and bright returns by different
+  amounts and channels see surfaces of different brightness, so without that a shared response would read as
+  a trend of weak channels, and a weak channel's gain would be read through the gamma. Otherwise it is
   found from the share of returns the channel loses when that is more than what every channel loses (the
   median channel: ray drop is not a weak channel), as the quantile of ``A / T`` that leaves the recording's
   share above it; else (strong returns, e.g. the road near the car, all survive) from the median intensity,
@@ -40,6 +44,7 @@ MAX_MEASURED_SHARE = 0.05
 MAX_WEAK_GAIN = 0.8  # a channel at least this strong is not named weak
 MIN_GAIN = 0.02  # a weaker channel than this is as good as dead
 MIN_PAIRS = 50  # beams a channel must return on in both recordings for its paired intensity shift
+MIN_LEVEL_PAIRS = 20  # pairs at a simulated byte for its shared response (else interpolated from the neighbours)
 PAIRED_WINDOW_BYTES = 6.0
 MIN_ELEVATION_POINTS = 20
 MIN_ELEVATION_RANGE_M = 3.0
@@ -109,19 +114,23 @@ def weak_channels(measured: list[np.ndarray], simulated: list[np.ndarray], chann
 def _paired_shifts(measured: list[np.ndarray], simulated: list[np.ndarray], channels: int, columns: int) -> np.ndarray:
     """Per channel, the mean intensity change (bytes) from the simulated to the measured return of the same beam,
     over the beams both return on off the same surface and neither at an end of the byte range (a surviving
-    return of a weak channel is ``ln g`` lower, whatever its strength): the mean within ``PAIRED_WINDOW_BYTES``
-    of the median, which averages the bytes' rounding out; NaN with fewer than ``MIN_PAIRS`` pairs."""
+    return of a weak channel is ``ln g`` lower, whatever its strength), the recorded byte taken back through the
+    response all channels share (:func:`_shared_response`): the mean within ``PAIRED_WINDOW_BYTES`` of the median,
+    which averages the bytes' rounding out; NaN with fewer than ``MIN_PAIRS`` pairs."""
     from lidar_weather_sim.gap.signatures import SAME_SURFACE_M, paired_beams
 
-    diffs, chans = [], []
+    recorded, chans, levels = [], [], []
     for m, s in zip(measured, simulated):
         im, is_ = paired_beams(m, s, columns)
         a, b = m["intensity"][im].astype(np.float64), s["intensity"][is_].astype(np.float64)
         ok = ((np.abs(m["distance"][im].astype(np.float64) - s["distance"][is_]) <= SAME_SURFACE_M)
               & (a > 0) & (a < 255) & (b > 0) & (b < 255))  # fmt: skip
-        diffs.append(a[ok] - b[ok])
+        recorded.append(a[ok])
         chans.append(m["channel"][im][ok].astype(np.int64))
-    diff, chan = np.concatenate(diffs), np.concatenate(chans)
+        levels.append(b[ok])
+    a, chan, b = np.concatenate(recorded), np.concatenate(chans), np.concatenate(levels)
+    response = _shared_response(a, b.astype(np.int64))
+    diff = np.interp(a, response, np.arange(256.0)) - b  # the recorded byte on the model's scale, less the model's
     out = np.full(channels, np.nan)
     for c in range(channels):
         d = diff[chan == c]
@@ -129,6 +138,21 @@ def _paired_shifts(measured: list[np.ndarray], simulated: list[np.ndarray], chan
             near = d[np.abs(d - np.median(d)) <= PAIRED_WINDOW_BYTES]
             out[c] = near.mean()
     return out
+
+
+def _shared_response(recorded: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """(256,) increasing: at each simulated byte, the median ``recorded`` byte of all pairs at that byte
+    ``level``, where it has ``MIN_LEVEL_PAIRS`` pairs; between such bytes the change is interpolated linearly,
+    beyond them it stays that of the nearest (the identity when no byte has enough pairs)."""
+    order = np.argsort(level, kind="stable")
+    values, starts, counts = np.unique(level[order], return_index=True, return_counts=True)
+    known = counts >= MIN_LEVEL_PAIRS
+    levels = np.arange(256.0)
+    if not known.any():
+        return levels
+    medians = np.array([np.median(recorded[order[i : i + n]]) for i, n in zip(starts[known], counts[known])])
+    response = levels + np.interp(levels, values[known], medians - values[known])
+    return np.maximum.accumulate(response) + 1e-6 * levels  # increasing, as np.interp needs to invert it
 
 
 def _gain(log_measured: np.ndarray, log_simulated: np.ndarray, lost: float) -> float:
