@@ -18,6 +18,8 @@ a clear case is right when nothing is named. Case k is simulated with seed 1000 
 ``--cases config/channel_effect_cases.yaml``: the per-channel effects read off the data (weak channels,
 elevation offsets): each draw hides its values on randomly drawn channels; right when exactly that effect is
 named on exactly those channels, each value within ``parameter_within`` (offsets: or ``offset_within_deg``).
+``--cases config/enumerated_effect_cases.yaml``: dead channels (right on exactly the drawn channels) and the
+return mode (right with exactly the drawn mode).
 """
 
 from __future__ import annotations
@@ -65,14 +67,20 @@ def draw_channel_cases(spec: dict) -> list[tuple[str, str | None, str | None]]:
     for profile in spec["profiles"]:
         n_channels = len(load_profile(profile).beams)
         for name, entry in spec["channel_effects"].items():
-            (lo, hi), k = entry["range"], entry["channels"]
+            k = entry["channels"]
             for _ in range(spec["draws_per_effect"]):
                 channels = rng.choice(n_channels, k, replace=False)
+                if "range" not in entry:  # dead channels: the channels alone
+                    cases.append((profile, name, "+".join(map(str, sorted(channels.tolist())))))
+                    continue
+                lo, hi = entry["range"]
                 u = rng.uniform(np.log(lo), np.log(hi), k) if entry["scale"] == "log" else rng.uniform(lo, hi, k)
                 values = np.exp(u) if entry["scale"] == "log" else u
                 if entry.get("signed"):
                     values = values * rng.choice([-1.0, 1.0], k)
                 cases.append((profile, name, format_channel_values(dict(zip(channels.tolist(), np.round(values, 4))))))
+        for name, entry in spec.get("choice_effects", {}).items():
+            cases += [(profile, name, str(rng.choice(entry["choices"]))) for _ in range(spec["draws_per_effect"])]
         cases += [(profile, None, None)] * spec["clear_cases"]
     return cases
 
@@ -81,6 +89,8 @@ def channel_error(name: str, hidden: str, named: str, success: dict) -> tuple[fl
     """(largest relative error, right) of a per-channel effect named as ``named`` against ``hidden``."""
     from lidar_weather_sim.gap.effects import parse_channel_values
 
+    if name == "sensor.dead_channels":
+        return 0.0, set(hidden.split("+")) == set(named.split("+"))
     want, got = parse_channel_values(name, hidden), parse_channel_values(name, named)
     if set(want) != set(got):
         return float("inf"), False
@@ -160,6 +170,8 @@ def main() -> None:
             if name and name in named and EFFECTS[name].from_data:
                 error, ok = channel_error(name, value, str(named[name][EFFECTS[name].main]), spec["success"])
                 ok = ok and list(named) == [name]
+            elif name and name in named and EFFECTS[name].categorical:
+                ok = list(named) == [name] and named[name][EFFECTS[name].main] == value
             elif name and name in named:
                 got = named[name][EFFECTS[name].main]
                 error = abs(got - value) / abs(value)
