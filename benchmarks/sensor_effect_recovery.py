@@ -2,7 +2,7 @@
 """Does `gap --effects sensor` find a sensor-side effect hidden in a re-simulation of a real recording?
 
     python benchmarks/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
-        [--profiles P,...] [--effects E,...] [--only K,...] [--workers N]
+        [--profiles P,...] [--effects E,...] [--only K,...] [--workers N] [--progress]
 
 The cases are config/sensor_effect_cases.yaml's seeded draws (committed before any run): for each
 profile and sensor effect, ``draws_per_effect`` values of its main parameter, plus ``clear_cases``
@@ -118,6 +118,10 @@ def resimulate(recording_path: Path, scenario, profile: str, effects, out: Path,
             bag.write_cloud(recording.topic, points, frame.stamp_ns, frame.frame_id, log_time_ns=frame.log_time_ns)
 
 
+def print_step(message: str, casts: int) -> None:
+    print(f"      [{casts} casts] {message}", flush=True)
+
+
 def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
     from lidar_weather_sim.gap.command import run_gap
@@ -136,6 +140,7 @@ def main() -> None:
                                           "the clear cases)")
     parser.add_argument("--only", help="comma-separated case numbers: run only these (numbered as in a run with the same --profiles)")
     parser.add_argument("--workers", type=int, default=0, help="the gap search's Dask workers (0: in this process)")
+    parser.add_argument("--progress", action="store_true", help="print the gap search's steps of every case")
     args = parser.parse_args()
     cases_path = Path(args.cases)
     spec = yaml.safe_load(cases_path.read_text())
@@ -164,7 +169,7 @@ def main() -> None:
             measured = Path(tmp) / f"case{k}"
             resimulate(Path(args.recording), scenario, profile, hidden, measured, seed=MEASURED_SEED + k)
             result = run_gap(measured, scenario, Path(tmp) / f"gap{k}", profile=profile, families=("sensor",),
-                             workers=args.workers, **budgets)  # fmt: skip
+                             workers=args.workers, progress=print_step if args.progress else None, **budgets)  # fmt: skip
             named = {e["name"]: e["params"] for e in result["effects"]}
             error = None
             if name and name in named and EFFECTS[name].from_data:

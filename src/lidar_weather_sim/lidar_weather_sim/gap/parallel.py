@@ -51,12 +51,11 @@ def _search(source: SearchSource):
     return _searches[source]
 
 
-def remote_gap(source: SearchSource, job: tuple[list[Effect], str]) -> tuple[float, int]:
-    """(gap of ``job``'s effects on its split, frames cast) on this worker."""
+def remote_gap(source: SearchSource, job: tuple) -> tuple[float, int]:
+    """(gap of ``job``'s effects on its split, with its redraw when it has one, frames cast) on this worker."""
     search = _search(source)
     before = search.resim.casts
-    effects, split = job
-    return search.gap(effects, split), search.resim.casts - before
+    return search.gap(*job), search.resim.casts - before
 
 
 def remote_fit(source: SearchSource, job: tuple[list[Effect], Effect, np.ndarray, int]) -> tuple[tuple, int]:

@@ -25,8 +25,14 @@
    moves the gap, e.g. 0.004-0.008 for the nuisance of ``make-measured``); the accepted
    effects are then refitted together, and the new effect is kept only if the refitted set
    still meets that rule on the held-out frames (otherwise its gain was fitting noise that
-   the joint fit takes back); rounds repeat until no candidate qualifies. The other
-   candidates of the last round are reported as rejected with their held-out gap.
+   the joint fit takes back). With the sensor family it must also meet the rule on the mean
+   over independent redraws of every random process of the held-out re-simulation
+   (:meth:`GapSearch.confirmed`): the best of a dozen candidates on one held-out draw is
+   chosen by that draw's noise too, and a sensor effect at the edge of its range (a 3 mm
+   range noise on a unit's 1.5 cm) can win by that noise alone; the round is then run again
+   without it (until another effect is accepted), as it may have hidden the right effect from
+   the refinement. Rounds repeat until no candidate qualifies. The other candidates of the last round are reported as rejected
+   with their held-out gap.
 5. Backward elimination (:meth:`GapSearch.prune`): each accepted effect must still be worth
    that margin with all the others in place; one that is not (a weak effect accepted early,
    made redundant by a later one) is dropped and the rest refitted.
@@ -74,6 +80,9 @@ from lidar_weather_sim.gap.split import DataSplit
 MIN_GAIN = 0.10
 MIN_ABS_GAIN = 0.002
 REDRAW_SEED_OFFSET = 7919  # the range term's second simulation: the scenario's seed + this (far from make-measured's + 1000)
+#: the confirmation's independent redraws (each range term's second simulation: + 7919 more); 3, as one held-out
+#: frame's gap moves by ~0.003 from redraw to redraw (VLP-16 on ``ouster_street``), more than the 0.002 margin
+CONFIRM_SEED_OFFSETS = (104729, 130363, 156007)
 
 
 @dataclass
@@ -216,19 +225,20 @@ class GapSearch:
         part = "heldout" if split == "heldout" else "calibration"
         return lambda points: self.split.keep(points, part)
 
-    def gap(self, effects: list[Effect], split: str) -> float:
+    def gap(self, effects: list[Effect], split: str, redraw: int = 0) -> float:
         """Gap between the measured and the simulated frames of ``split`` (screen, fit, heldout);
         on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
-        With the sensor family, plus the paired-beam range term and per-channel shift terms (:meth:`paired_terms`)."""
+        With the sensor family, plus the paired-beam range term and per-channel shift terms (:meth:`paired_terms`).
+        ``redraw`` > 0: the simulation's random processes drawn again (the scenario's seed + ``redraw``)."""
         indices, keep, clip = self._splits()[split], self.keep(split), split == "heldout"
-        if "sensor" not in self.families:
-            return gap_value(self._measured[split], self.resim.signature(effects, indices, keep), clip=clip)
-        frames = self.resim.frames(effects, indices)
+        frames = self.resim.frames(effects, indices, redraw=redraw)
         value = gap_value(self._measured[split], self.resim.signature(effects, indices, keep, frames), clip=clip)
-        return value + self.paired_terms(effects, indices, frames, keep, clip)
+        if "sensor" not in self.families:
+            return value
+        return value + self.paired_terms(effects, indices, frames, keep, clip, redraw)
 
     def paired_terms(self, effects: list[Effect], indices: list[int], frames: list[np.ndarray],
-                     keep: Callable[[np.ndarray], np.ndarray] | None, clip: bool) -> float:  # fmt: skip
+                     keep: Callable[[np.ndarray], np.ndarray] | None, clip: bool, redraw: int = 0) -> float:  # fmt: skip
         """How the recorded returns depart from the simulated ones beam by beam, beyond what the simulator's own
         noise gives, from :func:`~lidar_weather_sim.gap.signatures.paired_residuals` of recorded minus simulated
         and, as the reference, of a second, independent simulation of the same frames minus the first (costs a
@@ -244,7 +254,7 @@ class GapSearch:
         Sensor-frame points (those ``keep`` selects), the recorded poses common to both sides."""
         columns, channels = self.resim.world.profile.scan.columns, self.resim.channels
         recorded = [self.resim.recording.frames[i].points for i in sorted(indices)]
-        again = self.resim.frames(effects, indices, redraw=REDRAW_SEED_OFFSET)
+        again = self.resim.frames(effects, indices, redraw=redraw + REDRAW_SEED_OFFSET)
         if keep is not None:
             recorded, frames, again = ([p[keep(p)] for p in part] for part in (recorded, frames, again))
         measured = [paired_residuals(r, f, columns, channels) for r, f in zip(recorded, frames)]
@@ -277,10 +287,10 @@ class GapSearch:
         xs = search_grid(effect.spec, self.grid)
         return np.log(xs) if effect.spec.log_search else xs
 
-    def gaps(self, jobs: list[tuple[list[Effect], str]]) -> list[float]:
-        """:meth:`gap` of every (effects, split), on the engine's workers when there is one."""
+    def gaps(self, jobs: list[tuple]) -> list[float]:
+        """:meth:`gap` of every (effects, split[, redraw]), on the engine's workers when there is one."""
         if self.engine is None:
-            return [self.gap(effects, split) for effects, split in jobs]
+            return [self.gap(*job) for job in jobs]
         return self._remote(remote_gap, jobs)
 
     def _remote(self, task, jobs: list) -> list:
@@ -328,12 +338,13 @@ class GapSearch:
                 effects[i] = self.fit(others, effect, xs, k, cache)[0]
         return effects
 
-    def run_round(self, accepted: list[Effect]) -> list[Candidate]:
-        """Screen every candidate on its grid, refine the best ``refine``, score all on the held-out frames;
-        the evaluations of each step are independent (and run on the engine's workers when there is one)."""
+    def run_round(self, accepted: list[Effect], excluded: list[Effect] = ()) -> list[Candidate]:
+        """Screen every candidate (but those ``excluded``) on its grid, refine the best ``refine``, score all on
+        the held-out frames; the evaluations of each step are independent (and run on the engine's workers when
+        there is one)."""
         read_off = [c for c in self.data_candidates if c.spec.from_data]  # the others: on the rounds' grids anyway
         options = [c for c in candidate_effects(self.resim, self.families) + read_off
-                   if not any(_same(c, a) for a in accepted) and conflicts(accepted + [c]) is None]  # fmt: skip
+                   if not any(_same(c, a) for a in [*accepted, *excluded]) and conflicts(accepted + [c]) is None]  # fmt: skip
         grids = [self._grid(c) for c in options]
         gaps = iter(self.gaps([(accepted + [self._value(c, x)], "screen") for c, xs in zip(options, grids) for x in xs]))
         screened = []
@@ -358,13 +369,14 @@ class GapSearch:
         current, accepted = before, []
         self.progress(f"gap before: {before:.4f}")
         current, accepted = self.data_round(diag, current)
+        unconfirmed: list[Effect] = []  # not confirmed on the redraws: left out until another effect is accepted
         while True:
-            fitted = self.run_round(accepted)
+            fitted = self.run_round(accepted, unconfirmed)
             if not fitted:
                 break
             diag.rounds.append(fitted)
             best = min(fitted, key=lambda c: c.heldout_gap)
-            required = min(current * (1.0 - self.min_gain), current - self.min_abs_gain)
+            required = self.required(current)
             if best.heldout_gap > required:
                 diag.rejected = fitted
                 break
@@ -375,17 +387,45 @@ class GapSearch:
                 if heldout > required:  # its gain does not survive the joint fit: it was fitting noise
                     diag.rejected = fitted
                     break
-                accepted = refitted
-                best = Candidate(accepted[-1], best.fit_gap, heldout, best.evaluations)
-                diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
-                                 for e, (c, g) in zip(accepted, diag.accepted)]  # fmt: skip
             else:
-                accepted = [best.effect]
+                refitted, heldout = [best.effect], best.heldout_gap
+            if not self.confirmed(accepted, refitted):  # its gain was the held-out draw's noise: try the others
+                unconfirmed.append(best.effect)
+                diag.rejected = fitted
+                continue
+            unconfirmed = []
+            accepted = refitted
+            best = Candidate(accepted[-1], best.fit_gap, heldout, best.evaluations)
+            diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
+                             for e, (c, g) in zip(accepted, diag.accepted)]  # fmt: skip
             diag.accepted.append((best, current))
             current = best.heldout_gap
             diag.rejected = [c for c in fitted if c is not best]
         diag.gap_after = self.prune(diag, current)
         return diag
+
+    def required(self, current: float) -> float:
+        """The held-out gap an effect set must reach to beat one at ``current``: ``min_gain`` and ``min_abs_gain``."""
+        return min(current * (1.0 - self.min_gain), current - self.min_abs_gain)
+
+    def redrawn(self, effect_sets: list[list[Effect]]) -> list[float]:
+        """The held-out gap of each effect set, averaged over the independent redraws of
+        :data:`CONFIRM_SEED_OFFSETS` (the same redraws for every set)."""
+        jobs = [(effects, "heldout", offset) for effects in effect_sets for offset in CONFIRM_SEED_OFFSETS]
+        values = np.array(self.gaps(jobs)).reshape(len(effect_sets), len(CONFIRM_SEED_OFFSETS))
+        return values.mean(axis=1).tolist()
+
+    def confirmed(self, before: list[Effect], after: list[Effect]) -> bool:
+        """Whether ``after`` still beats ``before`` by the margin on the mean over independent redraws of the
+        held-out re-simulation (:meth:`redrawn`). Sensor family only (module doc, step 4); always true for the
+        others."""
+        if "sensor" not in self.families:
+            return True
+        was, now = self.redrawn([before, after])
+        verdict = now <= self.required(was)
+        self.progress(f"on independent redraws: held-out gap {was:.4f} -> {now:.4f}: "
+                      f"{'confirmed' if verdict else 'not confirmed, rejected'}")  # fmt: skip
+        return verdict
 
     def data_round(self, diag: Diagnosis, current: float) -> tuple[float, list[Effect]]:
         """Step 3's first trial of the effects read off the data, in turn, each accepted under the rule of
@@ -397,7 +437,7 @@ class GapSearch:
             self.progress(f"{effect.label()} (read off the recording): held-out gap {held:.4f}")
             candidate = Candidate(effect, float("nan"), held, 1)
             tried.append(candidate)
-            if held <= min(current * (1.0 - self.min_gain), current - self.min_abs_gain):
+            if held <= self.required(current):
                 diag.accepted.append((candidate, current))
                 accepted.append(effect)
                 current = held
@@ -413,8 +453,13 @@ class GapSearch:
         Returns the held-out gap of what stays."""
         while len(diag.accepted) > 1:
             effects = diag.effects
-            without = self.gaps([(effects[:i] + effects[i + 1 :], "heldout") for i in range(len(effects))])
-            worth = [current <= min(w * (1.0 - self.min_gain), w - self.min_abs_gain) for w in without]
+            subsets = [effects[:i] + effects[i + 1 :] for i in range(len(effects))]
+            without, now, where = self.gaps([(subset, "heldout") for subset in subsets]), current, "held-out"
+            worth = [now <= self.required(w) for w in without]
+            if "sensor" in self.families and all(worth):  # and on the redraws, as an effect is accepted
+                now, *without = self.redrawn([effects] + subsets)
+                where = f"mean over redraws ({now:.4f} with it),"
+                worth = [now <= self.required(w) for w in without]
             if all(worth):
                 break
             i = min((k for k in range(len(effects)) if not worth[k]), key=lambda k: without[k])
@@ -422,7 +467,7 @@ class GapSearch:
             diag.rejected.append(Candidate(dropped.effect, dropped.fit_gap, current, dropped.evaluations))
             refitted = self.refit(diag.effects)
             current = self.gap(refitted, "heldout")
-            self.progress(f"dropped {dropped.effect.label()} (held-out gap without it {without[i]:.4f}); "
+            self.progress(f"dropped {dropped.effect.label()} ({where} gap without it {without[i]:.4f}); "
                           f"refitted: {', '.join(e.label() for e in refitted)}: held-out gap {current:.4f}")  # fmt: skip
             diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
                              for e, (c, g) in zip(refitted, diag.accepted)]  # fmt: skip
