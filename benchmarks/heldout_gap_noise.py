@@ -18,7 +18,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-
 from sensor_effect_recovery import MEASURED_SEED, resimulate
 
 
