@@ -14,7 +14,8 @@
    which they no longer earn the margin. One that does not earn it is tried again in the rounds.
    Each round, every candidate effect the model knows (:data:`lidar_weather_sim.gap.effects.EFFECTS`;
    spray once per vehicle of the scenario) that does not conflict with those already
-   accepted is screened: its main parameter is tried on a grid of ``grid`` values (5; 7 with the sensor family: :data:`SENSOR_GRID`) over its
+   accepted is screened: its main parameter is tried on a grid of ``grid`` values (5; 7 with
+   the sensor family: :data:`SENSOR_GRID`) over its
    bounds (log-spaced where the effect spans decades) on ``screen_frames`` of the
    calibration frames. The ``refine`` candidates that screen best are then fitted on all
    calibration frames by bounded Brent minimisation (scipy) between the grid neighbours of
@@ -31,8 +32,8 @@
    chosen by that draw's noise too, and a sensor effect at the edge of its range (a 3 mm
    range noise on a unit's 1.5 cm) can win by that noise alone; the round is then run again
    without it (until another effect is accepted), as it may have hidden the right effect from
-   the refinement. Rounds repeat until no candidate qualifies. The other candidates of the last round are reported as rejected
-   with their held-out gap.
+   the refinement. Rounds repeat until no candidate qualifies. The other candidates of the
+   last round are reported as rejected with their held-out gap.
 5. Backward elimination (:meth:`GapSearch.prune`): each accepted effect must still be worth
    that margin with all the others in place; one that is not (a weak effect accepted early,
    made redundant by a later one) is dropped and the rest refitted.
@@ -345,8 +346,8 @@ class GapSearch:
 
     def run_round(self, accepted: list[Effect], excluded: list[Effect] = ()) -> list[Candidate]:
         """Screen every candidate (but those ``excluded``) on its grid, refine the best ``refine`` (with the sensor
-        family the most promising: :func:`promise`), score all on the held-out frames; the evaluations of each step are independent (and run on the engine's workers when
-        there is one)."""
+        family the most promising: :func:`promise`), score all on the held-out frames; the evaluations of each
+        step are independent (and run on the engine's workers when there is one)."""
         read_off = [c for c in self.data_candidates if c.spec.from_data]  # the others: on the rounds' grids anyway
         options = [c for c in candidate_effects(self.resim, self.families) + read_off
                    if not any(_same(c, a) for a in [*accepted, *excluded]) and conflicts(accepted + [c]) is None]  # fmt: skip
