@@ -231,12 +231,14 @@ class GapSearch:
         part = "heldout" if split == "heldout" else "calibration"
         return lambda points: self.split.keep(points, part)
 
-    def gap(self, effects: list[Effect], split: str, redraw: int = 0) -> float:
+    def gap(self, effects: list[Effect], split: str, redraw: int = 0, clip: bool | None = None) -> float:
         """Gap between the measured and the simulated frames of ``split`` (screen, fit, heldout);
         on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
         With the sensor family, plus the paired-beam range term and per-channel shift terms (:meth:`paired_terms`).
-        ``redraw`` > 0: the simulation's random processes drawn again (the scenario's seed + ``redraw``)."""
-        indices, keep, clip = self._splits()[split], self.keep(split), split == "heldout"
+        ``redraw`` > 0: the simulation's random processes drawn again (the scenario's seed + ``redraw``).
+        ``clip``: clip at 0 (default: on the held-out split only)."""
+        indices, keep = self._splits()[split], self.keep(split)
+        clip = split == "heldout" if clip is None else clip
         frames = self.resim.frames(effects, indices, redraw=redraw)
         value = gap_value(self._measured[split], self.resim.signature(effects, indices, keep, frames), clip=clip)
         if "sensor" not in self.families:
