@@ -158,6 +158,26 @@ def test_effects_read_off_the_data_are_tried_first_and_must_earn_the_margin():
     assert [c.effect for c, _ in diag.accepted] == [offsets] and [c.heldout_gap for c in diag.rounds[0]] == [0.15, 0.148]
 
 
+def test_dead_channels_are_kept_where_they_do_not_earn_the_margin_but_do_not_make_the_gap_worse():
+    """OS1-128 draws 1 and 3: two of 128 channels dead move the held-out gap by less than the margin; the counts
+    prove them, so they are accepted and survive the pruning beside a fitted effect. A read-off effect that is a
+    fit (weak channels) still needs the margin, and dead channels that make the gap worse are left out."""
+    dead, weak = (parse_effect(t) for t in ("sensor.dead_channels:channels=14+117", "sensor.weak_channels:gains=5:0.3"))
+    gamma = parse_effect("sensor.intensity_gamma:gamma=1.13")
+    landscape = {_set(): 0.0052, _set(dead): 0.0038, _set(dead, weak): 0.0037, _set(weak): 0.0051,
+                 _set(dead, gamma): 0.0004, _set(gamma): 0.0016}  # fmt: skip
+    search = LandscapeSearch(landscape)
+    search.data_candidates = [dead, weak]
+    diag = Diagnosis(0.0052, 0.0052)
+    current, accepted = search.data_round(diag, 0.0052)
+    assert accepted == [dead] and current == 0.0038
+    diag.accepted.append((Candidate(gamma, 0.0, 0.0004, 1), 0.0038))
+    assert search.prune(diag, 0.0004) == 0.0004 and [e.name for e in diag.effects] == [dead.name, gamma.name]
+    worse = LandscapeSearch({_set(): 0.0022, _set(dead): 0.0023, _set(dead, weak): 0.0023, _set(weak): 0.0022})
+    worse.data_candidates = [dead, weak]
+    assert worse.data_round(Diagnosis(0.0022, 0.0022), 0.0022) == (0.0022, [])
+
+
 def _channel_frames(rng, intensity_by_channel: dict[int, np.ndarray], frames: int = 3) -> list[np.ndarray]:
     dtype = [("channel", "u2"), ("intensity", "u1")]
     out = []

@@ -77,6 +77,7 @@ class EffectSpec:
     signed: bool = False  # the main parameter may be 0 or negative (else it must be above 0)
     choices: tuple[str, ...] = ()  # a categorical effect: its main parameter is one of these
     from_data: bool = False  # the main parameter is a text read off the recording, tried as it is
+    evident: bool = False  # the data alone proves it (a channel silent where the model returns): see GapSearch.worth
 
     @property
     def categorical(self) -> bool:
@@ -102,7 +103,8 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("sensor.ray_drop", "probability", "1", (0.01, 0.95), True, family="sensor"),
         EffectSpec("sensor.return_mode", "mode", "", (0.0, len(RETURN_MODES) - 1.0), False, family="sensor",
                    choices=RETURN_MODES),
-        EffectSpec("sensor.dead_channels", "channels", "", (0.0, 0.0), False, family="sensor", from_data=True),
+        EffectSpec("sensor.dead_channels", "channels", "", (0.0, 0.0), False, family="sensor", from_data=True,
+                   evident=True),
         EffectSpec("sensor.weak_channels", "gains", "", (0.0, 0.0), False, family="sensor", from_data=True),
         EffectSpec("sensor.elevation_offsets", "offsets", "deg", (0.0, 0.0), False, family="sensor",
                    from_data=True),

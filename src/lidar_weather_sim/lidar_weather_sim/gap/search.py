@@ -11,7 +11,8 @@
    tried first, each in turn on the held-out frames under the
    rule of step 4: they are what the data shows, not fits, and a fitted effect accepted before them can
    absorb their residual at a wrong value (a wide range noise smearing an offset channel's ranges), after
-   which they no longer earn the margin. One that does not earn it is tried again in the rounds.
+   which they no longer earn the margin. One that does not earn it is tried again in the rounds. Dead
+   channels are evident (:meth:`GapSearch.worth`): accepted and kept unless they make the gap worse.
    Each round, every candidate effect the model knows (:data:`lidar_weather_sim.gap.effects.EFFECTS`;
    spray once per vehicle of the scenario) that does not conflict with those already
    accepted is screened: its main parameter is tried on a grid of ``grid`` values (5; 7 with
@@ -413,6 +414,13 @@ class GapSearch:
         diag.gap_after = self.prune(diag, current)
         return diag
 
+    def worth(self, effect: Effect, held: float, current: float) -> bool:
+        """Whether ``effect`` earns its place: the held-out gap with it (``held``) meets :meth:`required` of the
+        gap without it (``current``). An evident effect (a channel silent in every calibration frame where the
+        model returns on it) needs only not to make the gap worse: two of 128 channels move the gap by about
+        the margin, less than what the counts themselves prove."""
+        return held <= (current if effect.spec.evident else self.required(current))
+
     def required(self, current: float) -> float:
         """The held-out gap an effect set must reach to beat one at ``current``: ``min_gain`` and ``min_abs_gain``."""
         return min(current * (1.0 - self.min_gain), current - self.min_abs_gain)
@@ -446,7 +454,7 @@ class GapSearch:
             self.progress(f"{effect.label()} (read off the recording): held-out gap {held:.4f}")
             candidate = Candidate(effect, float("nan"), held, 1)
             tried.append(candidate)
-            if held <= self.required(current):
+            if self.worth(effect, held, current):
                 diag.accepted.append((candidate, current))
                 accepted.append(effect)
                 current = held
@@ -464,11 +472,11 @@ class GapSearch:
             effects = diag.effects
             subsets = [effects[:i] + effects[i + 1 :] for i in range(len(effects))]
             without, now, where = self.gaps([(subset, "heldout") for subset in subsets]), current, "held-out"
-            worth = [now <= self.required(w) for w in without]
+            worth = [self.worth(e, now, w) for e, w in zip(effects, without)]
             if "sensor" in self.families and all(worth):  # and on the redraws, as an effect is accepted
                 now, *without = self.redrawn([effects] + subsets)
                 where = f"mean over redraws ({now:.4f} with it),"
-                worth = [now <= self.required(w) for w in without]
+                worth = [self.worth(e, now, w) for e, w in zip(effects, without)]
             if all(worth):
                 break
             i = min((k for k in range(len(effects)) if not worth[k]), key=lambda k: without[k])

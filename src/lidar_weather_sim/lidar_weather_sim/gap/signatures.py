@@ -16,9 +16,12 @@ Per zone a :class:`Signature` sums over its frames the range histogram (5 cm bin
 5 m, 0.5 m beyond), the echo-number x intensity histogram (16 bins of 16) and the
 echo-number x EPW histogram (0.1 m bins to 3 m; only when the clouds carry ``epw``).
 Over all points it sums the bird's-eye histogram (0.5 m cells, x -100..100 m, y -50..50 m,
-as in the thesis' validation) and the channel x range-class counts (the return ratio by
-channel and range). Per frame it keeps the detections per zone and the 12 per-frame
-parameters of paper 2 over the near field (:mod:`lidar_weather_sim.gap.features`).
+as in the thesis' validation), the channel x range-class counts (the return ratio by
+channel and range) and the later echoes' counts (echo 2 and 3+ x range class): a histogram
+of their own, so that a recording without second echoes (a single-return mode) differs from
+one with them by more than the few per cent of points they are among all returns. Per
+frame it keeps the detections per zone and the 12 per-frame parameters of paper 2 over the
+near field (:mod:`lidar_weather_sim.gap.features`).
 """
 
 from __future__ import annotations
@@ -139,6 +142,10 @@ class Signature:
         rc = np.searchsorted(RANGE_CLASS_EDGES, d, side="right") - 1
         parts["channel_range"] = np.bincount(channel * (len(RANGE_CLASS_EDGES) - 1) + rc,
                                              minlength=self.channels * (len(RANGE_CLASS_EDGES) - 1)).astype(np.float64)  # fmt: skip
+        later = echo >= 2
+        e = np.minimum(echo[later].astype(np.int64), ECHOES) - 2
+        parts["later_echoes"] = np.bincount(e * (len(RANGE_CLASS_EDGES) - 1) + rc[later],
+                                            minlength=(ECHOES - 1) * (len(RANGE_CLASS_EDGES) - 1)).astype(np.float64)  # fmt: skip
         for k, name in enumerate(ZONES):
             m = zone == k
             parts[f"{name}/range"] = _hist(d[m], RANGE_EDGES[name])
@@ -234,7 +241,7 @@ def evidence_weights(measured: Signature, simulated: Signature) -> dict[str, flo
 def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> float:
     """The reality gap (0 = indistinguishable, 1 = disjoint; lower is better): the mean over
     the histograms - per zone the range, intensity and EPW histograms by echo number, plus
-    the bird's-eye and channel x range histograms - of their systematic Bray-Curtis
+    the bird's-eye, channel x range and later-echo histograms - of their systematic Bray-Curtis
     dissimilarity times their evidence weight (:func:`evidence_weights`). Every zone with
     enough returns counts equally, whatever its number of points, so a missing zone (spray,
     cover returns) weighs as much as a wrong far field. ``clip=False``: the fitting objective
