@@ -37,6 +37,13 @@ def test_sector_masks_partition_the_points():
     assert np.all(cal ^ held) and cal.sum() == held.sum() == 180
     assert cal[0] and not held[0] and held[30] and not cal[30]  # -179.5 deg calibrates, -149.5 is held out
     assert split_recording(4).keep(points, "heldout").all()
+    narrow = split_recording(1, sector_deg=10.0)  # twin --sector-deg 10
+    cal, held = narrow.keep(points, "calibration"), narrow.keep(points, "heldout")
+    assert len(narrow.heldout_sectors_deg) == 18 and np.all(cal ^ held) and cal.sum() == held.sum() == 180
+    assert cal[:10].all() and held[10:20].all()
+    for bad in (0.0, 7.0, 270.0):
+        with pytest.raises(ValueError, match=f"sector_deg must divide 360 deg into at least 2 sectors, got {bad:g}"):
+            split_recording(1, sector_deg=bad)
 
 
 def test_gap_search_fits_and_scores_on_the_split():

@@ -326,7 +326,7 @@ def _cmd_twin(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.overwrite:
         raise FileExistsError(f"{args.out} exists and is not empty (use --overwrite)")
-    inp = load_input(args.bag, args.topic, args.profile, args.frames, args.split)  # every check before anything is written
+    inp = load_input(args.bag, args.topic, args.profile, args.frames, args.split, args.sector_deg)  # every check first
     r = build_twin(inp, args.out)
     c, d = r["coverage"], r["point_to_mesh_m"]
     print(f"twin of {r['frames']} frames ({r['split']['kind']} split, poses: {r['poses']}, profile "
@@ -525,8 +525,10 @@ def build_parser() -> argparse.ArgumentParser:
                                         "derived from it and written to DIR/profile.yaml)")  # fmt: skip
     twin.add_argument("--frames", type=positive_int, help="use the first N frames of the topic (default: all)")
     twin.add_argument("--split", choices=["auto", "frames", "sectors"], default="auto",
-                      help="calibration / held-out split: even / odd frames, alternating 30 deg azimuth sectors of "
+                      help="calibration / held-out split: even / odd frames, alternating azimuth sectors of "
                            "every frame, or auto (sectors below 4 frames; default)")  # fmt: skip
+    twin.add_argument("--sector-deg", type=float, default=30.0, help="width of the alternating azimuth sectors of a "
+                                                                      "sector split (deg, dividing 360; default 30)")  # fmt: skip
     twin.add_argument("--out", required=True, metavar="DIR", help="output directory")
     twin.add_argument("--overwrite", action="store_true", help="write into a non-empty DIR")
     twin.set_defaults(func=_cmd_twin)

@@ -403,3 +403,20 @@ def test_an_intensity_gamma_is_not_read_as_weak_channels_where_channels_see_diff
         shifts.append(weak_channels(measured, simulated, channels, dynamic_range, columns))
     assert shifts[0] == {}, shifts[0]
     assert list(shifts[1]) == [2] and shifts[1][2] == pytest.approx(gain, rel=0.02), shifts[1]
+
+
+def test_the_ghost_rate_is_read_where_the_model_counts_what_the_scans_recorded():
+    """Secant steps land on the rate of a count that saturates (ghosts of one beam merge at high rates); a count
+    within 3 sigma of the model's without ghosts proposes nothing; the rate stays inside the effect's bounds."""
+    from lidar_weather_sim.gap.effects import EFFECTS
+    from lidar_weather_sim.gap.ghost import ghost_rate
+
+    bounds = EFFECTS["sensor.near_field_ghost"].bounds
+    count = lambda rate: 4.0 + 2000.0 * (1.0 - np.exp(-rate / 0.8))  # noqa: E731 (2000 beams, 4 stray returns)
+    asked = []
+    for rate in (0.015, 0.1, 0.3, 1.2):
+        read = ghost_rate(round(count(rate)), 4.0, lambda r: asked.append(r) or count(r), bounds)
+        assert read == pytest.approx(rate, rel=0.05), rate
+    assert len(asked) <= 16  # at most four model counts per reading
+    assert ghost_rate(10, 4.0, count, bounds) is None  # 6 over 4: within 3 sigma
+    assert ghost_rate(100_000, 4.0, count, bounds) == bounds[1]

@@ -154,8 +154,8 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
              f"Held-out gap {diagnosis.gap_before:.4f} -> {diagnosis.gap_after:.4f} "
              f"(all {measured.frames} frames: {result['all_frames']['gap_before']:.4f} -> "
              f"{result['all_frames']['gap_after']:.4f}). The gap is the mean systematic Bray-Curtis "
-             "dissimilarity of the per-zone range, intensity and EPW histograms, the bird's-eye and the "
-             "channel x range histograms (0 = indistinguishable, 1 = disjoint).", "",
+             "dissimilarity of the per-zone range, intensity and EPW histograms, the bird's-eye, the "
+             "channel x range and the later-echo histograms (0 = indistinguishable, 1 = disjoint).", "",
              "## Effects found", "", "| effect | parameters | held-out gap before | after |", "|---|---|---:|---:|"]  # fmt: skip
     for e in result["effects"]:
         lines.append(f"| {e['name']} | {format_params(e['params'])} | {e['gap_before']:.4f} | {e['gap_after']:.4f} |")

@@ -7,7 +7,8 @@
 2. The gap is :func:`lidar_weather_sim.gap.signatures.gap_value` between the measured frames
    and the same frames re-simulated from the recorded poses (:mod:`lidar_weather_sim.gap.resim`).
 3. With the sensor family, the effects read off the recording (dead and weak channels, elevation offsets, and
-   the beams' origin at the value the points' elevations show: :mod:`lidar_weather_sim.gap.channels`) are
+   the beams' origin at the value the points' elevations show: :mod:`lidar_weather_sim.gap.channels`; the
+   near-field ghost at the rate its cover-zone count shows: :mod:`lidar_weather_sim.gap.ghost`) are
    tried first, each in turn on the held-out frames under the
    rule of step 4: they are what the data shows, not fits, and a fitted effect accepted before them can
    absorb their residual at a wrong value (a wide range noise smearing an offset channel's ranges), after
@@ -66,6 +67,7 @@ from lidar_weather_sim.gap.effects import (
     search_grid,
     spray_candidates,
 )
+from lidar_weather_sim.gap.ghost import cover_returns, ghost_rate
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.signatures import (
@@ -85,6 +87,7 @@ GRID = 5  # screening values per candidate
 #: config/sensor_effect_cases.yaml named nothing, or an intensity scale); 7 values are a factor 1.59 apart
 SENSOR_GRID = 7
 MIN_GAIN = 0.10
+GHOST_REDRAWS = (1, 2, 3, 4)  # the model draws averaged for each count of the ghost rate read off the data
 MIN_ABS_GAIN = 0.002
 REDRAW_SEED_OFFSET = 7919  # the range term's second simulation: the scenario's seed + this (far from make-measured's + 1000)
 #: the confirmation's independent redraws (each range term's second simulation: + 7919 more); 3, as one held-out
@@ -194,7 +197,8 @@ class GapSearch:
     @functools.cached_property
     def data_candidates(self) -> list[Effect]:
         """Effects whose value the calibration frames show (:mod:`lidar_weather_sim.gap.channels`: dead and
-        weak channels, elevation offsets): the recording against its re-simulation without effects and the
+        weak channels, elevation offsets, the beams' origin; :mod:`lidar_weather_sim.gap.ghost`: the near-field
+        ghost rate): the recording against its re-simulation without effects and the
         profile's elevation table; sensor family only. Computed on first use, by the driver's rounds (a worker
         that only evaluates gaps never pays the extra re-simulation)."""
         if "sensor" not in self.families:
@@ -220,6 +224,17 @@ class GapSearch:
             out.append(Effect("sensor.beam_origin", {"z": up}))
         if radial >= MIN_ORIGIN_M:
             out.append(Effect("sensor.beam_origin_radial", {"radius": radial}))
+        ghost = EFFECTS["sensor.near_field_ghost"]
+
+        def expected(rate: float) -> float:  # the model's cover-zone count at ``rate``, mean over two draws
+            effects = [Effect(ghost.name, {ghost.main: rate})]
+            return float(np.mean([cover_returns([f[keep(f)] for f in self.resim.frames(effects, self.fit_idx, redraw=d)])
+                                  for d in GHOST_REDRAWS]))  # fmt: skip
+
+        recorded, without = cover_returns(measured), cover_returns(simulated)
+        rate = ghost_rate(recorded, without, expected, ghost.bounds, len(GHOST_REDRAWS))
+        if rate is not None:
+            out.append(Effect(ghost.name, {ghost.main: rate}))
         return out
 
     def _splits(self) -> dict[str, list[int]]:

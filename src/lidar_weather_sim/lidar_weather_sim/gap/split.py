@@ -93,6 +93,9 @@ def split_recording(n_frames: int, kind: str = "auto", sector_deg: float = SECTO
         raise ValueError("a split needs at least one frame")
     if kind not in ("auto", "frames", "sectors"):
         raise ValueError(f"split kind must be auto, frames or sectors, not {kind!r}")
+    count = 360.0 / sector_deg if sector_deg > 0 else 0.0
+    if count < 2 or abs(count - round(count)) > 1e-9:
+        raise ValueError(f"sector_deg must divide 360 deg into at least 2 sectors, got {sector_deg:g}")
     if kind == "frames" and n_frames < 2:
         raise ValueError("a frame split needs at least 2 frames (one to calibrate, one held out)")
     if kind == "frames" or (kind == "auto" and n_frames >= MIN_FRAMES_FOR_FRAME_SPLIT):

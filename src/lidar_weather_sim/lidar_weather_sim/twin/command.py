@@ -28,7 +28,7 @@ import yaml
 from scipy.spatial import cKDTree
 
 from lidar_weather_sim.gap.search import _thin
-from lidar_weather_sim.gap.split import SPLIT_FILE, DataSplit, split_recording
+from lidar_weather_sim.gap.split import SECTOR_DEG, SPLIT_FILE, DataSplit, split_recording
 from lidar_weather_sim.io.bags import BagError
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scene.surveyed import write_surveyed_ply
@@ -65,9 +65,10 @@ class TwinInput:
 
 
 def load_input(bag: str | Path, topic: str | None = None, profile: str | None = None,
-               frames: int | None = None, split: str = "auto") -> TwinInput:  # fmt: skip
+               frames: int | None = None, split: str = "auto", sector_deg: float = SECTOR_DEG) -> TwinInput:  # fmt: skip
     """Everything checked before anything is written: the bag, its topic, non-empty clouds, the profile and
-    the split (``split``: auto, frames or sectors, :func:`~lidar_weather_sim.gap.split.split_recording`)."""
+    the split (``split``: auto, frames or sectors, of ``sector_deg`` sectors,
+    :func:`~lidar_weather_sim.gap.split.split_recording`)."""
     t0 = time.perf_counter()
     if not Path(bag).exists():
         raise FileNotFoundError(f"no bag at {bag}")
@@ -79,7 +80,7 @@ def load_input(bag: str | Path, topic: str | None = None, profile: str | None = 
     stamps = np.array([f.stamp_ns for f in recording.frames[:n]], dtype=np.float64)
     rate = 1e9 / float(np.median(np.diff(stamps))) if n > 1 and np.median(np.diff(stamps)) > 0 else None
     name, prof, how = choose_profile(recording.frames[0].points, profile, rate)
-    out = TwinInput(recording, n, name, prof, how, split_recording(n, split))
+    out = TwinInput(recording, n, name, prof, how, split_recording(n, split, sector_deg))
     out.timings["load_s"] = time.perf_counter() - t0
     return out
 
