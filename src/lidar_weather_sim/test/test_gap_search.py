@@ -178,6 +178,26 @@ def test_dead_channels_are_kept_where_they_do_not_earn_the_margin_but_do_not_mak
     assert worse.data_round(Diagnosis(0.0022, 0.0022), 0.0022) == (0.0022, [])
 
 
+def test_dead_channels_that_one_held_out_draw_finds_worse_are_judged_on_the_redraws():
+    """OS1-128 draw 6 (channels 22+57 dead): read right, but on the one held-out draw the gap is 0.0024 with them
+    against 0.0020 without; on the mean over the redraws they do not make it worse, so they are kept, and the
+    pruning beside a fitted effect asks the redraws too. Where the redraws find them worse they are left out."""
+    dead = parse_effect("sensor.dead_channels:channels=22+57")
+    gamma = parse_effect("sensor.intensity_gamma:gamma=1.13")
+    landscape = {_set(): 0.0020, _set(dead): 0.0024, _set(gamma): 0.0002, _set(dead, gamma): 0.0003}
+    redrawn = {_set(): 0.0021, _set(dead): 0.0015, _set(gamma): 0.0014, _set(dead, gamma): 0.0010}
+    search = LandscapeSearch(landscape, redrawn)
+    search.data_candidates = [dead]
+    assert search.data_round(Diagnosis(0.0020, 0.0020), 0.0020) == (0.0024, [dead])
+    assert any(line.endswith("mean over redraws 0.0015 with it, 0.0021 without") for line in search.log)
+    diag = _diagnosis([dead, gamma], [0.0020, 0.0024])
+    search.on_redraws = {**redrawn, _set(dead): 0.0035}  # gamma, fitted next, is worth its margin there
+    assert search.prune(diag, 0.0003) == 0.0003 and [e.name for e in diag.effects] == [dead.name, gamma.name]
+    worse = LandscapeSearch(landscape, {**redrawn, _set(dead): 0.0023})
+    worse.data_candidates = [dead]
+    assert worse.data_round(Diagnosis(0.0020, 0.0020), 0.0020) == (0.0020, [])
+
+
 def _channel_frames(rng, intensity_by_channel: dict[int, np.ndarray], frames: int = 3) -> list[np.ndarray]:
     dtype = [("channel", "u2"), ("intensity", "u1")]
     out = []
