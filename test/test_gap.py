@@ -214,7 +214,6 @@ def test_gap_reads_dead_channels_off_the_recording(highway, tmp_path):
     make_measured(vlp16, [parse_effect("sensor.dead_channels:channels=2+8")], tmp_path / "dead", frames=16)
     dead = run_gap(tmp_path / "dead", vlp16, tmp_path / "gap_dead", **budgets)
     # named first, exactly; on VLP-16 the search goes on to name make-measured's 2 cm range noise (hidden, right)
-    # and return mode 'strongest' (a phantom: it absorbs make-measured's 2 % uniform point drop; see README)
     first = dead["effects"][0]
     assert (first["name"], first["params"]) == ("sensor.dead_channels", {"channels": "2+8"}), dead
     assert dead["gap_after"] <= 0.2 * dead["gap_before"]
