@@ -216,6 +216,7 @@ def test_gap_reads_dead_channels_off_the_recording(highway, tmp_path):
     # named first, exactly; on VLP-16 the search goes on to name make-measured's 2 cm range noise (hidden, right)
     first = dead["effects"][0]
     assert (first["name"], first["params"]) == ("sensor.dead_channels", {"channels": "2+8"}), dead
+    assert [e["name"] for e in dead["effects"]] == ["sensor.dead_channels", "sensor.range_noise"], dead
     assert dead["gap_after"] <= 0.2 * dead["gap_before"]
     make_measured(vlp16, [], tmp_path / "clear", frames=16)
     clear = run_gap(tmp_path / "clear", vlp16, tmp_path / "gap_clear", **budgets)
