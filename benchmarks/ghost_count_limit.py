@@ -23,16 +23,12 @@ import yaml
 from sensor_effect_recovery import MEASURED_SEED, draw_cases
 
 CALIBRATION = [0, 2]  # the search's fit frames of the 3-scan recording (even frames calibrate)
-COVER_M = 0.5
-
-
-def cover_count(frames: list[np.ndarray]) -> int:
-    return int(sum(int((f["distance"] < COVER_M).sum()) for f in frames))
 
 
 def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
     from lidar_weather_sim.gap.effects import Effect
+    from lidar_weather_sim.gap.ghost import cover_returns as cover_count
     from lidar_weather_sim.gap.resim import Resimulator
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.scenario.schema import load_scenario

@@ -226,7 +226,7 @@ class GapSearch:
             out.append(Effect("sensor.beam_origin_radial", {"radius": radial}))
         ghost = EFFECTS["sensor.near_field_ghost"]
 
-        def expected(rate: float) -> float:  # the model's cover-zone count at ``rate``, mean over two draws
+        def expected(rate: float) -> float:  # the model's cover-zone count at ``rate``, mean over the draws
             effects = [Effect(ghost.name, {ghost.main: rate})]
             return float(np.mean([cover_returns([f[keep(f)] for f in self.resim.frames(effects, self.fit_idx, redraw=d)])
                                   for d in GHOST_REDRAWS]))  # fmt: skip
