@@ -137,12 +137,12 @@ def test_reflectivity_inverts_the_simulated_intensity():
 
     profile = load_profile("os1_128_1024")
     det = profile.detection
-    rho, r, cos = 0.3, np.array([5.0, 10.0, 20.0]), np.array([1.0, 0.8, 0.5])
+    rho, r, cos = 0.3, np.array([5.0, 10.0, 20.0, 15.0]), np.array([1.0, 0.8, 0.5, 0.1])  # 0.1: road at 15 m
     peak = det.power_constant * rho * cos / r**2
     intensity = np.rint(255.0 * np.log(peak / dark_level(det)) / np.log(det.intensity_dynamic_range))
     got = point_reflectivity(intensity, r, cos, profile)
     assert np.allclose(got, rho, rtol=0.03)
-    per, summary = triangle_reflectivity(np.array([0, 0, 0]), got, 2)
+    per, summary = triangle_reflectivity(np.zeros(len(got), np.int64), got, 2)
     assert per[0] == pytest.approx(rho, rel=0.03) and summary["triangles_without_points"] == 1
 
 
@@ -163,3 +163,23 @@ def test_moving_points_are_the_ones_another_frame_saw_through():
     masks = moving_points([first, second], elevation, columns)
     assert masks[0].sum() == 1 and masks[0][-1] and not masks[1].any()
     assert not moving_points([first], elevation, columns)[0].any()  # one frame: nothing to compare with
+
+
+def test_gap_fill_spans_a_surface_across_a_held_out_gap_but_not_an_edge():
+    """One channel sees a round wall at 20 m with two gaps of 3 columns; across the first gap the wall goes on, the
+    second lies between a post at 10 m and the wall: only the first is spanned, at the column spacing."""
+    from lidar_weather_sim.twin.reconstruct import FrameCloud, gap_fill_points
+
+    columns = 360
+    step = 2 * np.pi / columns
+    az = np.radians(np.arange(-179.5, 180.0, 1.0))
+    held = (np.abs(az - 10.5 * step) < 1.1 * step) | (np.abs(az - 40.5 * step) < 1.1 * step)
+    r = np.where((az > 41.6 * step) & (az < 45 * step), 10.0, 20.0)  # the post begins right after the second gap
+    xyz = np.stack([r * np.cos(az), r * np.sin(az), np.zeros_like(az)], -1)[~held]
+    frame = FrameCloud(xyz, np.zeros_like(xyz), np.eye(4), np.ones(len(xyz), np.int64))
+    filled = gap_fill_points(frame, columns, max_gap_rad=5 * step)
+    assert len(filled) == 3
+    fill_az = np.arctan2(filled[:, 1], filled[:, 0])
+    assert np.allclose(np.sort(fill_az), 10.5 * step + np.array([-1.0, 0.0, 1.0]) * step, atol=1e-4)
+    assert np.allclose(np.linalg.norm(filled, axis=1), 20.0, rtol=1e-3)  # the chord of the wall, within 2 cm
+    assert not len(gap_fill_points(frame, columns, max_gap_rad=3 * step))  # gaps wider than allowed stay open

@@ -41,6 +41,7 @@ from lidar_weather_sim.twin.reconstruct import (
     ReconstructionSettings,
     closest_triangles,
     distances_to_mesh,
+    gap_fill_points,
     moving_points,
     reconstruct_mesh,
 )
@@ -48,6 +49,7 @@ from lidar_weather_sim.twin.reflectivity import point_reflectivity, triangle_ref
 
 COVERAGE_M = 0.1
 MAX_FRAMES = 20  # calibration frames that build the mesh (evenly spaced)
+GAP_FILL_MAX_DEG = 5.0  # held-out sectors up to this wide are spanned channel by channel (reconstruct step 3)
 MAX_REPORT_POINTS = 400_000  # points per part whose distance to the mesh is measured (seeded subset)
 
 
@@ -116,8 +118,10 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
     timings["moving_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    fill_xyz, fill_origin = _gap_fill(split, clouds, moving, pattern.n_columns)
     step = max(2 * np.pi / pattern.n_columns, float(np.median(np.diff(np.sort(pattern.elevation)))) if pattern.n_channels > 1 else 0.0)
-    vertices, triangles = reconstruct_mesh(static_xyz, static_origin, step, settings,
+    vertices, triangles = reconstruct_mesh(np.concatenate([static_xyz, fill_xyz]),
+                                           np.concatenate([static_origin, fill_origin]), step, settings,
                                            _sector_bridge(split, clouds[0].pose) if split.kind == "sectors" else None)  # fmt: skip
     timings["mesh_s"] = time.perf_counter() - t
 
@@ -169,6 +173,29 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
     (out / "report.json").write_text(json.dumps(report, indent=1))
     (out / "report.md").write_text(_markdown(report))
     return report
+
+
+def _gap_fill(split: DataSplit, clouds: list[FrameCloud], moving: list[np.ndarray], columns: int):
+    """Points (and their sensor origins) spanning each frame's held-out sectors channel by channel, for a sector
+    split of at most :data:`GAP_FILL_MAX_DEG` sectors (reconstruct step 3); none otherwise."""
+    empty = (np.zeros((0, 3)), np.zeros((0, 3)))
+    if split.kind != "sectors":
+        return empty
+    width = max(b - a for a, b in split.heldout_sectors_deg)
+    if width > GAP_FILL_MAX_DEG:
+        return empty
+    max_gap = np.radians(width) + 2.5 * 2 * np.pi / columns
+    xyz, origins = [], []
+    for cloud, m in zip(clouds, moving):
+        static = FrameCloud(cloud.xyz[~m], cloud.origins[~m], cloud.pose, cloud.channel[~m])
+        filled = gap_fill_points(static, columns, max_gap)
+        local = (filled - cloud.pose[:3, 3]) @ cloud.pose[:3, :3]
+        as_points = np.zeros(len(local), dtype=[("x", np.float64), ("y", np.float64)])
+        as_points["x"], as_points["y"] = local[:, 0], local[:, 1]
+        filled = filled[split.keep(as_points, "heldout")]
+        xyz.append(filled)
+        origins.append(np.broadcast_to(cloud.pose[:3, 3], filled.shape))
+    return (np.concatenate(xyz), np.concatenate(origins)) if xyz else empty
 
 
 def _sector_bridge(split: DataSplit, pose: np.ndarray):

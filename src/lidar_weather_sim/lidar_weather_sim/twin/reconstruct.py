@@ -15,6 +15,11 @@ All coordinates in the map frame (m). Steps:
    (spacing = range x the angle between neighbouring beams, at least ``voxel_m``). For a sector split a
    second, coarser Poisson surface (``bridge_depth``) fills the held-out sectors: its triangles there may lie
    as far from the calibration points as the arc to the nearest calibration sector (``bridge``).
+3. :func:`gap_fill_points`: before step 2, for a sector split whose held-out sectors are narrow, each
+   channel's two returns on either side of a held-out gap are joined by a straight line when they lie on one
+   surface (their distance no more than ``max_stretch`` times the arc between them), and points along it at the
+   profile's column spacing join the calibration points: a range image's interpolation across the gap, which
+   a surface seen from one place allows and Poisson's smoothing of the gap does not reproduce.
 """
 
 from __future__ import annotations
@@ -100,6 +105,28 @@ def _seen_through(xyz, pose, image, elevation_rad, columns, margin_m, margin_fra
     for dc in (-1, 0, 1):
         far &= image[channel, (col + dc) % columns] > beyond
     return far & inside
+
+
+def gap_fill_points(frame: FrameCloud, columns: int, max_gap_rad: float, max_stretch: float = 4.0) -> np.ndarray:
+    """Points (M, 3) m in the map frame along each channel's azimuth gaps of ``frame`` (module doc, step 3): a gap
+    wider than 1.5 columns (of ``columns`` per 360 deg) and at most ``max_gap_rad`` between two consecutive returns
+    of one channel is spanned when the returns are at most ``max_stretch`` x (mean range x gap angle) apart."""
+    local = (frame.xyz - frame.pose[:3, 3]) @ frame.pose[:3, :3]
+    az = np.arctan2(local[:, 1], local[:, 0])
+    order = np.lexsort((az, frame.channel))
+    ch, az, xyz = frame.channel[order], az[order], frame.xyz[order]
+    gap = np.diff(az)
+    step = 2 * np.pi / columns
+    r = np.linalg.norm(local[order], axis=1)
+    arc = 0.5 * (r[1:] + r[:-1]) * gap
+    apart = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    ok = (ch[1:] == ch[:-1]) & (gap > 1.5 * step) & (gap <= max_gap_rad) & (apart <= max_stretch * arc)
+    first = np.flatnonzero(ok)
+    inserts = np.rint(gap[first] / step).astype(np.int64) - 1
+    pair = np.repeat(first, inserts)
+    k = np.arange(len(pair)) - np.repeat(np.cumsum(inserts) - inserts, inserts) + 1
+    t = (k / np.repeat(inserts + 1, inserts))[:, None]
+    return xyz[pair] * (1.0 - t) + xyz[pair + 1] * t
 
 
 def estimate_normals(xyz: np.ndarray, origins: np.ndarray, neighbours: int = 20):

@@ -8,7 +8,9 @@ O(R) (C the power constant, O the biaxial overlap, clear air), so
     rho = A R^2 / (C cos(theta) O(R))
 
 with R the point's range (m) and theta the angle between its ray and the normal of its nearest triangle
-(cos clipped at :data:`MIN_COS`, grazing hits would blow up). Per triangle the geometric mean of its
+(cos clipped at :data:`MIN_COS` only so that a ray along its surface cannot
+blow up: the forward model uses the unclipped cos, and a clip at 0.2 made the road beyond ~10 m, hit at
+cos 0.1-0.2, come back too weak and below the threshold in re-simulation). Per triangle the geometric mean of its
 points' rho, clipped to the surveyed range; a triangle without points takes its nearest neighbour's with points. A
 re-simulation then returns, at the recorded geometry, the recorded intensity - whatever the sensor's own
 intensity scale (a real sensor's calibrated reflectivity is read as if it were this profile's intensity).
@@ -22,7 +24,7 @@ from lidar_weather_sim.scene.surveyed import REFLECTIVITY_RANGE
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import dark_level, overlap_factor
 
-MIN_COS = 0.2
+MIN_COS = 0.02
 
 
 def point_reflectivity(intensity: np.ndarray, range_m: np.ndarray, cos_incidence: np.ndarray,
