@@ -16,7 +16,7 @@ import yaml
 
 from lidar_weather_sim.cli import main as cli_main
 from lidar_weather_sim.gap.split import DataSplit, split_beside
-from lidar_weather_sim.io.bags import read_clouds
+from lidar_weather_sim.io.bags import BagError, read_clouds
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario, scenario_path
 from lidar_weather_sim.sensor.profile import load_profile
@@ -159,6 +159,14 @@ def test_kiss_icp_poses_of_a_bag_without_poses(tmp_path):
     angle_error = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
     assert np.linalg.norm(relative[-1, :3, 3]) > 3.0  # it did drive
     assert translation_error.max() <= 0.15 and angle_error.max() <= 0.3, (translation_error, angle_error)
+
+    # the twin's scenario carries those poses: gap's re-simulation of the bag without /tf takes them from it
+    twin = tmp_path / "twin"
+    assert cli_main(["twin", str(no_poses.path), "--split", "frames", "--out", str(twin)]) == 0
+    held = heldout_resimulation(no_poses, load_scenario(twin / "scenario.yaml"), split_beside(twin / "scenario.yaml"))
+    assert held["pearson"] >= 0.9 and held["simulated_points"] >= 0.85 * held["measured_points"], held
+    with pytest.raises(BagError, match="has no 'trajectory' to take them from"):
+        heldout_resimulation(no_poses, load_scenario("ouster_street"), split_beside(twin / "scenario.yaml"))
 
 
 def _one_error_line(capsys) -> str:

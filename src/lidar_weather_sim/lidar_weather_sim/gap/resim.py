@@ -21,6 +21,7 @@ import numpy as np
 
 from lidar_weather_sim.gap.effects import Effect, apply_effects
 from lidar_weather_sim.gap.signatures import ActorBox, FrameContext, Signature
+from lidar_weather_sim.io.bags import BagError
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scenario.world import World
@@ -31,10 +32,19 @@ from lidar_weather_sim.sim.simulator import LidarSimulator, scenario_settings
 class RecordedPoses:
     """The recording's sensor poses; actors from the recording, else from the scenario player.
 
-    Lookups are memoised: re-simulating the same frames again asks for the same times."""
+    A recording without /tf or odometry takes its sensor poses from the scenario's ``trajectory`` (a twin's
+    ``scenario.yaml`` holds the poses KISS-ICP found on the clouds, in the recording's time). Lookups are
+    memoised: re-simulating the same frames again asks for the same times."""
 
     def __init__(self, recording: Recording, world: World) -> None:
-        self._tf = recording.pose_source()
+        if recording.has_poses or not world.scenario.trajectory:
+            try:
+                self._tf = recording.pose_source()
+            except BagError as err:
+                raise BagError(f"{err}, and scenario '{world.scenario.name}' has no 'trajectory' to take them from "
+                               "(lidar-weather-sim twin BAG writes one)") from None  # fmt: skip
+        else:
+            self._tf = world.player
         self._actors = recording.actor_poses if recording.actor_ids() else world.player.actor_poses
         self._known = set(world.scene.actors)  # recorded actors the scenario has no body for are not cast (a twin)
         self._sensor: dict[tuple[float, int], tuple[np.ndarray, np.ndarray]] = {}

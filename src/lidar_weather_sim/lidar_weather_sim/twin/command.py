@@ -259,9 +259,10 @@ def twin_scenario(rec: Recording, frames: int, poses: TwinPoses, mesh: Path, pro
                   profile: SensorProfile) -> dict:  # fmt: skip
     """The twin as a mesh-only scenario whose ``trajectory`` is the sensor's poses (base_link = sensor)."""
     starts = np.array([rec.time_s(f.stamp_ns) for f in rec.frames[:frames]])
-    times = np.unique(np.concatenate([starts, starts + profile.period_s]))
+    # to the microsecond the trajectory is written with: a frame's end and the next frame's start are one time
+    times = np.unique(np.round(np.concatenate([starts, starts + profile.period_s]), 6))
     translation, quaternion = poses.track.sensor_poses(times)
-    trajectory = [{"t_s": round(float(t), 6), "x_m": float(p[0]), "y_m": float(p[1]), "z_m": float(p[2]),
+    trajectory = [{"t_s": float(t), "x_m": float(p[0]), "y_m": float(p[1]), "z_m": float(p[2]),
                    "qx": float(q[0]), "qy": float(q[1]), "qz": float(q[2]), "qw": float(q[3])}
                   for t, p, q in zip(times, translation, quaternion)]  # fmt: skip
     name = f"twin_{Path(rec.path).name}"
