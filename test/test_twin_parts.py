@@ -8,8 +8,10 @@ import pydantic
 import pytest
 
 from lidar_weather_sim.gap.split import DataSplit, split_beside, split_recording
+from lidar_weather_sim.scenario.player import ScenarioPlayer
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.scene.opendrive import RoadNetwork
 from lidar_weather_sim.scene.surveyed import bin_values, read_face_reflectivity, surveyed_materials, write_surveyed_ply
 from lidar_weather_sim.testing.bags import points_at
 
@@ -84,6 +86,27 @@ def test_trajectory_schema():
         Scenario.model_validate(_mesh_only(trajectory=[pose, pose]))
     with pytest.raises(pydantic.ValidationError, match="scenarios without a 'map'"):
         Scenario.model_validate({"name": "t", "map": "highway_straight.xodr", "ego": {"lane": -1}, "trajectory": [pose]})
+
+
+def test_actors_of_a_mesh_only_scenario_follow_their_trajectory():
+    """No roads: an actor needs a trajectory (and then no lane); it is present from the trajectory's first time
+    (here before 0: a car already driving when the recording starts) unless appear_s says otherwise."""
+    car = {"id": 100, "trajectory": [{"t_s": -1.0, "x_m": -10.0, "y_m": 3.0, "z_m": -2.0},
+                                     {"t_s": 1.0, "x_m": 30.0, "y_m": 3.0, "z_m": -2.0}]}  # fmt: skip
+    with pytest.raises(pydantic.ValidationError, match=r"actors \[100\] need a 'trajectory'"):
+        Scenario.model_validate(_mesh_only(actors=[{"id": 100, "lane": -1}]))
+    with pytest.raises(pydantic.ValidationError, match=r"'trajectory' moves the actor; remove \['lane'\]"):
+        Scenario.model_validate(_mesh_only(actors=[{**car, "lane": -1}]))
+    stuck = {**car, "trajectory": [car["trajectory"][0], car["trajectory"][0]]}
+    with pytest.raises(pydantic.ValidationError, match="actor 100: 'trajectory' times t_s must increase strictly"):
+        Scenario.model_validate(_mesh_only(actors=[stuck]))
+    player = ScenarioPlayer(Scenario.model_validate(_mesh_only(actors=[car])), RoadNetwork({}, "<no map>"))
+    early, mid, late = player.actor_poses_at([-0.5, 0.0, 5.0])
+    assert np.allclose(early[100][:3, 3], [0.0, 3.0, -2.0]) and np.allclose(mid[100][:3, 3], [10.0, 3.0, -2.0])
+    assert np.allclose(late[100][:3, 3], [30.0, 3.0, -2.0]) and np.allclose(mid[100][:3, :3], np.eye(3))
+    assert player.actor_poses(-2.0) == {}  # before its trajectory
+    later = ScenarioPlayer(Scenario.model_validate(_mesh_only(actors=[{**car, "appear_s": 0.5}])), RoadNetwork({}, "x"))
+    assert later.actor_poses(0.0) == {} and 100 in later.actor_poses(0.5)
 
 
 def test_a_trajectory_moves_the_sensor_of_a_mesh_only_scenario(tmp_path):

@@ -214,6 +214,8 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     if args.on and (args.generator != "fast" or args.labels or args.beams_per_frame):
         raise ValueError("--on puts the project's own effects on a recording: --reference / --generator, --labels "
                          "and --beams-per-frame apply only without --on")  # fmt: skip
+    if args.with_actors and not args.on:
+        raise ValueError("--with-actors puts the scenario's actors on a recording: it needs --on BAG")
     if args.on:
         from lidar_weather_sim.gap.augment import augment_recording
 
@@ -225,8 +227,10 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
 
         frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
                                    topic=args.topic, overwrite=args.overwrite,
-                                   atmosphere_model=args.atmosphere_model)  # fmt: skip
-        print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)} on top to {args.out}")
+                                   atmosphere_model=args.atmosphere_model, with_actors=args.with_actors)  # fmt: skip
+        actors = " and the scenario's actors" if args.with_actors else ""
+        print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)}{actors} on top to "
+              f"{args.out}")  # fmt: skip
         return 0
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
                            profile=args.profile, overwrite=args.overwrite, generator=args.generator,
@@ -445,6 +449,9 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--on", metavar="BAG", help="put the effects on top of this (real) recording's frames "
                                                         "instead of simulating the scenario (see augment.py)")
     measured.add_argument("--topic", help="PointCloud2 topic of --on (default: /lidar/points or the only one)")
+    measured.add_argument("--with-actors", action="store_true",
+                          help="with --on: also put the scenario's actors on the recording (returns behind them "
+                               "removed), e.g. the car that throws spray on a real street")  # fmt: skip
     measured.add_argument("--generator", choices=("fast", "reference", "hahner"), default="fast",
                           help="who makes fog, rain and snow: the simulator (fast, default), the independent drop-by-drop "
                                "reference (gap/reference.py) or the simplified Hahner et al. 2021 fog (gap/hahner.py)")

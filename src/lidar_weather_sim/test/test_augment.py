@@ -64,3 +64,58 @@ def test_make_measured_on_the_real_recording(tmp_path):
         assert near_fog > near_real + 1000  # fog returns in the near field
         # far returns fade (those left are where the street mesh has holes: no simulated return to lose)
         assert np.count_nonzero(f.points["distance"] > 60.0) < 0.75 * np.count_nonzero(r.points["distance"] > 60.0)
+
+
+def test_actors_are_put_on_the_frame_and_hide_what_lies_behind_them():
+    """With the scenario's actors (a car the recording lacks): its returns are added, the real returns behind it on
+    its beams go, and nearer real returns and the real returns of other beams stay."""
+    real = _points([(0, 0.1, 20.0, 0), (0, 0.1, 5.0, 0), (1, 0.1, 40.0, 0), (2, 0.1, 30.0, 0)], POINT_DTYPE_NO_EPW)
+    car = [(0, 0.1, 12.0, Label.VEHICLE), (1, 0.1, 12.5, Label.VEHICLE)]
+    base = _points([(0, 0.1, 20.1, Label.STATIC), *car, (2, 0.1, 30.1, Label.STATIC)])
+    effect = _points([*car, (2, 0.1, 30.1, Label.STATIC), (0, 0.1, 11.0, Label.SPRAY)])
+    effect["object_id"][:2] = 100
+    out = augment_frame(real, base, effect, COLUMNS, actor_ids=(100,))
+    assert sorted(np.round(out["distance"], 1).tolist()) == [5.0, 11.0, 12.0, 12.5, 30.0]
+    without = augment_frame(real, base, effect, COLUMNS)  # the recording has the car: only the spray is added
+    assert sorted(np.round(without["distance"], 1).tolist()) == [5.0, 11.0, 20.0, 30.0, 40.0]
+
+
+def test_spray_and_the_car_throwing_it_on_the_real_recording(tmp_path):
+    """ouster_street_spray: a car overtakes the recording's sensor with its spray (the spray region's warm-up has it
+    out at the first scan); `make-measured --on --with-actors` puts both on the real frames."""
+    bag = cache_dir() / "ouster_real" / "os1_128_street"
+    if not bag.exists():
+        pytest.skip(f"real recording {bag} absent (make setup imports it)")
+    from lidar_weather_sim.gap.effects import parse_effect
+    from lidar_weather_sim.gap.resim import Resimulator
+    from lidar_weather_sim.io.recording import Recording
+    from lidar_weather_sim.scenario.schema import load_scenario
+
+    real = Recording.load(bag)
+    scenario = load_scenario("ouster_street_spray")
+    resim = Resimulator(real, scenario)
+    spray = [parse_effect("spray:water_film=2.0")]
+    first = resim.frames(spray, [0])[0]
+    warm = np.count_nonzero(first["label"] == Label.SPRAY)
+    cold = scenario.model_copy(update={"region_params": {"spray": {"warmup_s": 0.0}}})
+    cold = np.count_nonzero(Resimulator(real, cold).frames(spray, [0])[0]["label"] == Label.SPRAY)
+    assert warm >= 10 and warm >= 4 * cold, (warm, cold)  # session 23: 20 and 2 (the frame's own 0.1 s)
+    out = tmp_path / "street_spray"
+    done = subprocess.run([sys.executable, "-m", "lidar_weather_sim.cli", "make-measured", "ouster_street_spray",
+                           "--on", str(bag), "--hide", "spray:water_film=2.0", "--with-actors", "--out", str(out)],
+                          capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    car = first[(first["object_id"] == 100) & (first["label"] == Label.VEHICLE)]
+    assert len(car) >= 100
+    put = Recording.load(out).frames[0].points
+    assert put.dtype.names == real.frames[0].points.dtype.names
+    xyz = {tuple(v) for v in np.stack([put["x"], put["y"], put["z"]], -1).tolist()}
+    assert all(tuple(v) in xyz for v in np.stack([car["x"], car["y"], car["z"]], -1).tolist())  # the car is on it
+    columns = resim.world.profile.scan.columns
+    shadow = np.isin(beam_keys(put, columns), beam_keys(car, columns)) & (put["distance"] > car["distance"].max())
+    assert not shadow.any()  # no real return behind the car on its beams
+    assert len(put) > len(real.frames[0].points)
+    done = subprocess.run([sys.executable, "-m", "lidar_weather_sim.cli", "make-measured", "ouster_street_spray",
+                           "--with-actors", "--hide", "spray:water_film=2.0", "--out", str(tmp_path / "no")],
+                          capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 2 and "--with-actors" in done.stderr and not (tmp_path / "no").exists()

@@ -60,7 +60,7 @@ def test_the_shipped_street_scenario_is_mesh_only():
         ({"map": "highway_straight.xodr"}, "'ego' is required"),
         ({"static_meshes": []}, "needs 'static_meshes'"),
         ({"ego": {"lane": -1}}, "cannot have an 'ego'"),
-        ({"actors": [{"id": 100, "lane": -1}]}, "cannot have an 'ego' or 'actors'"),
+        ({"actors": [{"id": 100, "lane": -1}]}, r"actors \[100\] need a 'trajectory'"),
     ],
 )
 def test_mesh_only_schema_errors(data, message):

@@ -16,7 +16,7 @@ The region needs the scenario's actors and their poses: ``RegionContext.actors``
 (emitting vehicles are those with ``emits_spray``, or ``actor_ids``) and
 ``RegionContext.pose_source`` (anything with ``actor_poses(t) -> {id: 4x4}``,
 e.g. the scenario player). ``step(t0, t1)`` advances the particles in simulated
-time (the simulator calls it before each batch).
+time (the simulator calls it before each batch); the first step starts ``warmup_s`` earlier.
 
 With ``source: topic`` the particles come from spray_node instead
 (``RegionContext.inputs``, a :class:`~lidar_weather_sim.regions.topic_inputs.TopicInputs` that
@@ -57,6 +57,9 @@ class SprayRegion:
                                             "this region (mm); both none: eq. 1 from the rain")
         mesh_diameter_m: float | None = Field(None, gt=0, description="Render sphere diameter (m); default config/spray.yaml")
         albedo: float | None = Field(None, ge=0, le=1, description="Single scattering albedo; default config/spray.yaml")
+        warmup_s: float = Field(0.0, ge=0, le=60, description="Simulated time (s) the particles run before the first "
+                                "step, so spray is already out at the first frame (actors must move then: a "
+                                "trajectory may start before 0); 0: the first frame has none")
 
         moved_keys: ClassVar[dict[str, str]] = {"texture_depth_mm": "moved to weather.road.texture_depth_mm"}
 
@@ -110,7 +113,7 @@ class SprayRegion:
         if self.p.source == "topic":
             return
         if self.system.time_s is None:
-            self.system.advance_to(t0_s)
+            self.system.advance_to(t0_s - self.p.warmup_s)
         self.system.advance_to(t1_s)
 
     def radii(self, time_s: float, centres: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -305,3 +305,17 @@ def test_poses_that_arrive_over_time_emit_as_the_whole_track_does():
     assert live.emitted > 1000
     assert abs(live.emitted - whole.emitted) <= 0.02 * whole.emitted
     assert np.median(live.particles.pos[:, 1]) == pytest.approx(np.median(whole.particles.pos[:, 1]), abs=0.3)
+
+
+def test_a_warm_up_has_the_spray_out_at_the_first_step():
+    """highway_spray's car has thrown 0.5 s of spray before the first frame with warmup_s 0.5; without it the
+    first step starts with none, and the warmed-up system is where a cold one is 0.5 s later."""
+    world = World.build(load_scenario("highway_spray"))
+    cold = dict(world.regions())["spray"]
+    warm = dict(world.regions(params={"spray": {"warmup_s": 0.5}}))["spray"]
+    cold.step(0.0, 0.0), warm.step(0.0, 0.0)
+    assert len(cold.system.particles.pos) == 0 and len(warm.system.particles.pos) > 100
+    assert warm.system.time_s == pytest.approx(0.0)
+    later = dict(world.regions())["spray"]
+    later.step(-0.5, 0.0)  # the same ticks from a cold start at -0.5 s
+    assert warm.system.particles.pos.tobytes() == later.system.particles.pos.tobytes()

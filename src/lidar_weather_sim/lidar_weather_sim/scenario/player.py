@@ -6,9 +6,10 @@ duration. base_link is the ego's origin on the road surface (REP-105), the
 sensor is mounted on it with the scenario's mount pose. All poses are in the
 map frame: translations in m, quaternions x, y, z, w. The ego speed can be
 commanded at run time (closed loop); actors keep their scenario speed.
-A mesh-only scenario has no ego: its player has no actors and no ego poses
+A mesh-only scenario has no ego: its player has no ego poses
 (:class:`NoEgoError`); sensor poses then come from a recording or /tf, or from the
-scenario's ``trajectory`` (:class:`TrajectoryTrack`) when it has one.
+scenario's ``trajectory`` (:class:`TrajectoryTrack`) when it has one. Actors with a ``trajectory``
+(those of a mesh-only scenario) follow it instead of a lane.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.geometry import (
     matrix_quaternion,
+    quaternion_matrices,
     quaternion_multiply,
     quaternion_rotate,
     rpy_matrix,
@@ -145,6 +147,14 @@ class TrajectoryTrack:
         return xyz, self._slerp(t).as_quat()
 
 
+def appear_time(actor) -> float:
+    """Simulated time (s) from which ``actor`` is present: its ``appear_s``; for an actor with a trajectory that
+    does not set it, the trajectory's first time (which may be before 0)."""
+    if actor.trajectory and "appear_s" not in actor.model_fields_set:
+        return actor.trajectory[0].t_s
+    return actor.appear_s
+
+
 class NoEgoError(ValueError):
     """Ego or sensor poses asked of a scenario without an ego (a mesh-only scenario)."""
 
@@ -157,10 +167,11 @@ class ScenarioPlayer:
         self.network = network
         self.ego = None if scenario.ego is None else MoverTrack(scenario.ego, network)
         self.trajectory = TrajectoryTrack(scenario.trajectory) if scenario.trajectory else None
-        actors = scenario.actors
+        actors = [a for a in scenario.actors if not a.trajectory]
         if self.ego is not None:  # actors placed by their gap to the sensor get their lane and s_m
             actors = [place_lead(a, scenario.ego, scenario.sensor.mount, network) for a in actors]
         self.actors = {a.id: (a, MoverTrack(a, network)) for a in actors}
+        self.trajectory_actors = {a.id: (a, TrajectoryTrack(a.trajectory)) for a in scenario.actors if a.trajectory}
         tracks = [t for _, t in self.actors.values()]
         # per actor (scenario order): appearance time, first speed segment, direction, road length, road, lane
         self._appear = np.array([a.appear_s for a, _ in self.actors.values()]).reshape(-1, 1)
@@ -222,7 +233,8 @@ class ScenarioPlayer:
     def actor_poses_at(self, times_s) -> list[dict[int, np.ndarray]]:
         """``actor_poses`` at each of ``times_s``, evaluated together: the positions along the
         road of all actors that keep their lane and speed at once, then one lane-pose call per
-        road (the same values, elementwise); actors changing lanes follow their track."""
+        road (the same values, elementwise); actors changing lanes follow their track, actors with a
+        trajectory theirs."""
         return self._actor_poses(times_s)[0]
 
     def _actor_poses(self, times_s, ego: tuple | None = None) -> tuple[list[dict[int, np.ndarray]], tuple | None]:
@@ -267,6 +279,12 @@ class ScenarioPlayer:
         ids = list(self.actors)
         for k, (i, t) in enumerate(zip(who.tolist(), when.tolist())):
             out[t][ids[i]] = matrices[k]
+        for actor_id, (actor, track) in self.trajectory_actors.items():
+            translation, q = track.poses(times)
+            body = np.tile(np.eye(4), (len(times), 1, 1))
+            body[:, :3, :3], body[:, :3, 3] = quaternion_matrices(q), translation
+            for t in np.flatnonzero(times >= appear_time(actor)):
+                out[t][actor_id] = body[t]
         return out, ego_pose
 
 

@@ -7,7 +7,7 @@ OpenSCENARIO's Weather concepts in snake_case with SI unit suffixes. Positions o
 A scenario without a ``map`` (``map: null`` or omitted) has an empty road
 network: its scene is only its ``static_meshes`` (for example a mesh built from
 a real recording). Such a mesh-only scenario has no roads to drive on, so it has
-no ``ego`` and no ``actors``; its sensor poses come from outside (``gap`` /
+no ``ego``, and its actors drive their own ``trajectory``; its sensor poses come from outside (``gap`` /
 ``compare`` on a recording, the node's /tf or odometry mode), or from its
 ``trajectory`` (timed base_link poses in the map frame, e.g. the recorded poses
 that ``lidar-weather-sim twin`` writes): only with a trajectory does
@@ -55,6 +55,20 @@ class Mover(ConfigModel):
     size: Size = Field(default_factory=Size)
 
 
+class TrajectoryPose(ConfigModel):
+    """base_link in the map frame at simulated time ``t_s``: translation (m), unit quaternion x, y, z, w."""
+
+    t_s: float = Field(ge=-MAX_TIME_S, le=MAX_TIME_S, description="Simulated time (s; before 0: e.g. an actor "
+                       "driving before a recording starts, for a spray region's warm-up)")
+    x_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
+    y_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
+    z_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
+    qx: float = Field(0.0, ge=-1, le=1)
+    qy: float = Field(0.0, ge=-1, le=1)
+    qz: float = Field(0.0, ge=-1, le=1)
+    qw: float = Field(1.0, ge=-1, le=1)
+
+
 class Actor(Mover):
     """A vehicle or box on the roads: at ``lane`` / ``s_m`` (its footprint centre), or placed by the
     thesis' measure, ``lead_gap_m`` / ``lead_offset_y_m`` from the ego's sensor to the middle of its
@@ -66,7 +80,8 @@ class Actor(Mover):
                               "default 0; not with lead_gap_m)")
     type: Literal["vehicle", "box"] = "vehicle"
     label: Literal["vehicle", "obstacle"] = "vehicle"
-    appear_s: float = Field(0.0, ge=0, le=MAX_TIME_S, description="Present from this simulated time on (s)")
+    appear_s: float = Field(0.0, ge=0, le=MAX_TIME_S, description="Present from this simulated time on (s; an actor "
+                            "with a trajectory that does not set it: from the trajectory's first time)")
     emits_spray: bool = Field(False, description="Wheels throw spray (spray region)")
     lead_gap_m: float | None = Field(
         None, gt=0, le=1000, description="Gap from the ego's sensor to the middle of this actor's rear, along the ego's "
@@ -74,6 +89,9 @@ class Actor(Mover):
     lead_offset_y_m: float | None = Field(
         None, ge=-100, le=100, description="With lead_gap_m: that point's offset to the left of the sensor (m; default the "
         "thesis' 3.7); the actor drives the lane whose centre is nearest")
+    trajectory: list[TrajectoryPose] = Field(
+        default_factory=list, description="Timed poses of the body (footprint centre on the ground, x forward) in the "
+        "map frame, instead of a lane: how actors move in a mesh-only scenario (interpolated like the sensor's)")
 
     @model_validator(mode="before")
     @classmethod
@@ -81,6 +99,12 @@ class Actor(Mover):
         if not isinstance(data, dict):
             return data
         who = f"actor {data.get('id')}"
+        if data.get("trajectory"):
+            given = [k for k in ("lane", "s_m", "lead_gap_m", "lead_offset_y_m", "speed_m_s", "lane_changes")
+                     if data.get(k) not in (None, [], 0.0, 0)]  # fmt: skip
+            if given:
+                raise ValueError(f"{who}: 'trajectory' moves the actor; remove {given}")
+            return data
         if data.get("lead_gap_m") is None:
             if data.get("lead_offset_y_m") is not None:
                 raise ValueError(f"{who}: 'lead_offset_y_m' needs 'lead_gap_m'")
@@ -129,19 +153,6 @@ class SensorSetup(ConfigModel):
                                           "the profile's elevation table (a unit off its nominal calibration)")  # fmt: skip
 
 
-class TrajectoryPose(ConfigModel):
-    """base_link in the map frame at simulated time ``t_s``: translation (m), unit quaternion x, y, z, w."""
-
-    t_s: float = Field(ge=0, le=MAX_TIME_S, description="Simulated time (s)")
-    x_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
-    y_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
-    z_m: float = Field(ge=-MAX_S_M, le=MAX_S_M, description="m")
-    qx: float = Field(0.0, ge=-1, le=1)
-    qy: float = Field(0.0, ge=-1, le=1)
-    qz: float = Field(0.0, ge=-1, le=1)
-    qw: float = Field(1.0, ge=-1, le=1)
-
-
 class Scenario(ConfigModel):
     name: str
     description: str = ""
@@ -178,13 +189,18 @@ class Scenario(ConfigModel):
         if self.map is None:
             if not self.static_meshes:
                 raise ValueError("a scenario without a 'map' needs 'static_meshes' (its scene would be empty)")
-            if self.ego is not None or self.actors:
-                raise ValueError("a scenario without a 'map' has no roads: it cannot have an 'ego' or 'actors'")
+            if self.ego is not None:
+                raise ValueError("a scenario without a 'map' has no roads: it cannot have an 'ego'")
+            on_roads = [a.id for a in self.actors if not a.trajectory]
+            if on_roads:
+                raise ValueError(f"a scenario without a 'map' has no roads: actors {on_roads} need a 'trajectory'")
         elif self.trajectory:
             raise ValueError("'trajectory' is for scenarios without a 'map' (with a map the ego drives its lane)")
-        times = [p.t_s for p in self.trajectory]
-        if any(b <= a for a, b in zip(times, times[1:])):
-            raise ValueError("'trajectory' times t_s must increase strictly")
+        for who, poses in [("'trajectory'", self.trajectory)] + [(f"actor {a.id}: 'trajectory'", a.trajectory)
+                                                                    for a in self.actors]:  # fmt: skip
+            times = [p.t_s for p in poses]
+            if any(b <= a for a, b in zip(times, times[1:])):
+                raise ValueError(f"{who} times t_s must increase strictly")
         return self
 
     @property
