@@ -14,6 +14,7 @@ from weather_filter.features import FEATURE_NAMES, PointFeatures
 from weather_filter.obstacle import (
     AUGMENT_TEST_RUNS,
     AUGMENT_TEST_RUNS_V2,
+    AUGMENT_TEST_RUNS_V3,
     AUGMENT_TRAIN_RUNS,
     AUGMENT_TRAIN_RUNS_V2,
     AUGMENT_TRAIN_RUNS_WIDE,
@@ -119,9 +120,11 @@ def test_run_lists_are_disjoint_and_parse():
 TRAIN_LISTS = (AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE, AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2)
 
 
-def test_v2_heldout_runs_are_in_no_training_list():
-    test = [parse_run_options(r) for r in AUGMENT_TEST_RUNS_V2]
-    old = {parse_run(r) for r in AUGMENT_TEST_RUNS}
+@pytest.mark.parametrize("test_runs, earlier", [(AUGMENT_TEST_RUNS_V2, AUGMENT_TEST_RUNS),
+                                                (AUGMENT_TEST_RUNS_V3, AUGMENT_TEST_RUNS + AUGMENT_TEST_RUNS_V2)])
+def test_heldout_runs_are_in_no_training_list_nor_an_earlier_heldout_list(test_runs, earlier):
+    test = [parse_run_options(r) for r in test_runs]
+    old = {parse_run(r) for r in earlier}
     for runs in TRAIN_LISTS:
         train = [parse_run_options(r) for r in runs]
         assert not {t[0] for t in train} & {t[0] for t in test}  # simulation runs
