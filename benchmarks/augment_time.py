@@ -9,6 +9,7 @@ the MLP). Prints median and mean ms per frame (wall clock, this machine; the fir
 left out).
 
 Usage: python benchmarks/augment_time.py [--scenario highway_spray] [--profile P] [--frames 20] [--objects 1]
+       [--model PATH (default: the shipped obstacle model)]
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def main() -> None:
     ap.add_argument("--profile", help="sensor profile overriding the scenario's")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--objects", type=int, default=1)
+    ap.add_argument("--model", help="obstacle model (default: the shipped one)")
     args = ap.parse_args()
     scenario = load_scenario(args.scenario)
     name = args.profile or scenario.sensor.profile
@@ -44,7 +46,7 @@ def main() -> None:
         run_scenario(scenario, bag, frames=args.frames + 1, seed=1, profile=args.profile)
         recording = Recording.load(bag)
     augmenter = ObstacleAugmenter(profile, args.objects, seed=1)
-    classifier = ObstacleClassifier.load()
+    classifier = ObstacleClassifier.load(args.model)
     road_z = road_level(recording)
     t_aug, t_cls, points = [], [], []
     for frame in recording.frames:
@@ -56,7 +58,8 @@ def main() -> None:
         t_aug.append(t1 - t0), t_cls.append(t2 - t1), points.append(len(out))
     t_aug, t_cls = np.array(t_aug[1:]) * 1e3, np.array(t_cls[1:]) * 1e3
     print(f"{args.scenario}, profile {name}, {len(t_aug)} frames, {np.mean(points):.0f} points per frame, "
-          f"{args.objects} box(es) per frame")
+          f"{args.objects} box(es) per frame; obstacle model version {classifier.bundle.get('version')}, "
+          f"{len(classifier.bundle['feature_names'])} features, hidden {classifier.bundle['hidden']}")
     print(f"augment:               median {np.median(t_aug):.1f} ms/frame, mean {t_aug.mean():.1f} +- {t_aug.std():.1f}")
     print(f"features + inference:  median {np.median(t_cls):.1f} ms/frame, mean {t_cls.mean():.1f} +- {t_cls.std():.1f} "
           "(paper 4, C++: 182 +- 51)")

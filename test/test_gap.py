@@ -193,8 +193,8 @@ def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hi
 
 
 def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
-    """Spray gives beams several echoes: a driver set to ``last`` (the profile: ``all``) is named by trying
-    every mode, and the re-simulation with it closes the gap."""
+    """Spray gives beams several echoes: a driver set to ``last`` (the profile: ``all``) is named - read off the
+    points' return_type codes (gap.return_modes) - and the re-simulation with it closes the gap."""
     spray = load_scenario("highway_spray")
     make_measured(spray, [parse_effect("sensor.return_mode:mode=last")], tmp_path / "measured", frames=24)
     result = run_gap(tmp_path / "measured", spray, tmp_path / "gap", families=("sensor",), fit_frames=8,

@@ -440,3 +440,40 @@ def test_the_ghost_rate_is_read_where_the_model_counts_what_the_scans_recorded()
     assert len(asked) <= 16  # at most four model counts per reading
     assert ghost_rate(10, 4.0, count, bounds) is None  # 6 over 4: within 3 sigma
     assert ghost_rate(100_000, 4.0, count, bounds) == bounds[1]
+
+
+@pytest.mark.parametrize("mode", ["strongest", "last", "first", "dual", "all"])
+def test_the_return_mode_is_read_off_the_codes_the_simulator_writes(mode):
+    """highway_spray's OS1-128 frames (beams with two echoes): each mode's return_type codes name it; a cloud
+    without the field, or with UNKNOWN codes, names none; the real recording's importer writes STRONGEST."""
+    from lidar_weather_sim.core.points import ReturnType
+    from lidar_weather_sim.gap.return_modes import recorded_return_mode
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.scenario.world import World
+    from lidar_weather_sim.sim.simulator import LidarSimulator
+
+    world = World.build(load_scenario("highway_spray"), "os1_128_1024", return_mode=mode)
+    sim = LidarSimulator.of_world(world)
+    frames = [f.points for t in (0.0, 0.1, 0.2, 0.3) for f in sim.advance(t, world.player)]
+    assert np.count_nonzero(frames[-1]["echo"] == 2) > 0 or mode in ("strongest", "first")  # two echoes on some beams
+    assert recorded_return_mode(frames) == mode
+    no_field = [f[[n for n in f.dtype.names if n != "return_type"]] for f in frames]
+    unknown = [f.copy() for f in frames]
+    for f in unknown:
+        f["return_type"] = ReturnType.UNKNOWN
+    assert recorded_return_mode(no_field) is None and recorded_return_mode(unknown) is None
+    imported = np.zeros(3, [("return_type", "u1")])
+    imported["return_type"] = ReturnType.STRONGEST
+    assert recorded_return_mode([imported]) == "strongest"
+
+
+def test_a_recorded_return_mode_is_evident_and_no_other_is_tried():
+    """dual on a two-echo sensor changes no point (the gap is the same with it): read off the codes it is accepted
+    as evident; a mode the codes do not name needs the margin, and the rounds do not search the mode."""
+    dual, last = parse_effect("sensor.return_mode:mode=dual"), parse_effect("sensor.return_mode:mode=last")
+    search = LandscapeSearch({_set(): 0.0030, _set(dual): 0.0030})
+    search.recorded_mode = "dual"
+    search.data_candidates = [dual]
+    assert search.data_round(Diagnosis(0.0030, 0.0030), 0.0030) == (0.0030, [dual])
+    assert search.evident(dual) and not search.evident(last)
+    assert not search.worth(last, 0.0029, 0.0030) and search.worth(dual, 0.0030, 0.0030)

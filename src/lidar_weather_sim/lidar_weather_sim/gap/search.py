@@ -13,7 +13,9 @@
    rule of step 4: they are what the data shows, not fits, and a fitted effect accepted before them can
    absorb their residual at a wrong value (a wide range noise smearing an offset channel's ranges), after
    which they no longer earn the margin. One that does not earn it is tried again in the rounds. Dead
-   channels are evident (:meth:`GapSearch.worth`): accepted and kept unless they make the gap worse.
+   channels are evident (:meth:`GapSearch.worth`): accepted and kept unless they make the gap worse. So is
+   the return mode the points' ``return_type`` codes name (:mod:`lidar_weather_sim.gap.return_modes`): a
+   recording that says its mode is not searched for one (two modes can give the same points).
    Each round, every candidate effect the model knows (:data:`lidar_weather_sim.gap.effects.EFFECTS`;
    spray once per vehicle of the scenario) that does not conflict with those already
    accepted is screened: its main parameter is tried on a grid of ``grid`` values (5; 7 with
@@ -70,6 +72,7 @@ from lidar_weather_sim.gap.effects import (
 from lidar_weather_sim.gap.ghost import cover_returns, ghost_rate
 from lidar_weather_sim.gap.parallel import SearchSource, remote_fit, remote_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
+from lidar_weather_sim.gap.return_modes import recorded_return_mode
 from lidar_weather_sim.gap.signatures import (
     ELEVATION_SHIFT_SCALE_DEG,
     INTENSITY_SHIFT_SCALE_BYTES,
@@ -198,7 +201,8 @@ class GapSearch:
     def data_candidates(self) -> list[Effect]:
         """Effects whose value the calibration frames show (:mod:`lidar_weather_sim.gap.channels`: dead and
         weak channels, elevation offsets, the beams' origin; :mod:`lidar_weather_sim.gap.ghost`: the near-field
-        ghost rate): the recording against its re-simulation without effects and the
+        ghost rate; :mod:`lidar_weather_sim.gap.return_modes`: the return mode the points' codes name, when it
+        is not the scenario's): the recording against its re-simulation without effects and the
         profile's elevation table; sensor family only. Computed on first use, by the driver's rounds (a worker
         that only evaluates gaps never pays the extra re-simulation)."""
         if "sensor" not in self.families:
@@ -219,6 +223,9 @@ class GapSearch:
         offsets = elevation_offsets(measured, nominal)
         if offsets:
             out.append(Effect("sensor.elevation_offsets", {"offsets": format_channel_values(offsets)}))
+        recorded = self.recorded_mode
+        if recorded is not None and recorded != (self.resim.scenario.sensor.return_mode or profile.detection.return_mode):
+            out.append(Effect("sensor.return_mode", {"mode": recorded}))
         up, radial = beam_origin(measured, nominal)
         if abs(up) >= MIN_ORIGIN_M:
             out.append(Effect("sensor.beam_origin", {"z": up}))
@@ -236,6 +243,21 @@ class GapSearch:
         if rate is not None:
             out.append(Effect(ghost.name, {ghost.main: rate}))
         return out
+
+    @functools.cached_property
+    def recorded_mode(self) -> str | None:
+        """The return mode the calibration frames' ``return_type`` codes name (sensor family only; None: not
+        recorded, the rounds try each)."""
+        if "sensor" not in self.families:
+            return None
+        return recorded_return_mode([self.resim.recording.frames[i].points for i in sorted(self.fit_idx)])
+
+    def evident(self, effect: Effect) -> bool:
+        """Whether the data alone proves ``effect`` (:meth:`worth`): dead channels, and the return mode the
+        recording's codes name."""
+        if effect.name == "sensor.return_mode":
+            return effect.params[effect.spec.main] == self.recorded_mode
+        return effect.spec.evident
 
     def _splits(self) -> dict[str, list[int]]:
         return {"screen": self.screen_idx, "fit": self.fit_idx, "heldout": self.held_idx}
@@ -367,8 +389,10 @@ class GapSearch:
         family the most promising: :func:`promise`), score all on the held-out frames; the evaluations of each
         step are independent (and run on the engine's workers when there is one)."""
         read_off = [c for c in self.data_candidates if c.spec.from_data]  # the others: on the rounds' grids anyway
+        known = ["sensor.return_mode"] if self.recorded_mode is not None else []  # recorded: not searched
         options = [c for c in candidate_effects(self.resim, self.families) + read_off
-                   if not any(_same(c, a) for a in [*accepted, *excluded]) and conflicts(accepted + [c]) is None]  # fmt: skip
+                   if not any(_same(c, a) for a in [*accepted, *excluded]) and conflicts(accepted + [c]) is None
+                   and c.name not in known]  # fmt: skip
         grids = [self._grid(c) for c in options]
         gaps = iter(self.gaps([(accepted + [self._value(c, x)], "screen") for c, xs in zip(options, grids) for x in xs]))
         screened = []
@@ -432,15 +456,16 @@ class GapSearch:
     def worth(self, effect: Effect, held: float, current: float) -> bool:
         """Whether ``effect`` earns its place: the held-out gap with it (``held``) meets :meth:`required` of the
         gap without it (``current``). An evident effect (a channel silent in every calibration frame where the
-        model returns on it) needs only not to make the gap worse: two of 128 channels move the gap by about
-        the margin, less than what the counts themselves prove."""
-        return held <= (current if effect.spec.evident else self.required(current))
+        model returns on it, or the return mode the recording's codes name) needs only not to make the gap worse:
+        two of 128 channels move the gap by about the margin, less than what the counts themselves prove, and
+        ``dual`` on a two-echo sensor changes no point."""
+        return held <= (current if self.evident(effect) else self.required(current))
 
     def evident_on_redraws(self, effect: Effect, accepted: list[Effect]) -> bool:
         """Whether an evident ``effect`` (see :meth:`worth`) does not make the held-out gap worse on the mean over
         the redraws (:meth:`redrawn`): with no margin to win, one held-out draw's noise (about 0.003) decides
         otherwise. False for other effects and without the sensor family."""
-        if not effect.spec.evident or "sensor" not in self.families:
+        if not self.evident(effect) or "sensor" not in self.families:
             return False
         with_it, without = self.redrawn([accepted + [effect], accepted])
         self.progress(f"{effect.label()}: mean over redraws {with_it:.4f} with it, {without:.4f} without")
@@ -498,7 +523,7 @@ class GapSearch:
             subsets = [effects[:i] + effects[i + 1 :] for i in range(len(effects))]
             without, now, where = self.gaps([(subset, "heldout") for subset in subsets]), current, "held-out"
             worth = [self.worth(e, now, w) for e, w in zip(effects, without)]
-            single = [w or e.spec.evident for e, w in zip(effects, worth)]  # an evident effect: on the redraws
+            single = [w or self.evident(e) for e, w in zip(effects, worth)]  # an evident effect: on the redraws
             if "sensor" in self.families and all(single):  # and on the redraws, as an effect is accepted
                 now, *without = self.redrawn([effects] + subsets)
                 where = f"mean over redraws ({now:.4f} with it),"
