@@ -17,16 +17,20 @@ from weather_filter.obstacle import (
     AUGMENT_TEST_RUNS_V3,
     AUGMENT_TRAIN_RUNS,
     AUGMENT_TRAIN_RUNS_V2,
+    AUGMENT_TRAIN_RUNS_V3,
     AUGMENT_TRAIN_RUNS_WIDE,
     AUGMENT_VALIDATION_RUNS_V2,
+    AUGMENT_VALIDATION_RUNS_V3,
     DEFAULT_OBSTACLE_MODEL,
     HELDOUT_ONLY_SCENARIOS,
     OBSTACLE_MODEL_V1,
+    OBSTACLE_MODEL_V2,
     PAPER_FEATURES,
     SIM_BOXES_TRAIN_V2,
     SIM_BOXES_VALIDATION_V2,
     V2_FEATURES,
     V2_HIDDEN,
+    V3_FEATURES,
     ObstacleClassifier,
     ObstacleFeatures,
     best_threshold,
@@ -70,17 +74,24 @@ def test_features_are_the_learned_filters_in_the_feature_region():
 def test_shipped_model_settings():
     c = ObstacleClassifier.load()
     table = augmentation_table()["classifier"]
-    # the paper's class weights; deviations (README): 32 hidden units, all 27 extractor features, validated threshold
+    # the paper's class weights; deviations (README): 32 hidden units, the 27 extractor features and the cluster
+    # extents, validated threshold
     assert c.bundle["class_weights"] == {"no_box": table["weight_no_box"], "box": table["weight_box"]}
-    assert c.bundle["model"][-1].hidden_layer_sizes == V2_HIDDEN and tuple(c.bundle["feature_names"]) == V2_FEATURES
-    assert set(PAPER_FEATURES) < set(V2_FEATURES) and len(V2_FEATURES) == 27
-    assert DEFAULT_OBSTACLE_MODEL.name == "obstacle_point_mlp_v2.joblib" and c.bundle["version"] == 2
-    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V2) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
+    assert c.bundle["model"][-1].hidden_layer_sizes == V2_HIDDEN and tuple(c.bundle["feature_names"]) == V3_FEATURES
+    assert set(PAPER_FEATURES) < set(V2_FEATURES) < set(V3_FEATURES) and len(V2_FEATURES) == 27
+    assert DEFAULT_OBSTACLE_MODEL.name == "obstacle_point_mlp_v3.joblib" and c.bundle["version"] == 3
+    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V3) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
     # the threshold chosen on validation runs of training scenarios and other box seeds, never on a held-out list
-    assert c.bundle["threshold_chosen_on"] == ", ".join(AUGMENT_VALIDATION_RUNS_V2) + ", " + sim_boxes_text(
+    assert c.bundle["threshold_chosen_on"] == ", ".join(AUGMENT_VALIDATION_RUNS_V3) + ", " + sim_boxes_text(
         SIM_BOXES_VALIDATION_V2)
     assert 0.05 <= c.bundle["threshold"] <= 0.95
-    assert c.bundle["command"] == "weather-filter train --preset augmentation-v2 --seed 0"
+    assert c.bundle["command"] == "weather-filter train --preset augmentation-v3 --seed 0"
+
+
+def test_second_model_stays_loadable_by_path():
+    c = ObstacleClassifier.load(OBSTACLE_MODEL_V2)
+    assert c.bundle["version"] == 2 and tuple(c.bundle["feature_names"]) == V2_FEATURES
+    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V2) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
 
 
 def test_first_model_stays_loadable_by_path():
@@ -117,7 +128,8 @@ def test_run_lists_are_disjoint_and_parse():
         parse_run("highway_spray:1:4")
 
 
-TRAIN_LISTS = (AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE, AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2)
+TRAIN_LISTS = (AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE, AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2,
+               AUGMENT_TRAIN_RUNS_V3, AUGMENT_VALIDATION_RUNS_V3)
 
 
 @pytest.mark.parametrize("test_runs, earlier", [(AUGMENT_TEST_RUNS_V2, AUGMENT_TEST_RUNS),
@@ -135,11 +147,13 @@ def test_heldout_runs_are_in_no_training_list_nor_an_earlier_heldout_list(test_r
     assert all(t[2] == "lead" and t[3] == ("box",) for t in test)
 
 
-def test_v2_validation_runs_are_not_fitted_on():
-    train = {parse_run_options(r)[0] for r in AUGMENT_TRAIN_RUNS_V2}
-    val = {parse_run_options(r)[0] for r in AUGMENT_VALIDATION_RUNS_V2}
+@pytest.mark.parametrize("train_runs, validation_runs", [(AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2),
+                                                          (AUGMENT_TRAIN_RUNS_V3, AUGMENT_VALIDATION_RUNS_V3)])
+def test_validation_runs_are_not_fitted_on(train_runs, validation_runs):
+    train = {parse_run_options(r)[0] for r in train_runs}
+    val = {parse_run_options(r)[0] for r in validation_runs}
     assert not train & val
-    seeds = [parse_run_options(r)[1] for r in AUGMENT_TRAIN_RUNS_V2 + AUGMENT_VALIDATION_RUNS_V2]
+    seeds = [parse_run_options(r)[1] for r in train_runs + validation_runs]
     assert len(seeds) == len(set(seeds))
 
 
@@ -197,3 +211,28 @@ def test_eval_reports_obstacle_scores_only_with_label_3(tmp_path, capsys):
     assert wf_main(["eval", str(bag)]) == 0
     assert "obstacle_f1" not in json.loads(capsys.readouterr().out)
     assert wf_main(["eval", str(aug), "--obstacle-model", str(tmp_path / "none.joblib")]) == 2
+
+
+def test_cluster_extents_measure_the_object_a_detection_belongs_to():
+    """A 1.8 m wide, 1.4 m tall car rear at 14 m and a 0.4 m post at 8 m, on a road seen as rings: each detection
+    above the road gets its own object's size and count; road detections (their cell's floor) get zeros."""
+    from weather_filter.obstacle_clusters import cluster_extents
+
+    ys = np.arange(-0.9, 0.91, 0.1)
+    zs = np.linspace(-0.4, 1.0, 8)
+    rear = np.array([(14.0, y, z) for y in ys for z in zs])
+    post = np.array([(8.0, 3.0 + dy, z) for dy in (0.0, 0.2, 0.4) for z in (-0.5, 0.0, 0.3)])
+    road = np.array([(x, y, -0.5) for x in (6.0, 10.0, 18.0) for y in np.arange(-5.0, 5.01, 0.1)])
+    xyz = np.concatenate([rear, post, road])
+    # dz_min as the extractor computes it: height above the lowest detection of the 50 cm cell
+    cell = np.floor(xyz[:, :2] / 0.5).astype(np.int64)
+    _, inverse = np.unique(cell, axis=0, return_inverse=True)
+    floor = np.full(inverse.max() + 1, np.inf)
+    np.minimum.at(floor, inverse, xyz[:, 2])
+    out = cluster_extents(xyz[:, 0], xyz[:, 1], xyz[:, 2], xyz[:, 2] - floor[inverse])
+    on_rear = out[: len(rear)][np.any(out[: len(rear)] > 0, axis=1)]
+    assert np.allclose(on_rear[:, 2], 1.8, atol=1e-6) and np.allclose(on_rear[:, 3], 1.4, atol=1e-6)  # width, height
+    assert np.allclose(on_rear[:, 1], 0.0) and on_rear[0, 0] == len(on_rear) == len(rear) - len(ys)
+    on_post = out[len(rear) : len(rear) + len(post)]
+    assert np.allclose(on_post[on_post[:, 0] > 0][:, 2:], [0.4, 0.8], atol=1e-6)  # on the road: 0.8 m above it
+    assert not out[len(rear) + len(post) :].any()  # the road
