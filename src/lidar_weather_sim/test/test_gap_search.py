@@ -477,3 +477,23 @@ def test_a_recorded_return_mode_is_evident_and_no_other_is_tried():
     assert search.data_round(Diagnosis(0.0030, 0.0030), 0.0030) == (0.0030, [dual])
     assert search.evident(dual) and not search.evident(last)
     assert not search.worth(last, 0.0029, 0.0030) and search.worth(dual, 0.0030, 0.0030)
+
+
+def test_a_recorded_return_mode_is_not_refitted():
+    """The real OS1-128 recording (codes: STRONGEST): read off and accepted as strongest, the joint refit beside
+    the beams' origin moved it to first, which fitted the calibration frames a hair better (session 23)."""
+
+    class ModeSearch(LandscapeSearch):
+        refit = GapSearch.refit
+
+        def gap(self, effects, split, redraw=0):
+            modes = [e.params["mode"] for e in effects if e.name == "sensor.return_mode"]
+            return 0.001 if modes == ["first"] else 0.002
+
+    search = ModeSearch({})
+    search.grid = 5
+    strongest, noise = parse_effect("sensor.return_mode:mode=strongest"), parse_effect("sensor.range_noise:sigma=0.02")
+    search.recorded_mode = "strongest"
+    assert search.refit([strongest, noise])[0] == strongest
+    search.recorded_mode = None  # not recorded: a mode like any fitted effect
+    assert search.refit([strongest, noise])[0].params["mode"] == "first"

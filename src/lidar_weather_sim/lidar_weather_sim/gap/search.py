@@ -371,10 +371,14 @@ class GapSearch:
     def refit(self, effects: list[Effect], passes: int = 2) -> list[Effect]:
         """Coordinate descent: each effect's main parameter fitted again on the calibration frames
         with the others fixed - over its whole range (grid, then Brent), since an effect found
-        alone may have absorbed part of another (dirt dims the spray behind it) - ``passes`` times."""
+        alone may have absorbed part of another (dirt dims the spray behind it) - ``passes`` times. An evident
+        effect is what the data shows (:meth:`evident`) and stays as it is: refitted, a recorded return mode
+        would go to whichever mode fits the calibration frames a hair better."""
         effects = list(effects)
         for _ in range(passes):
             for i, effect in enumerate(effects):
+                if self.evident(effect):
+                    continue
                 others = effects[:i] + effects[i + 1 :]
                 current = np.log(effect.value) if effect.spec.log_search else effect.value
                 xs = np.unique(np.append(self._grid(effect), current))
