@@ -6,12 +6,13 @@ on held-out data.
    feature region's detections; targets: paper 4's 92.22 / 99.90 %). ``--runs`` (comma-separated, default v3):
    ``v1`` ``weather_filter.obstacle.AUGMENT_TEST_RUNS`` (the v1 model's list; its figures known when the wide runs
    were chosen), ``v2`` ``AUGMENT_TEST_RUNS_V2`` (fixed before the v2 retrain; its figures known when v3 was
-   designed: validation for v3), ``v3`` ``AUGMENT_TEST_RUNS_V3`` (fixed before v3 was trained).
+   designed: validation for v3), ``v3`` ``AUGMENT_TEST_RUNS_V3`` (fixed before v3 was trained), ``v4``
+   ``AUGMENT_TEST_RUNS_V4`` (fixed before any v4 experiment).
 2. Boxes raycast by the simulator itself into spray frames (not augmentation): ``--boxes`` scenarios of
    highway_spray with one seeded box actor (label obstacle, the paper's sides, inside the ROI's x range, ego or
    right lane, driving with the ego; ``weather_filter.obstacle_data.simulated_box_spec``), 3 frames each.
 
-Usage: python benchmarks/obstacle_classifier.py [--model PATH] [--runs v1,v2,v3] [--boxes 50] [--cache DIR]
+Usage: python benchmarks/obstacle_classifier.py [--model PATH] [--runs v1,v2,v3,v4] [--boxes 50] [--cache DIR]
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from weather_filter.obstacle import (
     AUGMENT_TEST_RUNS,
     AUGMENT_TEST_RUNS_V2,
     AUGMENT_TEST_RUNS_V3,
+    AUGMENT_TEST_RUNS_V4,
     DEFAULT_OBSTACLE_MODEL,
     ObstacleClassifier,
     feature_region_mask,
@@ -52,13 +54,13 @@ def _line(name, scores):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", help="obstacle model (default: the shipped one)")
-    ap.add_argument("--runs", default="v3", help="held-out lists, comma-separated: v1, v2, v3 (default v3)")
+    ap.add_argument("--runs", default="v3", help="held-out lists, comma-separated: v1, v2, v3, v4 (default v3)")
     ap.add_argument("--boxes", type=int, default=50, help="simulated boxes (default 50; 0: none)")
     ap.add_argument("--cache", help="bag cache (default .venv/cache/weather_filter)")
     args = ap.parse_args()
     classifier = ObstacleClassifier.load(args.model)
     print(f"model {args.model or DEFAULT_OBSTACLE_MODEL} (version {classifier.bundle.get('version')})")
-    lists = {"v1": AUGMENT_TEST_RUNS, "v2": AUGMENT_TEST_RUNS_V2, "v3": AUGMENT_TEST_RUNS_V3}
+    lists = {"v1": AUGMENT_TEST_RUNS, "v2": AUGMENT_TEST_RUNS_V2, "v3": AUGMENT_TEST_RUNS_V3, "v4": AUGMENT_TEST_RUNS_V4}
     names = [n for n in args.runs.split(",") if n]
     unknown = sorted(set(names) - set(lists))
     if unknown or not names:

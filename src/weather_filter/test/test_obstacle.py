@@ -15,6 +15,7 @@ from weather_filter.obstacle import (
     AUGMENT_TEST_RUNS,
     AUGMENT_TEST_RUNS_V2,
     AUGMENT_TEST_RUNS_V3,
+    AUGMENT_TEST_RUNS_V4,
     AUGMENT_TRAIN_RUNS,
     AUGMENT_TRAIN_RUNS_V2,
     AUGMENT_TRAIN_RUNS_V3,
@@ -133,7 +134,9 @@ TRAIN_LISTS = (AUGMENT_TRAIN_RUNS, AUGMENT_TRAIN_RUNS_WIDE, AUGMENT_TRAIN_RUNS_V
 
 
 @pytest.mark.parametrize("test_runs, earlier", [(AUGMENT_TEST_RUNS_V2, AUGMENT_TEST_RUNS),
-                                                (AUGMENT_TEST_RUNS_V3, AUGMENT_TEST_RUNS + AUGMENT_TEST_RUNS_V2)])
+                                                (AUGMENT_TEST_RUNS_V3, AUGMENT_TEST_RUNS + AUGMENT_TEST_RUNS_V2),
+                                                (AUGMENT_TEST_RUNS_V4,
+                                                 AUGMENT_TEST_RUNS + AUGMENT_TEST_RUNS_V2 + AUGMENT_TEST_RUNS_V3)])
 def test_heldout_runs_are_in_no_training_list_nor_an_earlier_heldout_list(test_runs, earlier):
     test = [parse_run_options(r) for r in test_runs]
     old = {parse_run(r) for r in earlier}
