@@ -5,7 +5,7 @@
 Simulates ``--frames`` frames of SCENARIO (default highway_spray) once, then times, per frame:
 ``augment`` (``ObstacleAugmenter.frame``: drawing the boxes, raycasting them with the profile's scan pattern,
 occlusion and noise; ``--objects`` per frame) and the obstacle classifier (features of the feature region and
-the MLP). Prints median and mean ms per frame (wall clock, this machine; the first frame, with JIT warm-up, is
+the classifier: MLP or trees). Prints median and mean ms per frame (wall clock, this machine; the first frame, with JIT warm-up, is
 left out).
 
 Usage: python benchmarks/augment_time.py [--scenario highway_spray] [--profile P] [--frames 20] [--objects 1]
@@ -59,7 +59,7 @@ def main() -> None:
     t_aug, t_cls = np.array(t_aug[1:]) * 1e3, np.array(t_cls[1:]) * 1e3
     print(f"{args.scenario}, profile {name}, {len(t_aug)} frames, {np.mean(points):.0f} points per frame, "
           f"{args.objects} box(es) per frame; obstacle model version {classifier.bundle.get('version')}, "
-          f"{len(classifier.bundle['feature_names'])} features, hidden {classifier.bundle['hidden']}")
+          f"{len(classifier.bundle['feature_names'])} features, {classifier.bundle.get('classifier', 'mlp')}, hidden {classifier.bundle['hidden']}")
     print(f"augment:               median {np.median(t_aug):.1f} ms/frame, mean {t_aug.mean():.1f} +- {t_aug.std():.1f}")
     print(f"features + inference:  median {np.median(t_cls):.1f} ms/frame, mean {t_cls.mean():.1f} +- {t_cls.std():.1f} "
           "(paper 4, C++: 182 +- 51)")

@@ -19,19 +19,24 @@ from weather_filter.obstacle import (
     AUGMENT_TRAIN_RUNS,
     AUGMENT_TRAIN_RUNS_V2,
     AUGMENT_TRAIN_RUNS_V3,
+    AUGMENT_TRAIN_RUNS_V4,
     AUGMENT_TRAIN_RUNS_WIDE,
     AUGMENT_VALIDATION_RUNS_V2,
     AUGMENT_VALIDATION_RUNS_V3,
+    AUGMENT_VALIDATION_RUNS_V4,
     DEFAULT_OBSTACLE_MODEL,
     HELDOUT_ONLY_SCENARIOS,
     OBSTACLE_MODEL_V1,
     OBSTACLE_MODEL_V2,
+    OBSTACLE_MODEL_V3,
     PAPER_FEATURES,
     SIM_BOXES_TRAIN_V2,
     SIM_BOXES_VALIDATION_V2,
     V2_FEATURES,
     V2_HIDDEN,
     V3_FEATURES,
+    V4_FEATURES,
+    V4_TREES,
     ObstacleClassifier,
     ObstacleFeatures,
     best_threshold,
@@ -75,18 +80,26 @@ def test_features_are_the_learned_filters_in_the_feature_region():
 def test_shipped_model_settings():
     c = ObstacleClassifier.load()
     table = augmentation_table()["classifier"]
-    # the paper's class weights; deviations (README): 32 hidden units, the 27 extractor features and the cluster
-    # extents, validated threshold
+    # the paper's class weights; deviations (README): gradient-boosted trees, the 27 extractor features, the cluster
+    # extents and the cell history, validated threshold
     assert c.bundle["class_weights"] == {"no_box": table["weight_no_box"], "box": table["weight_box"]}
-    assert c.bundle["model"][-1].hidden_layer_sizes == V2_HIDDEN and tuple(c.bundle["feature_names"]) == V3_FEATURES
-    assert set(PAPER_FEATURES) < set(V2_FEATURES) < set(V3_FEATURES) and len(V2_FEATURES) == 27
-    assert DEFAULT_OBSTACLE_MODEL.name == "obstacle_point_mlp_v3.joblib" and c.bundle["version"] == 3
-    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V3) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
-    # the threshold chosen on validation runs of training scenarios and other box seeds, never on a held-out list
-    assert c.bundle["threshold_chosen_on"] == ", ".join(AUGMENT_VALIDATION_RUNS_V3) + ", " + sim_boxes_text(
+    assert c.bundle["classifier"] == "trees" and tuple(c.bundle["feature_names"]) == V4_FEATURES
+    assert {k: c.bundle["model"].get_params()[k] for k in V4_TREES} == V4_TREES
+    assert set(PAPER_FEATURES) < set(V2_FEATURES) < set(V3_FEATURES) < set(V4_FEATURES) and len(V2_FEATURES) == 27
+    assert DEFAULT_OBSTACLE_MODEL.name == "obstacle_point_hgb_v4.joblib" and c.bundle["version"] == 4
+    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V4) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
+    # the threshold chosen on validation runs and other box seeds, never on the v4 held-out list
+    assert c.bundle["threshold_chosen_on"] == ", ".join(AUGMENT_VALIDATION_RUNS_V4) + ", " + sim_boxes_text(
         SIM_BOXES_VALIDATION_V2)
     assert 0.05 <= c.bundle["threshold"] <= 0.95
-    assert c.bundle["command"] == "weather-filter train --preset augmentation-v3 --seed 0"
+    assert c.bundle["command"] == "weather-filter train --preset augmentation-v4 --seed 0"
+
+
+def test_third_model_stays_loadable_by_path():
+    c = ObstacleClassifier.load(OBSTACLE_MODEL_V3)
+    assert c.bundle["version"] == 3 and tuple(c.bundle["feature_names"]) == V3_FEATURES
+    assert c.bundle["model"][-1].hidden_layer_sizes == V2_HIDDEN
+    assert c.bundle["trained_on"] == ", ".join(AUGMENT_TRAIN_RUNS_V3) + ", " + sim_boxes_text(SIM_BOXES_TRAIN_V2)
 
 
 def test_second_model_stays_loadable_by_path():
@@ -151,13 +164,21 @@ def test_heldout_runs_are_in_no_training_list_nor_an_earlier_heldout_list(test_r
 
 
 @pytest.mark.parametrize("train_runs, validation_runs", [(AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2),
-                                                          (AUGMENT_TRAIN_RUNS_V3, AUGMENT_VALIDATION_RUNS_V3)])
+                                                          (AUGMENT_TRAIN_RUNS_V3, AUGMENT_VALIDATION_RUNS_V3),
+                                                          (AUGMENT_TRAIN_RUNS_V4, AUGMENT_VALIDATION_RUNS_V4)])
 def test_validation_runs_are_not_fitted_on(train_runs, validation_runs):
     train = {parse_run_options(r)[0] for r in train_runs}
     val = {parse_run_options(r)[0] for r in validation_runs}
     assert not train & val
     seeds = [parse_run_options(r)[1] for r in train_runs + validation_runs]
     assert len(seeds) == len(set(seeds))
+
+
+def test_v4_validation_holds_no_run_of_the_v4_heldout_list():
+    test = [parse_run_options(r) for r in AUGMENT_TEST_RUNS_V4]
+    val = [parse_run_options(r) for r in AUGMENT_VALIDATION_RUNS_V4]
+    assert not {t[0] for t in test} & {v[0] for v in val} and not {t[1] for t in test} & {v[1] for v in val}
+    assert set(AUGMENT_TEST_RUNS_V2 + AUGMENT_TEST_RUNS_V3) < set(AUGMENT_VALIDATION_RUNS_V4)
 
 
 def test_train_with_validation_threshold_is_reproducible(tmp_path):
@@ -173,6 +194,28 @@ def test_train_with_validation_threshold_is_reproducible(tmp_path):
     bundle = ObstacleClassifier.load(tmp_path / "a.joblib").bundle
     assert bundle["threshold"] == reports[0].threshold and bundle["threshold_chosen_on"] == "v"
     assert tuple(bundle["feature_names"]) == V2_FEATURES and bundle["hidden"] == [4]
+
+
+def test_trees_train_reproducibly_and_predict_at_their_threshold(tmp_path):
+    runs, val = ("highway_spray:9:3@9:lead", "wf_train_snow:9:3@10"), ("highway_spray:8:3@8:lead",)
+    bags = {r: augmented_bag(r, tmp_path) for r in runs + val}
+    for name in ("a", "b"):
+        report = train_obstacle([frames_of(bags[r]) for r in runs], tmp_path / f"{name}.joblib", trained_on="t",
+                                command="c", seed=3, validation=[frames_of(bags[r]) for r in val], validated_on="v",
+                                version=4, features=V4_FEATURES, classifier="trees")  # fmt: skip
+    assert (tmp_path / "a.joblib").read_bytes() == (tmp_path / "b.joblib").read_bytes()
+    c = ObstacleClassifier.load(tmp_path / "a.joblib")
+    assert c.bundle["classifier"] == "trees" and c.bundle["threshold"] == report.threshold
+    # predict() is the trees' score at the stored threshold (as a logit), on the feature region only
+    frames = list(frames_of(bags[val[0]]))
+    features = ObstacleFeatures(V4_FEATURES)
+    for points in frames:
+        mask, x = features(points)
+        expected = c.bundle["model"].decision_function(x) >= np.log(report.threshold / (1 - report.threshold))
+        got = c.predict(points)
+        assert not got[~mask].any() and np.array_equal(got[mask], expected)
+    with pytest.raises(ValueError, match="mlp or trees"):
+        train_obstacle([frames_of(bags[runs[0]])], tmp_path / "c.joblib", trained_on="t", command="c", classifier="svm")
 
 
 def test_run_options_parse():
@@ -239,3 +282,27 @@ def test_cluster_extents_measure_the_object_a_detection_belongs_to():
     on_post = out[len(rear) : len(rear) + len(post)]
     assert np.allclose(on_post[on_post[:, 0] > 0][:, 2:], [0.4, 0.8], atol=1e-6)  # on the road: 0.8 m above it
     assert not out[len(rear) + len(post) :].any()  # the road
+
+
+def test_cell_history_tells_what_holds_its_place_from_what_is_new():
+    """A car rear 14 m ahead holds its cells frame after frame; a box that appears at frame 5 has no history; road
+    detections (at their cell's floor) never mark a cell; reset forgets."""
+    from weather_filter.obstacle_history import HISTORY_FEATURES, CellHistory
+
+    history = CellHistory((0.0, 20.0), (-6.0, 6.0))
+    rear = (np.full(5, 14.0), np.linspace(-0.8, 0.8, 5), np.full(5, 0.6))  # x, y, dz_min
+    road = (np.full(5, 8.0), np.linspace(-2.0, 2.0, 5), np.zeros(5))
+    for _ in range(5):
+        assert not history(*(np.concatenate(v) for v in zip(rear, road)))[5:].any()  # nothing stood on the road
+    box = (np.array([6.0, 6.2]), np.array([-3.0, -3.0]), np.array([0.4, 0.9]))
+    near_rear = (np.array([14.4]), np.array([1.2]), np.array([0.3]))  # the next cell over: the 8-neighbourhood
+    out = history(*(np.concatenate(v) for v in zip(rear, box, near_rear, road)))
+    assert HISTORY_FEATURES == ("hist_recent", "hist_old")
+    np.testing.assert_array_equal(out[:5], [[2, 3]] * 5)  # frames t-1, t-2 and t-3..t-5
+    np.testing.assert_array_equal(out[5:7], 0)
+    np.testing.assert_array_equal(out[7], [2, 3])
+    np.testing.assert_array_equal(out[8:], 0)  # the road was never occupied above its floor
+    out = history(*box)
+    np.testing.assert_array_equal(out, [[1, 0]] * 2)  # the box itself, one frame back
+    history.reset()
+    assert not history(*rear).any()

@@ -157,23 +157,27 @@ def _apply_preset(args: argparse.Namespace) -> None:
 
 
 def _cmd_train_obstacle(args: argparse.Namespace) -> int:
-    """``train --preset augmentation[-v2|-v3|-wide]``: paper 4's obstacle classifier on fixed augmented runs."""
+    """``train --preset augmentation[-v2|-v3|-v4|-wide]``: paper 4's obstacle classifier on fixed augmented runs."""
     from weather_filter.obstacle import (
         AUGMENT_TRAIN_RUNS,
         AUGMENT_TRAIN_RUNS_V2,
         AUGMENT_TRAIN_RUNS_V3,
+        AUGMENT_TRAIN_RUNS_V4,
         AUGMENT_TRAIN_RUNS_WIDE,
         AUGMENT_VALIDATION_RUNS_V2,
         AUGMENT_VALIDATION_RUNS_V3,
+        AUGMENT_VALIDATION_RUNS_V4,
         DEFAULT_OBSTACLE_MODEL,
         OBSTACLE_MODEL_V1,
         OBSTACLE_MODEL_V2,
+        OBSTACLE_MODEL_V3,
         PAPER_FEATURES,
         SIM_BOXES_TRAIN_V2,
         SIM_BOXES_VALIDATION_V2,
         V2_FEATURES,
         V2_HIDDEN,
         V3_FEATURES,
+        V4_FEATURES,
         sim_boxes_text,
         train_obstacle,
     )
@@ -183,12 +187,14 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
     if args.sim or args.bags or args.synthetic_frames:
         raise ValueError(f"--preset {args.preset} trains on its own runs (weather_filter.obstacle.AUGMENT_TRAIN_RUNS*) "
                          "only: no --sim, bags or --synthetic-frames")  # fmt: skip
-    # augmentation: the v1 model (threshold 0.5); augmentation-v2 / -v3: the v2 and the shipped v3 model (threshold
-    # chosen on validation runs taken from training scenarios); augmentation-wide: an experiment (--out required)
+    # augmentation: the v1 model (threshold 0.5); augmentation-v2 / -v3: the v2 and v3 MLPs (threshold chosen on
+    # validation runs taken from training scenarios); augmentation-v4: the shipped trees (threshold chosen on those
+    # and on the spent held-out lists); augmentation-wide: an experiment (--out required)
     runs, validation, out, version, features = {
         "augmentation": (AUGMENT_TRAIN_RUNS, (), OBSTACLE_MODEL_V1, 1, PAPER_FEATURES),
         "augmentation-v2": (AUGMENT_TRAIN_RUNS_V2, AUGMENT_VALIDATION_RUNS_V2, OBSTACLE_MODEL_V2, 2, V2_FEATURES),
-        "augmentation-v3": (AUGMENT_TRAIN_RUNS_V3, AUGMENT_VALIDATION_RUNS_V3, DEFAULT_OBSTACLE_MODEL, 3, V3_FEATURES),
+        "augmentation-v3": (AUGMENT_TRAIN_RUNS_V3, AUGMENT_VALIDATION_RUNS_V3, OBSTACLE_MODEL_V3, 3, V3_FEATURES),
+        "augmentation-v4": (AUGMENT_TRAIN_RUNS_V4, AUGMENT_VALIDATION_RUNS_V4, DEFAULT_OBSTACLE_MODEL, 4, V4_FEATURES),
         "augmentation-wide": (AUGMENT_TRAIN_RUNS_WIDE, (), None, 1, PAPER_FEATURES),
     }[args.preset]
     if out is None and args.out is None:
@@ -206,13 +212,14 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
         return sources
 
     command = f"weather-filter train --preset {args.preset} --seed {args.seed}"
-    v2 = version >= 2  # v2 and v3: simulator boxes beside the augmented runs, a validated threshold, V2_HIDDEN
+    v2 = version >= 2  # v2 to v4: simulator boxes beside the augmented runs, a validated threshold, V2_HIDDEN (MLPs)
     trained_on = ", ".join(runs) + (f", {sim_boxes_text(SIM_BOXES_TRAIN_V2)}" if v2 else "")
     report = train_obstacle(sequences(runs, SIM_BOXES_TRAIN_V2 if v2 else None), args.out or out, trained_on=trained_on,
                             command=command, seed=args.seed,
                             validation=sequences(validation, SIM_BOXES_VALIDATION_V2) if v2 else None,
                             validated_on=", ".join(validation) + f", {sim_boxes_text(SIM_BOXES_VALIDATION_V2)}" if v2 else "",
-                            version=version, features=features, hidden=V2_HIDDEN if v2 else None)  # fmt: skip
+                            version=version, features=features, hidden=V2_HIDDEN if v2 else None,
+                            classifier="trees" if version >= 4 else "mlp")  # fmt: skip
     s = report.scores
     val = ""
     if report.validation_scores is not None:
@@ -228,7 +235,7 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from weather_filter.learned import DEFAULT_MODEL, train
 
-    if args.preset in ("augmentation", "augmentation-v2", "augmentation-v3", "augmentation-wide"):
+    if args.preset and args.preset.startswith("augmentation"):
         return _cmd_train_obstacle(args)
     _apply_preset(args)
     _refuse_packaged_overwrite(args)
@@ -283,17 +290,19 @@ def build_parser() -> argparse.ArgumentParser:
                     help="geometry-only filter for clouds lacking the method's fields (default dror)")  # fmt: skip
     ev.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="filter parameter override")
     ev.add_argument("--obstacle-model", metavar="PATH", help="obstacle classifier run when the bag has label-3 points "
-                    "(default: the shipped models/obstacle_point_mlp_v3.joblib; earlier ones: models/obstacle_point_mlp_v1.joblib, _v2)")  # fmt: skip
+                    "(default: the shipped models/obstacle_point_hgb_v4.joblib; earlier ones: models/obstacle_point_mlp_v1.joblib, _v2, _v3)")  # fmt: skip
     ev.set_defaults(func=_cmd_eval)
 
     tr = commands.add_parser("train", help="train the learned per-point filter on labelled simulation runs / bags")
     tr.add_argument("bags", nargs="*", metavar="BAG", help="labelled rosbag2 directories or .mcap files")
     tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]",
                     help="simulate this labelled run (cached under --cache) and train on it; repeatable")  # fmt: skip
-    tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-v2", "augmentation-v3", "augmentation-wide"],
-                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation-v3: train paper 4's "
-                         "obstacle classifier on its augmented runs (obstacle.AUGMENT_TRAIN_RUNS_V3, threshold chosen on "
-                         "obstacle.AUGMENT_VALIDATION_RUNS_V3; default --out: the shipped models/obstacle_point_mlp_v3.joblib); "
+    tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-v2", "augmentation-v3", "augmentation-v4",
+                                               "augmentation-wide"],
+                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation-v4: train paper 4's "
+                         "obstacle classifier on its augmented runs (obstacle.AUGMENT_TRAIN_RUNS_V4, threshold chosen on "
+                         "obstacle.AUGMENT_VALIDATION_RUNS_V4; default --out: the shipped models/obstacle_point_hgb_v4.joblib); "
+                         "augmentation-v3: the third model's (models/obstacle_point_mlp_v3.joblib); "
                          "augmentation-v2: the second model's (obstacle.AUGMENT_TRAIN_RUNS_V2; models/obstacle_point_mlp_v2.joblib); "
                          "augmentation: the first model's runs (obstacle.AUGMENT_TRAIN_RUNS, threshold 0.5; default --out: "
                          "models/obstacle_point_mlp_v1.joblib); augmentation-wide: an experiment on more runs "
