@@ -23,7 +23,12 @@ and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
   (:class:`lidar_weather_sim.regions.volume_return.VolumeReturn`: one per slab of one pulse sigma, the slab
   a surface of reflectance ``pi beta h``; at that spacing the pulses' sum is smooth to 1e-8) on the central
   sub-ray in front of its hit; where the volume's waveform stays below ``VOLUME_FLOOR`` of the threshold
-  it is left out.
+  it is left out. In the near field (out to ``NEAR_M``) the fog's pulses fluctuate from beam to beam: a slab
+  holds a Poisson number of droplets, so its summed cross-section is compound Poisson, mean ``lam E[sigma]``,
+  variance ``lam E[sigma^2]`` (``lam`` the droplets in the slab's beam volume), drawn in its normal limit and
+  clipped at 0, as the reference does for its cells. A fog echo is flat-topped (metres wide): without this
+  every beam of a channel put its peak on the same spot, where the droplets' own fluctuation moves it by tens of
+  centimetres.
 
 The overlap O(r) is the profile's biaxial geometry (:func:`lidar_weather_sim.physics.overlap.biaxial_overlap`:
 lens separation, receiver field of view, apertures) where its optics give it, else the echo stage's
@@ -31,7 +36,8 @@ smoothstep; it is part of each volume pulse's reflectance, and a drop is seen (i
 of view) with probability O(r) (``bypass_overlap``: the echo stage does not apply its own). The threshold is the dark one (no sun). This is the
 model :mod:`lidar_weather_sim.gap.reference` computes slowly, drop by drop, with a geometric overlap and
 fog droplet statistics: the fast model is checked against it (``benchmarks/atmosphere_reference.py
---fast-model physical``). Not modelled: multiple scattering, the fog's fluctuation from cell to cell.
+--fast-model physical``). Not modelled: multiple scattering, the fog's fluctuation beyond the near field
+(the reference's quadrature there is smooth too).
 """
 
 from __future__ import annotations
@@ -100,9 +106,9 @@ class PhysicalAir:
         f = m.number_above(d_min) * s
         return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(r))]), d_min
 
-    def _volume_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(centres m, reflectance per unit sub-ray weight, label) of the volume pulses of a beam without a
-        hit, those that reach VOLUME_FLOOR of the threshold."""
+    def _volume_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(centres m, reflectance per unit sub-ray weight, its standard deviation from beam to beam, label) of
+        the volume pulses of a beam without a hit, those that reach VOLUME_FLOOR of the threshold."""
         centres, width = self.volume.slabs(np.inf, spacing_m=self.volume.sigma_m, r_max_m=self.r_max)
         beta = np.zeros(len(centres))
         labels = np.zeros(len(centres), np.uint8)
@@ -114,7 +120,17 @@ class PhysicalAir:
             labels[:] = LABELS["fog"]
         level = self.volume.density(centres) * beta * np.sqrt(2.0 * np.pi) * self.volume.sigma_m  # waveform (smooth)
         keep = level > VOLUME_FLOOR * self.threshold
-        return centres[keep], (np.pi * beta * width * self.volume.overlap(centres))[keep], labels[keep]
+        overlap = self.volume.overlap(centres)
+        sd = np.zeros(len(centres))
+        if self.fog is not None:  # the near field's droplets: compound Poisson (module doc)
+            f = self.fog
+            mean_s2 = float(np.sum(0.5 * (f.density[1:] * f.sigma_back[1:] ** 2 + f.density[:-1] * f.sigma_back[:-1] ** 2)
+                                   * np.diff(f.diameters)))  # number x E[sigma^2], per m^3  # fmt: skip
+            near = centres <= NEAR_M
+            area = self.area(centres[near])
+            # reflectance pi (summed sigma) / S: its sd pi sqrt(lam E[sigma^2]) / S, lam = number S h
+            sd[near] = np.pi * np.sqrt(mean_s2 * area * width[near]) / area * overlap[near]
+        return centres[keep], (np.pi * beta * width * overlap)[keep], sd[keep], labels[keep]
 
     # -- per batch -----------------------------------------------------------------------------------
     def scatterers(self, batch: RayBatch, rng: np.random.Generator) -> Scatterers | None:
@@ -122,18 +138,23 @@ class PhysicalAir:
         w = np.asarray(batch.weights, dtype=np.float64)
         core = int(np.argmax(w))
         hit = np.where(np.isfinite(batch.distance[:, core]), batch.distance[:, core], self.r_max)
-        parts = [self._volume(hit, core, w[core])]
+        parts = [self._volume(hit, core, w[core], rng)]
         if self.precip is not None:
             parts.append(self._drops(hit, w, rng))
         return Scatterers.concatenate(parts)
 
-    def _volume(self, hit: np.ndarray, core: int, weight: float) -> Scatterers | None:
-        centres, refl, labels = self._volume_pulses
+    def _volume(self, hit: np.ndarray, core: int, weight: float, rng: np.random.Generator) -> Scatterers | None:
+        centres, refl, sd, labels = self._volume_pulses
         if not len(centres):
             return None
         beam, k = np.nonzero(centres[None, :] < hit[:, None])
         n = len(beam)
-        return Scatterers(beam=beam, subray=np.full(n, core), range_m=centres[k], reflectance=refl[k] / weight,
+        reflectance = refl[k]
+        varies = np.flatnonzero(sd[k] > 0)
+        if len(varies):
+            reflectance = reflectance.copy()
+            reflectance[varies] = np.maximum(refl[k[varies]] + sd[k[varies]] * rng.standard_normal(len(varies)), 0.0)
+        return Scatterers(beam=beam, subray=np.full(n, core), range_m=centres[k], reflectance=reflectance / weight,
                           occlusion=np.zeros(n), label=labels[k], object_id=np.zeros(n, np.uint32),
                           bypass_overlap=np.ones(n, bool))  # fmt: skip
 

@@ -255,8 +255,11 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
     many (<= room). ``buf``: scratch for the samples (grown if too short).
 
     The waveform is sampled every s / 8 m; an echo runs from the first sample above the
-    threshold to the last (crossings interpolated linearly between samples) and peaks at its
-    first highest sample. Samples are estimated (:func:`_fill_estimates`); the exact value
+    threshold to the last (crossings interpolated linearly between samples); its peak amplitude is
+    its first highest sample, its range the vertex of the parabola through that sample and its two
+    neighbours (the waveform's maximum to < 5 % of a sample step; the highest sample alone is up to
+    half a step off, on a grid whose offset depends on the cluster). Samples are estimated
+    (:func:`_fill_estimates`); the exact value
     (:func:`_sample`) is computed only where the estimate's error bound leaves the comparison
     with the threshold open, at the crossings and for the samples that may be the highest:
     the echoes are those of the exact samples, bit for bit."""
@@ -320,6 +323,13 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
                     if w > best_w:
                         best_w = w
                         best_x = x
+            # the maximum between the samples: the parabola through the highest one and its neighbours
+            w_lo = _sample(r, a, c0, c1, s, best_x - dx)
+            w_hi = _sample(r, a, c0, c1, s, best_x + dx)
+            curvature = w_lo - 2.0 * best_w + w_hi
+            peak_x = best_x
+            if curvature < 0.0:
+                peak_x = best_x + dx * min(max(0.5 * (w_lo - w_hi) / curvature, -0.5), 0.5)
             x = lo + (first + j) * dx
             w = _sample(r, a, c0, c1, s, x)
             prev = _sample(r, a, c0, c1, s, lo + (first + j - 1) * dx)
@@ -332,7 +342,7 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
                 if c > best_c:
                     best_c = c
                     best_i = i
-            out_r[out0 + written] = best_x
+            out_r[out0 + written] = peak_x
             out_a[out0 + written] = best_w
             out_w[out0 + written] = end - start
             out_l[out0 + written] = lab[best_i]
