@@ -15,7 +15,7 @@ import yaml
 
 from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.gap.command import run_gap
-from lidar_weather_sim.gap.effects import apply_effects, parse_effect, search_grid
+from lidar_weather_sim.gap.effects import EFFECTS, apply_effects, parse_effect, search_grid
 from lidar_weather_sim.gap.measured import RECOVERY_CASES, Nuisance, case_scenario, make_measured
 from lidar_weather_sim.io.bags import bag_info
 from lidar_weather_sim.scenario.schema import Scenario, load_scenario
@@ -64,6 +64,19 @@ def test_gap_names_exactly_the_hidden_effects_and_recovers_them(highway, hidden,
     assert set(patched.regions) >= {n.split(".")[0] for n in found if n != "sensor.sun"}
     for name in ("report.md", "gap_terms.png", "ranges_before_after.png", "bev_before_after.png"):
         assert (tmp_path / "gap" / name).stat().st_size > 0
+
+
+def test_gap_frees_an_accepted_effect_that_absorbed_the_missing_one(highway, tmp_path):
+    """Sun 400 W/m^2 behind a dirt of 0.62: both dim the returns, and alone the dirt fits at 0.36; next to that
+    dirt no sun helps (fitted at its 10 W/m^2 floor). The round with the accepted dirt free finds the pair."""
+    hidden = [parse_effect("sensor.sun:irradiance=400"), parse_effect("cover.dirt:transmission=0.62")]
+    make_measured(highway, hidden, tmp_path / "measured", frames=12)
+    result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", fit_frames=6, heldout_frames=6, screen_frames=2)
+    found = {e["name"]: e["params"][EFFECTS[e["name"]].main] for e in result["effects"]}
+    assert sorted(found) == ["cover.dirt", "sensor.sun"], result
+    for e in hidden:
+        assert abs(found[e.name] / e.value - 1.0) <= 0.15, (e.label(), found[e.name])
+    assert result["gap_after"] <= 0.1 * result["gap_before"], result
 
 
 def test_clear_measurement_accepts_no_effect(highway, tmp_path):

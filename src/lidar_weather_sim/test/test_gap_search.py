@@ -1,11 +1,14 @@
 """The gap search's decision rules on a known gap landscape (no simulation: the held-out gap of
 every effect set is given), so each rule is checked by itself."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from lidar_weather_sim.gap.effects import parse_effect
 from lidar_weather_sim.gap.search import MIN_ABS_GAIN, MIN_GAIN, Candidate, Diagnosis, GapSearch
+from lidar_weather_sim.scenario.schema import load_scenario
 
 FOG, SUN, DIRT = (parse_effect(text) for text in ("atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400",
                                                   "cover.dirt:transmission=0.995"))  # fmt: skip
@@ -81,6 +84,9 @@ class RoundsSearch(LandscapeSearch):
     def run_round(self, accepted, excluded=()):
         return [Candidate(e, 0.0, self.screened.get((_set(*accepted), e.name), self.gap(accepted + [e], "heldout")), 1)
                 for e in self.pool if e not in accepted and e not in excluded]  # fmt: skip
+
+    def joint_round(self, accepted, excluded=()):
+        return []  # the landscape knows effect sets, not values to free
 
 
 @pytest.mark.parametrize("families, named", [(("weather", "sensor"), ["sensor.intensity_gamma"]),
@@ -497,3 +503,17 @@ def test_a_recorded_return_mode_is_not_refitted():
     assert search.refit([strongest, noise])[0] == strongest
     search.recorded_mode = None  # not recorded: a mode like any fitted effect
     assert search.refit([strongest, noise])[0].params["mode"] == "first"
+
+
+def test_a_candidate_that_conflicts_with_one_accepted_effect_is_tried_in_its_place():
+    # snow accepted first for rain (behind a dirty cover) leaves rain untried unless it may replace the snow
+    search = LandscapeSearch({}, families=("weather",))
+    search.resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
+    snow, dirt = parse_effect("atmosphere.snow:intensity=0.7"), parse_effect("cover.dirt:transmission=0.73")
+    plain = {c.name: base for c, base in search.options([snow, dirt])}
+    swaps = {c.name: [e.name for e in base] for c, base in search.options([snow, dirt], swaps=True)}
+    assert "atmosphere.rain" not in plain and "cover.water" not in plain
+    assert all(base == [snow, dirt] for base in plain.values())
+    assert swaps["atmosphere.rain"] == ["cover.dirt"] and swaps["cover.water"] == ["atmosphere.snow"]
+    assert {n: b for n, b in swaps.items() if n not in ("atmosphere.rain", "cover.water")} == {
+        n: [e.name for e in b] for n, b in plain.items()}
