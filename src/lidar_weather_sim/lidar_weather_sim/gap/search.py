@@ -424,12 +424,11 @@ class GapSearch:
         candidate's grid values are screened with each accepted weather effect in turn on its whole grid, the
         others as accepted (with one accepted effect: the full two-dimensional grid; the sensor family's effects
         keep their values: read off the data, or on 7-value grids that would make the round 8 times a plain
-        one); the best
-        ``refine`` are refined from there with the accepted effects at their screened values, and every one is
-        scored on the held-out frames with them. A candidate that conflicts with one accepted effect is tried in
+        one); the best ``refine`` are refined from there with the accepted effects at their screened values, and
+        every one is scored on the held-out frames with them. A candidate that conflicts with one accepted effect is tried in
         its place (:meth:`options`): the first of two effects that cannot go together may have been accepted for
         the other (snow at 0.7 mm/h for rain at 21 mm/h behind a dirty cover), which then can no longer be tried."""
-        sets = []  # per candidate: (its grid, the accepted effects of each job, its value's index of each job)
+        sets = []  # per candidate: (it, its grid, [(the accepted effects of a job, its grid index in that job)])
         for c, base in self.options(accepted, excluded, swaps=True):
             xs = self._grid(c)
             variants = [(list(base), k) for k in range(len(xs))]
