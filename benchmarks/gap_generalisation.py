@@ -1,7 +1,7 @@
 """Gap-search generalisation baseline (issue 22): `gap` on the seeded cases of config/gap_cases.yaml.
 
     python benchmarks/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
-        [--atmosphere-model fitted|physical] [--fast-via-sim] [--json F]
+        [--atmosphere-model fitted|physical] [--fast-via-sim] [--reuse-bags] [--json F]
 
 Cases come from lidar_weather_sim.gap.cases.draw_cases (ranges and seed committed before anything ran on
 them). Per case a "measured" scala4 highway_clear bag of `measurement.frames` frames is made by its
@@ -55,6 +55,9 @@ def main() -> None:
     parser.add_argument("--fast-via-sim", action="store_true",
                         help="make the fast cases by simulating the scenario with the effects (make-measured, at the "
                              "case's seed) instead of make-measured --on the clear base bag (a supplementary check)")
+    parser.add_argument("--reuse-bags", action="store_true",
+                        help="search a case bag already in --out instead of making it again (when only the search "
+                             "changed since it was made)")
     args = parser.parse_args()
     config, cases = draw_cases(args.cases_file)
     if args.only:
@@ -80,7 +83,9 @@ def main() -> None:
             start = time.perf_counter()
             bag = work / f"case_{case.index:02d}"
             effects = case.parsed()
-            if case.generator == "fast" and args.fast_via_sim:
+            if args.reuse_bags and (bag / "metadata.yaml").exists():
+                pass
+            elif case.generator == "fast" and args.fast_via_sim:
                 make_measured(scenario, effects, bag, frames=m["frames"], seed=case.seed, profile=config["profile"],
                               overwrite=True, atmosphere_model=args.atmosphere_model)  # fmt: skip
             elif case.generator == "fast":

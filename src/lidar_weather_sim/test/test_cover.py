@@ -153,3 +153,23 @@ def test_the_clean_covers_near_field_ghosts_come_at_their_rate_beyond_the_minimu
     assert ghosts["distance"].min() >= min_range_m and ghosts["distance"].max() <= 0.5
     assert np.sum(points["label"] == Label.STATIC) == columns
     assert len(one_frame(_sim(profile, seed=5, texture="clean")).points) == columns  # rate 0: no ghost
+
+
+def test_a_weather_behind_the_cover_returns_through_its_transmission_twice_less_the_forward_scatter():
+    """What a fog or rain spread along a beam returns through the cover (the reference's cover term):
+    1 for a clean cover; for thesis sample 3l (forward share > 0) each beam's mean T^2 over its sub-rays
+    times (1 - share)^2, so a dirt of mean T 0.66 with share 0.34 returns ~0.19, not T^2 = 0.44."""
+    from lidar_weather_sim.sensor.profile import load_profile
+    from lidar_weather_sim.sensor.scan import ScanPattern
+
+    profile = load_profile("scala4")
+    clean = REGISTRY.create("cover", {"texture": "clean"}, RegionContext(profile)).beam_two_way()
+    pattern = ScanPattern(profile)
+    assert clean.shape == (pattern.n_columns, pattern.n_channels)
+    np.testing.assert_allclose(clean, 1.0, rtol=1e-12)
+    region = REGISTRY.create("cover", {"texture": "dirt:0.66"}, RegionContext(profile))
+    share = region.textures[0].forward_share
+    assert share > 0
+    two_way = region.beam_two_way()
+    assert two_way.mean() == pytest.approx(0.66**2 * (1 - share) ** 2, rel=0.05)
+    assert two_way.std() > 0.01  # the texture's spots: beams differ

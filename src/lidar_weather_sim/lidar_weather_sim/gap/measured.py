@@ -19,7 +19,8 @@ topic only, and points without ``label`` and ``object_id`` (the 40-byte layout; 
 - ``fast`` (default): the project's own effects (:mod:`lidar_weather_sim.gap.effects`) in the simulator;
 - ``reference``: fog, rain and snow by the independent drop-by-drop reference
   (:mod:`lidar_weather_sim.gap.reference`) on the simulator's clear frames; the other effects (sun, cover,
-  spray, road) by the simulator;
+  spray, road) by the simulator, and the weather's own returns through the cover's transmission
+  (:func:`cover_two_way`);
 - ``hahner``: fog by the simplified extinction-plus-soft-echo generator (:mod:`lidar_weather_sim.gap.hahner`,
   after Hahner et al., ICCV 2021) on the clear frames; other effects by the simulator (no rain or snow).
 """
@@ -58,6 +59,18 @@ def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator, ground
     return out
 
 
+def cover_two_way(scenario: Scenario, profile) -> np.ndarray | None:
+    """(columns, channels) two-way transmission of each beam through the scenario's sensor cover, as its
+    ``cover`` region draws it; None without that region."""
+    if "cover" not in scenario.regions:
+        return None
+    from lidar_weather_sim.regions.base import RegionContext
+    from lidar_weather_sim.regions.cover import CoverParams, CoverRegion
+
+    params = CoverParams.model_validate(scenario.region_params.get("cover", {}))
+    return CoverRegion(params, RegionContext(profile=profile)).beam_two_way()
+
+
 def weather_transform(scenario: Scenario, effects: list[Effect], generator: str, profile: str | None,
                       seed: int, beams_per_frame: int | None = None, atmosphere_model: str | None = None):  # fmt: skip
     """(scenario with the effects the simulator makes, ``transform(frame) -> points`` or None) of ``generator``;
@@ -82,7 +95,8 @@ def weather_transform(scenario: Scenario, effects: list[Effect], generator: str,
         if prof.detection.return_mode != "all":
             raise ValueError(f"the atmosphere reference reports every echo (return mode all), not "
                              f"{prof.detection.return_mode!r}")  # fmt: skip
-        ref = ReferenceAtmosphere(prof, atmosphere, sun_irradiance_w_m2=sun, beams_per_frame=beams_per_frame)
+        ref = ReferenceAtmosphere(prof, atmosphere, sun_irradiance_w_m2=sun, beams_per_frame=beams_per_frame,
+                                  cover_two_way=cover_two_way(hidden, prof))  # fmt: skip
         return hidden, lambda frame: ref.apply(frame.points, frame.index, rng)
     from lidar_weather_sim.gap.hahner import HahnerFog
 

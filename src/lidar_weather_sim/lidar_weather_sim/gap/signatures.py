@@ -14,7 +14,9 @@ far        everything else (guard rails, vehicles far away, buildings)
 
 Per zone a :class:`Signature` sums over its frames the range histogram (5 cm bins up to
 5 m, 0.5 m beyond), the echo-number x intensity histogram (16 bins of 16) and the
-echo-number x EPW histogram (0.1 m bins to 3 m; only when the clouds carry ``epw``).
+echo-number x EPW histogram (0.1 m bins to 3 m; only when the clouds carry ``epw``), each
+linearly binned (a return shared between the two nearest bin centres), so that the gap moves
+with a value as smoothly as the value moves.
 Over all points it sums the bird's-eye histogram (0.5 m cells, x -100..100 m, y -50..50 m,
 as in the thesis' validation), the channel x range-class counts (the return ratio by
 channel and range) and the later echoes' counts (echo 2 and 3+ x range class): a histogram
@@ -95,16 +97,39 @@ def zone_of(points: np.ndarray, context: FrameContext) -> np.ndarray:
     return zone
 
 
-def _hist(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    idx = np.searchsorted(edges, values, side="right") - 1
-    ok = (idx >= 0) & (idx < len(edges) - 1)
-    return np.bincount(idx[ok], minlength=len(edges) - 1).astype(np.float64)
+def _linear_bins(values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear binning on the uniform ``edges``: (lower bin, weight of the next bin) of every value. A value
+    is shared between the two bins whose centres bracket it, in proportion to its distance from them; one
+    beyond an outer centre stays in the outer bin. With hard bins a value a hair's breadth across an edge
+    moved a whole count: a vehicle's 24 returns at one EPW made a zone term of 0.8 between two recordings
+    whose EPWs differ by a few millimetres, and a phantom effect that nudged them back won the margin."""
+    bins = len(edges) - 1
+    t = np.clip((values - edges[0]) / (edges[1] - edges[0]) - 0.5, 0.0, bins - 1)
+    lower = np.minimum(np.floor(t).astype(np.int64), max(bins - 2, 0))
+    return lower, np.clip(t - lower, 0.0, 1.0)
 
 
-def _echo_hist(echo: np.ndarray, values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+def _linear_hist(index: np.ndarray, upper: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(weights, squared weights) per bin of :func:`_linear_bins`' output, ``index`` its lower bin."""
+    lower = 1.0 - upper
+    hist = np.bincount(index, lower, size) + np.bincount(index + 1, upper, size + 1)[:size]
+    squares = np.bincount(index, lower**2, size) + np.bincount(index + 1, upper**2, size + 1)[:size]
+    return hist, squares
+
+
+def _hist(values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linearly binned histogram of the values within ``edges`` (:func:`_linear_bins`), and its squared weights."""
+    values = values[(values >= edges[0]) & (values < edges[-1])]
+    return _linear_hist(*_linear_bins(values, edges), len(edges) - 1)
+
+
+def _echo_hist(echo: np.ndarray, values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Echo number (1, 2, 3+) x linearly binned values (clipped into ``edges``), and its squared weights."""
     e = np.clip(echo.astype(np.int64), 1, ECHOES) - 1
-    idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
-    return np.bincount(e * (len(edges) - 1) + idx, minlength=ECHOES * (len(edges) - 1)).astype(np.float64)
+    lower, upper = _linear_bins(values, edges)
+    bins = len(edges) - 1
+    hist, squares = _linear_hist(e * bins + lower, upper, ECHOES * bins)
+    return hist, squares
 
 
 def bev_histogram(points: np.ndarray) -> np.ndarray:
@@ -125,6 +150,9 @@ class Signature:
     frames: int = 0
     has_epw: bool = True
     sums: dict[str, np.ndarray] = field(default_factory=dict)
+    #: per bin of the linearly binned histograms (:func:`_linear_bins`), the sum of the squared weights:
+    #: what their counting noise is (:func:`systematic_bray_curtis`)
+    squares: dict[str, np.ndarray] = field(default_factory=dict)
     counts: list[np.ndarray] = field(default_factory=list)  # detections per zone, one row per frame
     features: list[dict[str, float]] = field(default_factory=list)  # near-field paper-2 parameters per frame
 
@@ -146,16 +174,20 @@ class Signature:
         e = np.minimum(echo[later].astype(np.int64), ECHOES) - 2
         parts["later_echoes"] = np.bincount(e * (len(RANGE_CLASS_EDGES) - 1) + rc[later],
                                             minlength=(ECHOES - 1) * (len(RANGE_CLASS_EDGES) - 1)).astype(np.float64)  # fmt: skip
+        linear = {}
         for k, name in enumerate(ZONES):
             m = zone == k
-            parts[f"{name}/range"] = _hist(d[m], RANGE_EDGES[name])
-            parts[f"{name}/intensity"] = _echo_hist(echo[m], inten[m], np.linspace(0.0, 256.0, INTENSITY_BINS + 1))
+            linear[f"{name}/range"] = _hist(d[m], RANGE_EDGES[name])
+            linear[f"{name}/intensity"] = _echo_hist(echo[m], inten[m], np.linspace(0.0, 256.0, INTENSITY_BINS + 1))
             if self.has_epw:
-                parts[f"{name}/epw"] = _echo_hist(echo[m], points["epw"][m].astype(np.float64), EPW_EDGES)
-        for key, value in parts.items():
-            self.sums[key] = self.sums[key] + value if key in self.sums else value
+                linear[f"{name}/epw"] = _echo_hist(echo[m], points["epw"][m].astype(np.float64), EPW_EDGES)
+        parts.update({key: hist for key, (hist, _) in linear.items()})
+        for store, values in ((self.sums, parts), (self.squares, {key: sq for key, (_, sq) in linear.items()})):
+            for key, value in values.items():
+                store[key] = store[key] + value if key in store else value
         if not self.has_epw:
             self.sums = {k: v for k, v in self.sums.items() if not k.endswith("/epw")}
+            self.squares = {k: v for k, v in self.squares.items() if not k.endswith("/epw")}
         self.counts.append(np.bincount(zone, minlength=len(ZONES)))
         epw = points["epw"] if self.has_epw else np.zeros(len(points), np.float32)
         self.features.append(frame_features(d, echo, epw, COVER_M, NEAR_M))
@@ -197,7 +229,8 @@ def _noise_abs_difference(total: np.ndarray, na: int, nb: int) -> np.ndarray:
 
 
 def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, frames_b: int,
-                           clip: bool = True) -> float:  # fmt: skip
+                           clip: bool = True, squares_a: np.ndarray | None = None,
+                           squares_b: np.ndarray | None = None) -> float:  # fmt: skip
     """Bray-Curtis dissimilarity of the per-frame means minus what counting noise alone gives.
 
     Given a bin's total count, chance alone splits it between the two recordings
@@ -205,6 +238,9 @@ def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, 
     subtracted bin by bin and the total clipped at 0. What is left is the systematic part:
     a sparse zone (a few spray or cover returns per frame) does not look different merely
     because it is sparse, and a recording compared with a re-draw of itself scores ~0.
+    A linearly binned histogram (``squares_*``: its per-bin sums of squared weights) holds shares of returns;
+    a bin's noise is then that of its effective number of returns, total^2 / sum of squares, each of weight
+    total / that number.
     ``clip=False`` keeps negative totals: a fit then still sees which of two near-perfect
     parameter values matches better."""
     na, nb = max(frames_a, 1), max(frames_b, 1)
@@ -212,7 +248,14 @@ def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, 
     total = float(a.sum() + b.sum())
     if total <= 0:
         return 0.0
-    noise = _noise_abs_difference(np.rint(sum_a + sum_b), na, nb)
+    counts = sum_a + sum_b
+    if squares_a is None or squares_b is None:
+        noise = _noise_abs_difference(np.rint(counts), na, nb)
+    else:
+        squares = squares_a + squares_b
+        effective = np.divide(counts**2, squares, out=np.zeros_like(counts), where=squares > 0)
+        weight = np.divide(counts, effective, out=np.zeros_like(counts), where=effective > 0)
+        noise = weight * _noise_abs_difference(np.rint(effective), na, nb)
     excess = np.abs(a - b).sum() - noise.sum()
     return float((max(excess, 0.0) if clip else excess) / total)
 
@@ -223,7 +266,8 @@ EVIDENCE_POINTS = 30.0  # a histogram with this many returns in both recordings 
 def gap_terms(measured: Signature, simulated: Signature, clip: bool = True) -> dict[str, float]:
     """Systematic Bray-Curtis dissimilarity of every histogram the two signatures share."""
     keys = [k for k in measured.sums if k in simulated.sums]
-    return {k: systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip)
+    return {k: systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip,
+                                      measured.squares.get(k), simulated.squares.get(k))
             for k in keys}  # fmt: skip
 
 

@@ -115,6 +115,16 @@ class CoverRegion:
             self._tables = tables
         return self._tables
 
+    def beam_two_way(self) -> np.ndarray:
+        """(columns, channels) two-way transmission through the cover of what a weather spread along each beam of
+        the scan pattern returns, with the first texture (before any blend): the beam's mean T^2 over its
+        sub-rays (weighted by their share of its energy) times (1 - forward share)^2. The light the cover
+        scatters forward leaves the receiver's field of view, on the way out and on the way back; the
+        fast atmosphere puts its volume return on the core sub-ray, which :meth:`apply` dims by that share."""
+        weights = np.asarray(ScanPattern(self.profile).subray_weight, dtype=np.float64)
+        mean_square = (self._pattern_samples()[0] ** 2 * weights).sum(axis=-1) / weights.sum()
+        return mean_square * (1.0 - self.textures[0].forward_share) ** 2
+
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, s = batch.shape
         w = self.blend_weight(np.asarray(batch.time_s, dtype=np.float64))[:, None]
