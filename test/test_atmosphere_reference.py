@@ -111,6 +111,18 @@ def test_weather_behind_a_near_target_is_hidden(scala4):
             assert np.all(out["distance"] + out["epw"] / 2 <= 4.0 + 2 * s)  # no echo reaching far behind it
 
 
+def test_a_return_of_the_sensor_cover_does_not_hide_the_weather_behind_it(scala4):
+    """A dirt return at 0.1 m (label COVER) is a partial reflection of the window, not a wall: in fog of 100 m
+    the beam's echo reaches metres beyond it (the fog's 16 m echo, merged with it), on every seed."""
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=100.0))
+    for seed in range(5):
+        dirt = _points(ref, [0.1], [3.0 * ref.threshold])
+        dirt["label"] = Label.COVER
+        out = ref.apply(dirt, 0, np.random.default_rng(seed))
+        out = out[(out["channel"] == 1) & (np.abs(out["azimuth"] - dirt["azimuth"][0]) < 1e-4)]
+        assert len(out) and np.max(out["distance"] + out["epw"] / 2) > 5.0, out[["distance", "epw"]]
+
+
 def test_unsampled_beams_keep_their_return_attenuated(scala4):
     ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=200.0), beams_per_frame=1)
     pts = np.concatenate([_points(ref, [25.0], [50.0 * ref.threshold], column=c) for c in range(100, 140)])
@@ -195,8 +207,9 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, profile, tmp_path
     rain 10 mm/h 0.95, snow 5 mm/h 0.92). OS1-128 with 32 columns (every beam simulated by the reference) in thin
     fog: 0.95 over 4 frames; 0.37 before the fog's near-field droplets fluctuated from beam to beam (every beam
     of a channel then peaked on the same spot of its flat-topped echo). Fog behind a dirty cover (gap draw case 7):
-    the fog's light crosses the cover twice in both; when the reference dimmed only the scene its near field held
-    19 % more detections than the fast model's and the frame 15 % fewer (its long fog echo hid the far returns)."""
+    the fog's light crosses the cover twice in both, and the dirt's own returns do not hide it; when the reference
+    dimmed only the scene its near field held 19 % more detections than the fast model's and the frame 15 % fewer
+    (its long fog echo hid the far returns)."""
     from lidar_weather_sim.gap.measured import Nuisance
     from lidar_weather_sim.sensor.profile import load_profile
 

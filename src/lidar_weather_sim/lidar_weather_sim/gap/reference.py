@@ -31,7 +31,10 @@ Then, for each weather (:mod:`lidar_weather_sim.physics`: DSD, Mie, biaxial over
   scale. Label: the scene return's (label, object id) when it dominates the waveform at the peak, else
   FOG / RAIN / SNOW. Weather echoes get the profile's range noise.
   Weather behind a beam's nearest scene return is hidden: its drops and volume cells there are left out
-  (the return is taken to block the whole beam, as the fast model takes its core sub-ray's hit).
+  (the return is taken to block the whole beam, as the fast model takes its core sub-ray's hit). Not behind
+  a return of the sensor cover (label COVER, 0-0.5 m): the light goes on through the window. Taking those
+  as blocking hid the fog from every beam with a dirt return (gap draw case 7: 101 cover returns a frame
+  kept apart where the fog's waveform, 2x the threshold already at 0.1 m, merges them into its echo).
 - **Other beams** keep their clear returns attenuated by ``exp(-2 alpha R)`` (EPW and intensity lowered,
   returns below the threshold removed), and get no near-field weather.
 
@@ -290,7 +293,8 @@ class ReferenceAtmosphere:
         scene_a = scene_a * np.exp(-2.0 * self.alpha * scene_r)
         scene = self._pulses(pos, scene_r, scene_a, n)
         hit = np.full(n, np.inf)  # the beam's nearest scene return: the weather behind it is hidden
-        np.minimum.at(hit, pos, scene_r)
+        blocks = pts["label"] != Label.COVER  # the cover's own returns: the beam goes on through the window
+        np.minimum.at(hit, pos[blocks], scene_r[blocks])
         in_front = self.r[None, :] < hit[:, None]
         cover = 1.0
         if self.cover is not None:  # the weather's light crosses the cover twice, as the scene's did
