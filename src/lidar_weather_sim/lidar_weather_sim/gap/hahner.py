@@ -6,7 +6,8 @@ cloud (it needs no scene, only the points):
 - **Hard target**: every return's received power is multiplied by ``exp(-2 alpha R)`` (their eq. 6-7:
   the hard target term keeps its form with the two-way Beer-Lambert loss), ``alpha = 3.912 / V``
   (Koschmieder; wavelength-independent as in the paper). On this project's receiver the power is the
-  peak amplitude ``A``, recovered from each point's EPW (:func:`~lidar_weather_sim.gap.reference.amplitude_from_points`);
+  peak amplitude ``A``, recovered from each point's intensity with its pulse width from its EPW
+  (:func:`~lidar_weather_sim.gap.reference.scene_pulses`);
   the attenuated return's intensity and EPW follow from ``A exp(-2 alpha R)`` on the profile's scales,
   so the intensity byte drops by ``255 * 2 alpha R / ln(intensity_dynamic_range)``; returns below the
   threshold are removed.
@@ -27,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_weather_sim.core.points import Label
-from lidar_weather_sim.gap.reference import amplitude_from_points, epw_of, intensity_bytes
+from lidar_weather_sim.gap.reference import epw_of, intensity_bytes, scene_pulses
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold, dark_level
 
@@ -69,16 +70,16 @@ class HahnerFog:
     def apply(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``points`` (the project's layout) in this fog: hard returns attenuated, soft echoes replacing them."""
         d = points["distance"].astype(np.float64)
-        hard = amplitude_from_points(points, self.threshold, self.sigma, self.dark, self.log_span) * np.exp(
-            -2.0 * self.alpha * d)
+        hard, width = scene_pulses(points, self.threshold, self.sigma, self.dark, self.log_span)
+        hard = hard * np.exp(-2.0 * self.alpha * d)
         soft = (self.soft_peak > hard) & (self.soft_peak > self.threshold) & (self.soft_range_m < d)
         keep = soft | (hard > self.threshold)
         out = points[keep].copy()
-        hard, soft = hard[keep], soft[keep]
+        hard, soft, width = hard[keep], soft[keep], width[keep]
         amp = np.where(soft, self.soft_peak, hard)
         out["intensity"] = intensity_bytes(amp, self.dark, self.log_span)
         if "epw" in (out.dtype.names or ()):
-            out["epw"] = epw_of(amp, self.threshold, self.sigma)
+            out["epw"] = epw_of(amp, self.threshold, np.where(soft, self.sigma, width))
         if soft.any():
             old = np.maximum(out["distance"][soft].astype(np.float64), 1e-9)
             new = np.maximum(self.soft_range_m + rng.normal(0.0, self.sigma, int(soft.sum())), 1e-3)

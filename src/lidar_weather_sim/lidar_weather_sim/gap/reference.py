@@ -2,8 +2,8 @@
 fast atmosphere region (it imports nothing of ``regions.atmosphere`` or ``regions.near_field``).
 
 Slow and simple on purpose. A clear frame of the simulator gives the scene: for every beam its returns'
-range R and peak amplitude A (from the EPW the clear frame reports, ``A = T exp((EPW / 2s)^2 / 2)``, the
-inverse of the isolated-pulse EPW of :mod:`lidar_weather_sim.sensor.echo`, T the clear run's threshold).
+range R, peak amplitude A (from the intensity byte, on the profile's log scale) and pulse width: the Gaussian
+whose EPW at the clear run's threshold T is the one the clear frame reports (:func:`scene_pulses`).
 Then, for each weather (:mod:`lidar_weather_sim.physics`: DSD, Mie, biaxial overlap):
 
 - **Sampled beams** (all of a small profile, else ``beams_per_frame`` drawn at random) get a new waveform
@@ -93,14 +93,32 @@ class Atmosphere:
         return self.fog_m is None and self.precipitation is None
 
 
-def amplitude_from_points(points: np.ndarray, threshold: float, sigma_m: float, dark: float,
-                          log_span: float) -> np.ndarray:  # fmt: skip
-    """Peak amplitude (noise units) of each point: from its EPW (isolated-pulse inverse, exact for the
-    simulator's isolated echoes), else from its intensity byte (log scale over the dark threshold)."""
-    if "epw" in (points.dtype.names or ()):
-        half = points["epw"].astype(np.float64) / (2.0 * sigma_m)
-        return threshold * np.exp(0.5 * half * half)
-    return dark * np.exp(points["intensity"].astype(np.float64) / 255.0 * log_span)
+#: below this ln(A / T) a return's EPW says little of its width (the intensity byte's 1.8 % step in A moves
+#: the width by more than 10 %): the profile's pulse is taken
+MIN_WIDTH_LOG_RATIO = 0.1
+
+
+def scene_pulses(points: np.ndarray, threshold: float, sigma_m: float, dark: float,
+                 log_span: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(peak amplitude in noise units, Gaussian sigma in m) of the pulse each point's echo is taken to be.
+
+    The peak from the intensity byte (log scale over the dark threshold, :func:`intensity_bytes` inverted), or
+    from the EPW as an isolated pulse's (``T exp((EPW / 2s)^2 / 2)``) where the byte is saturated. The sigma
+    gives the point's EPW at the threshold ``T``: the profile's ``sigma_m`` for an isolated echo, wider for
+    one the simulator summed from sub-rays at slightly different ranges (a vehicle's side). Taking the peak
+    from the EPW alone (until session 26) made such echoes brighter whenever the reference re-drew them: a
+    vehicle's returns at intensity 90 came out at 132 in fog, the largest term of every reference case's gap."""
+    amplitude = dark * np.exp(points["intensity"].astype(np.float64) / 255.0 * log_span)
+    width = np.full(len(points), sigma_m)
+    if "epw" not in (points.dtype.names or ()):
+        return amplitude, width
+    epw = points["epw"].astype(np.float64)
+    isolated = threshold * np.exp(0.5 * (epw / (2.0 * sigma_m)) ** 2)
+    amplitude = np.where(points["intensity"] >= 255, np.maximum(amplitude, isolated), amplitude)
+    log_ratio = np.log(np.maximum(amplitude / threshold, 1.0))
+    wide = log_ratio > MIN_WIDTH_LOG_RATIO
+    width[wide] = np.maximum(epw[wide] / (2.0 * np.sqrt(2.0 * log_ratio[wide])), sigma_m)
+    return amplitude, width
 
 
 def intensity_bytes(amplitude: np.ndarray, dark: float, log_span: float) -> np.ndarray:
@@ -108,8 +126,8 @@ def intensity_bytes(amplitude: np.ndarray, dark: float, log_span: float) -> np.n
     return np.clip(np.rint(255.0 * np.log(np.maximum(amplitude, 1e-300) / dark) / log_span), 0, 255).astype(np.uint8)
 
 
-def epw_of(amplitude: np.ndarray, threshold: float, sigma_m: float) -> np.ndarray:
-    """EPW (m) of an isolated Gaussian pulse of peak ``amplitude`` over ``threshold``."""
+def epw_of(amplitude: np.ndarray, threshold: float, sigma_m: float | np.ndarray) -> np.ndarray:
+    """EPW (m) of an isolated Gaussian pulse of peak ``amplitude`` and sigma ``sigma_m`` over ``threshold``."""
     return 2.0 * sigma_m * np.sqrt(2.0 * np.log(np.maximum(amplitude / threshold, 1.0)))
 
 
@@ -201,12 +219,12 @@ class ReferenceAtmosphere:
 
     def _attenuate(self, pts: np.ndarray) -> np.ndarray:
         """Clear returns of unsampled beams with exp(-2 alpha R): lower peak, EPW and intensity; lost below T."""
-        a = amplitude_from_points(pts, self.threshold, self.sigma, self.dark, self.log_span)
+        a, width = scene_pulses(pts, self.threshold, self.sigma, self.dark, self.log_span)
         a = a * np.exp(-2.0 * self.alpha * pts["distance"].astype(np.float64))
         keep = a > self.threshold
         out = pts[keep].copy()
         if "epw" in (out.dtype.names or ()):
-            out["epw"] = epw_of(a[keep], self.threshold, self.sigma)
+            out["epw"] = epw_of(a[keep], self.threshold, width[keep])
         out["intensity"] = intensity_bytes(a[keep], self.dark, self.log_span)
         return out
 
@@ -289,9 +307,9 @@ class ReferenceAtmosphere:
     def _chunk(self, pts, pos, sampled, channels, rng) -> np.ndarray:
         n, K = len(sampled), self.n_cells
         scene_r = pts["distance"].astype(np.float64)
-        scene_a = amplitude_from_points(pts, self.threshold, self.sigma, self.dark, self.log_span)
+        scene_a, scene_w = scene_pulses(pts, self.threshold, self.sigma, self.dark, self.log_span)
         scene_a = scene_a * np.exp(-2.0 * self.alpha * scene_r)
-        scene = self._pulses(pos, scene_r, scene_a, n)
+        scene = self._pulses(pos, scene_r, scene_a, scene_w, n)
         hit = np.full(n, np.inf)  # the beam's nearest scene return: the weather behind it is hidden
         blocks = pts["label"] != Label.COVER  # the cover's own returns: the beam goes on through the window
         np.minimum.at(hit, pos[blocks], scene_r[blocks])
@@ -404,16 +422,16 @@ class ReferenceAtmosphere:
             out += np.bincount(flat + 1, weights=a * w1, minlength=n * self.n_cells)
         return out.reshape(n, self.n_cells)
 
-    def _pulses(self, beam: np.ndarray, r: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
-        """(n, K) waveform of Gaussian pulses (beam index, range m, peak) summed exactly on the grid."""
+    def _pulses(self, beam: np.ndarray, r: np.ndarray, a: np.ndarray, width: np.ndarray, n: int) -> np.ndarray:
+        """(n, K) waveform of Gaussian pulses (beam index, range m, peak, sigma m) summed exactly on the grid."""
         wave = np.zeros(n * self.n_cells)
         if not len(beam):
             return wave.reshape(n, self.n_cells)
-        half = len(self.kernel) // 2
+        half = int(np.ceil(PULSE_REACH * float(width.max()) / self.dx))
         centre = np.floor(r / self.dx).astype(np.int64)
         offs = np.arange(-half, half + 1)
         k = centre[:, None] + offs[None, :]
-        val = a[:, None] * np.exp(-0.5 * ((self.r[np.clip(k, 0, self.n_cells - 1)] - r[:, None]) / self.sigma) ** 2)
+        val = a[:, None] * np.exp(-0.5 * ((self.r[np.clip(k, 0, self.n_cells - 1)] - r[:, None]) / width[:, None]) ** 2)
         ok = (k >= 0) & (k < self.n_cells)
         flat = (beam[:, None] * self.n_cells + k)[ok]
         wave += np.bincount(flat, weights=val[ok], minlength=n * self.n_cells)
