@@ -374,6 +374,19 @@ class GapSearch:
         return self._value(candidate, x), cache[x], len(cache)
 
     def refit(self, effects: list[Effect], passes: int = 2) -> list[Effect]:
+        """Coordinate descent (:meth:`descend`) on the calibration frames, and again from the best point of a
+        pairwise grid (:meth:`pair_start`) when that screens better: two effects that dim the returns alike
+        trade off along a curved valley that coordinate descent crawls along (sun 400 W/m^2 behind dirt 0.62
+        stopped at sun 83 with dirt 0.43, 60 times the true pair's gap). The better fit is kept."""
+        effects = self.descend(effects, passes)
+        start = self.pair_start(effects)
+        if start is not None:
+            again = self.descend(start, passes)
+            if self.gap(again, "fit") < self.gap(effects, "fit"):
+                effects = again
+        return effects
+
+    def descend(self, effects: list[Effect], passes: int = 2) -> list[Effect]:
         """Coordinate descent: each effect's main parameter fitted again on the calibration frames
         with the others fixed - over its whole range (grid, then Brent), since an effect found
         alone may have absorbed part of another (dirt dims the spray behind it) - ``passes`` times. An evident
@@ -392,6 +405,27 @@ class GapSearch:
                 k = int(np.argmin(row))
                 effects[i] = self.fit(others, effect, xs, k, cache)[0]
         return effects
+
+    def pair_start(self, effects: list[Effect]) -> list[Effect] | None:
+        """The effects with the two weather effects of the best point of every pair's two-dimensional grid on the
+        screening frames, the others as they are; None when no grid point screens better than ``effects``
+        (or fewer than two weather effects are fitted: the sensor family's keep their values, as in
+        :meth:`joint_round`)."""
+        free = [i for i, e in enumerate(effects)
+                if e.spec.family == "weather" and not e.spec.categorical and not self.evident(e)]  # fmt: skip
+        jobs = []
+        for a, i in enumerate(free):
+            for j in free[a + 1 :]:
+                for x in self._grid(effects[i]):
+                    for y in self._grid(effects[j]):
+                        trial = list(effects)
+                        trial[i], trial[j] = self._value(effects[i], x), self._value(effects[j], y)
+                        jobs.append(trial)
+        if not jobs:
+            return None
+        row = self.gaps([(trial, "screen") for trial in jobs] + [(list(effects), "screen")])
+        k = int(np.argmin(row[:-1]))
+        return jobs[k] if row[k] < row[-1] else None
 
     def run_round(self, accepted: list[Effect], excluded: list[Effect] = ()) -> list[Candidate]:
         """Screen every candidate (but those ``excluded``) on its grid, refine the best ``refine`` (with the sensor
