@@ -282,6 +282,66 @@ def test_threads_and_chunks_do_not_change_the_cloud(monkeypatch, chunked):
     assert clouds[0] == clouds[1] and len(clouds[0]) > 10000
 
 
+def _weather_clouds(frames_wanted: int = 2) -> tuple[bytes, int]:
+    """highway_spray on a VLP-16 with a dirty cover (cover + rain + spray), advanced every 10 ms: the bytes
+    of its clouds and how many batches were detected in the background."""
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.scenario.world import World
+
+    data = load_scenario("highway_spray").model_dump()
+    data["regions"] = ["cover", "atmosphere", "spray"]
+    data["region_params"]["cover"] = {"texture": "3l"}
+    world = World.build(type(load_scenario("highway_spray")).model_validate(data), "vlp16")
+    sim = LidarSimulator.of_world(world, backend="open3d", seed=4)
+    submitted = []
+    pool = workers.background()
+    real_submit = pool.submit
+
+    def counting_submit(fn, *args):
+        submitted.append(fn)
+        return real_submit(fn, *args)
+
+    pool.submit = counting_submit
+    try:
+        got, t = [], 0.0
+        while len(got) < frames_wanted:
+            t = round(t + 0.01, 9)
+            got += sim.advance(t, world.player)
+    finally:
+        del pool.submit
+    assert all(f.points.dtype == POINT_DTYPE for f in got)
+    return b"".join(f.points.tobytes() for f in got), len(submitted)
+
+
+def test_a_weather_cloud_is_the_same_with_regions_side_by_side_and_detection_in_the_background(monkeypatch):
+    """Regions applied in parallel and each batch detected behind the next batch's cast (the
+    simulator's pipeline, from PARALLEL_MIN_RAYS sub-rays a batch) give the bytes of one thread."""
+    import lidar_weather_sim.sim.simulator as simulator
+
+    monkeypatch.setattr(simulator, "PARALLEL_MIN_RAYS", 1000)  # a VLP-16 batch of 10 ms has ~8600 sub-rays
+    monkeypatch.setattr(workers, "THREADS", 1)
+    serial, background = _weather_clouds()
+    assert background == 0
+    monkeypatch.setattr(workers, "THREADS", 2)
+    pipelined, background = _weather_clouds()
+    assert background >= 15  # every batch of the two frames but the ones before the first column
+    assert len(serial) > 100_000 and pipelined == serial
+
+
+def test_an_error_in_a_background_detection_is_raised_by_the_simulator(monkeypatch):
+    import lidar_weather_sim.sim.simulator as simulator
+
+    monkeypatch.setattr(simulator, "PARALLEL_MIN_RAYS", 1)
+    monkeypatch.setattr(workers, "THREADS", 2)
+
+    def broken(self, *args):
+        raise FloatingPointError("detection failed")
+
+    monkeypatch.setattr(LidarSimulator, "_detect", broken)
+    with pytest.raises(FloatingPointError, match="detection failed"):
+        _weather_clouds(frames_wanted=1)
+
+
 def test_frames_of_several_batches_keep_the_point_layout():
     sim = LidarSimulator(profile(), street(), backend="open3d")
     got = frames(sim)

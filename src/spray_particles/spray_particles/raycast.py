@@ -72,7 +72,7 @@ AZIMUTH_BINS = 4096  # 1.5 mrad each (as equal steps; the pseudo-angle's bins ar
 Z_BINS = 64  # of the sine of the elevation over [-1, 1]: 1.8 deg at the horizon
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _origin_spread(origins):
     """Mean of the ray origins (3,) and the largest distance of an origin from it (m)."""
     ref = np.zeros(3)
@@ -111,7 +111,7 @@ def _z_bin(z, n_z):
     return min(max(int(math.floor((z + 1.0) * (0.5 * n_z))), 0), n_z - 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _bin_rays(directions, n_az, n_z):
     """Counting sort of the rays by cell (pseudo-angle bin x z bin, row-major): ray order (R,), the
     first position of each cell in it (n_az * n_z + 1,) and the rays' z (the sine of their
@@ -136,7 +136,7 @@ def _bin_rays(directions, n_az, n_z):
     return order, start, z_sorted
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _azimuth_key(row, ray, directions, n_bins):
     """Per hit: its window row, then its ray's bin of ``n_bins`` equal azimuth steps over [-pi, pi),
     then the ray, as one integer (arctangents only for the hits, not for every ray)."""
@@ -156,7 +156,7 @@ def _in_azimuth_order(row: np.ndarray, ray: np.ndarray, directions: np.ndarray, 
     return np.argsort(_azimuth_key(row, ray, directions, n_bins), kind="stable")
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _near_spheres(q, dist, radius, spread, max_range):
     """The spheres (centre ``q`` from the rays' mean origin, m; ``dist`` its length) that can lie within
     ``max_range`` of a ray origin: their indices, q, dist, distance beyond the origins' ``spread``
@@ -189,7 +189,7 @@ def _azimuth_bin(azimuth, n_bins):
     return _pseudo_bin(math.cos(azimuth), math.sin(azimuth), n_bins)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, centres, z_scale, origins,
           directions, max_range):  # fmt: skip
     """Azimuth windows of the near spheres (their angular radius ``span`` widened by 1e-4 and 1e-9 rad,
@@ -292,7 +292,7 @@ def _narrow_phase(b_first, b_last, zb_first, zb_last, n_z, cell_start, rp, order
     return n
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def group_bounds(centres, radius, group, n_groups):
     """Per group (e.g. the emitting vehicle) of spheres: the lower and upper corners (G, 3) of its
     centres' box and its largest radius (G,), -1 for a group without spheres."""
@@ -308,7 +308,7 @@ def group_bounds(centres, radius, group, n_groups):
     return lo, hi, largest
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def candidates(ray_mask, chosen, group, beam_origins, directions, distance, n_sub):
     """The rays of ``ray_mask`` (indices into the flattened (beam, sub-ray) directions) with their
     beam's origin, direction and scene range (inf -> 1e9 m), and the spheres whose ``group`` is

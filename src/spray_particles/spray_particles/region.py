@@ -225,7 +225,7 @@ def _cross_section(p) -> np.ndarray:
     return p.weight * (np.pi / 4.0) * (p.diameter * p.diameter) * p.airborne
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _hit_geometry(ray, sphere, entry, half_chord, rays, idx, max_range, n_sub, population, cross_section, radius,
                   vertical):  # fmt: skip
     """Per hit of the candidate rays ``rays`` (indices of (beam, sub-ray) pairs) and spheres ``idx``
@@ -249,7 +249,7 @@ def _hit_geometry(ray, sphere, entry, half_chord, rays, idx, max_range, n_sub, p
     return beam, sub, particle, entry, chord, tau, packet
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _hit_returns(packet, opacity_of_packet, cos_incidence, entry, chord, albedo, phase_of_packet):
     """Reflectance, occlusion (0-1) and range (m) of each hit. An inertial particle is a solid sphere:
     albedo x cos(incidence) at its entry point, blocking the sub-ray. A drop packet is returned from

@@ -56,6 +56,19 @@ def _workers() -> ThreadPoolExecutor:
         return _pool
 
 
+_background: ThreadPoolExecutor | None = None
+
+
+def background() -> ThreadPoolExecutor:
+    """One thread that runs a stage of the pipeline behind the caller (the simulator's detection of a batch
+    while it casts the next); tasks run in the order they are submitted."""
+    global _background
+    with _pool_lock:
+        if _background is None:
+            _background = ThreadPoolExecutor(1, thread_name_prefix="lws-background")
+        return _background
+
+
 def bounds(n: int, min_size: int, max_chunks: int = MAX_CHUNKS, align: int = 1) -> np.ndarray:
     """Chunk boundaries (k + 1,) over range(n): chunks of at least ``min_size`` (but at most
     ``max_chunks`` of them), boundaries on multiples of ``align``; one chunk when n is small."""

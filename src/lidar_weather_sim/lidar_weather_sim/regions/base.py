@@ -19,6 +19,11 @@ Regions advance in simulated time with ``step(t0_s, t1_s)`` and draw all
 randomness from the generator they are given, seeded from (seed, frame,
 plugin name, first column) by the simulator: same seed, same output.
 
+Threads: on a large batch the simulator applies its regions side by side, one thread each, and
+detects the batch in the background while the next one is cast and applied. So ``apply`` must not
+change the batch or share mutable state with another region, and the arrays of the effect it returns
+must stay as they are after it returns (new arrays, not buffers the region reuses next batch).
+
 Plugins register under the entry-point group ``lidar_weather_sim.regions``::
 
     [options.entry_points] / setup(entry_points=...)

@@ -120,6 +120,7 @@ class SimSession:
         settings, regions = self._pending
         self._pending = None
         self.settings, self.settings_from_s = settings, self.frame_start_s
+        self.sim.flush()  # a batch of the open frame may still be in detection
         self.sim.regions = list(regions)
         self.inputs.retain(region for _, region in regions)
         self.sim.seed = int(settings.seed)

@@ -23,7 +23,10 @@ which reads as the data path::
   frame; a frame is returned when its sweep is complete (stamp: the scan start; ``time_stamp``: ns after).
 
 The numba kernels behind the stages live in :mod:`lidar_weather_sim.sim.kernels` and run in chunks on
-all cores. Speed: ``benchmarks/sim_frame_time.py`` (clear), ``benchmarks/weather_frame_time.py`` (every
+all cores. With regions, a large batch (``PARALLEL_MIN_RAYS``) applies its regions side by side and runs
+its candidates -> points in a background thread while the next batch is cast and its regions applied;
+a frame is returned once its last batch is detected (:meth:`LidarSimulator.flush`). Every stage draws
+from streams seeded per batch, so the clouds are bit for bit those of one thread. Speed: ``benchmarks/sim_frame_time.py`` (clear), ``benchmarks/weather_frame_time.py`` (every
 region, per stage).
 
 Why one module of ~440 lines: it is the frame pipeline, read top to bottom in one pass; the numba
@@ -33,6 +36,7 @@ kernels it calls are already in kernels.py.
 from __future__ import annotations
 
 import bisect
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -61,6 +65,9 @@ from lidar_weather_sim.sim.kernels import (
 
 #: :meth:`LidarSimulator._returns` of return mode ``all``: no selection, every echo is reported.
 _EVERY_ECHO = np.zeros(0, np.uint8)
+#: Sub-rays in a batch from which its regions are applied side by side and its detection runs behind the
+#: next batch's cast: below, the threads' hand-overs (and the GIL's 5 ms switch interval) cost more than they save.
+PARALLEL_MIN_RAYS = 20000
 
 
 class PoseSource(Protocol):
@@ -160,7 +167,9 @@ class LidarSimulator:
             self._actor_label[actor_id] = label
         self._frame: _FrameAccumulator | None = None
         self._last_time_s: float | None = None
-        self._scratch = workers.Scratch()  # per-batch temporaries, reused
+        self._scratch = workers.Scratch()  # per-batch temporaries of the detection stages, reused
+        self._ray_scratch = workers.Scratch()  # the rays' (cast while the previous batch's detection runs)
+        self._detection: Future | None = None  # the last batch's detection, running in the background
         self._noise = Reseedable()  # the receiver's noise streams (region_rng's), seeded per batch
         self._region_time_s: float | None = None  # simulated time the regions were last stepped to
 
@@ -199,6 +208,7 @@ class LidarSimulator:
         elevation offsets (channel -> deg, on the profile's own table; {}: none) and the beams' origin (radial,
         up; m) where given. The scene and
         its caster stay (no rebuild): re-simulating the same frames with other weather costs only the casts."""
+        self.flush()
         self._frame = None
         self._last_time_s = None
         self._region_time_s = None
@@ -273,6 +283,7 @@ class LidarSimulator:
                 k += len(batch_times)
                 batch_acc.next_column = end
                 if end >= n_columns:
+                    self.flush()
                     frames.append(self._finish(batch_acc))
         self._frame = acc
         return frames
@@ -302,9 +313,30 @@ class LidarSimulator:
             azimuth = self.pattern.column_azimuth[columns]
             local = np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), np.full(len(columns), up)], axis=1)
             translation = translation + np.einsum("cij,cj->ci", rotation, local)
-        origins32, dirs32, dirs64 = world_rays(directions, rotation, translation, bool(self.regions), self._scratch)
+        origins32, dirs32, dirs64 = world_rays(directions, rotation, translation, bool(self.regions), self._ray_scratch)
         hits = self._cast_rays(origins32, dirs32, actor_poses)
         ray_batch, effect = self._regions(acc.index, columns, times, translation, directions, dirs64, hits)
+        self.flush()
+        args = (acc, columns, directions, rotation, hits, ray_batch, effect)
+        # the caster's arrays are new with regions (_cast_rays)
+        if self.regions and workers.THREADS > 1 and hits.distance.size >= PARALLEL_MIN_RAYS:
+            self._detection = workers.background().submit(self._detect, *args)
+        else:
+            self._detect(*args)
+
+    def flush(self) -> None:
+        """Wait for the detection of the last batch cast (with regions it runs in the background while the
+        next batch is cast and its regions applied; its error, if any, is raised here). :meth:`advance` does
+        before it returns a frame; call it before changing ``seed``, ``sun_irradiance_w_m2`` or ``regions``
+        between calls (:meth:`restart` does)."""
+        detection, self._detection = self._detection, None
+        if detection is not None:
+            detection.result()
+
+    def _detect(self, acc: _FrameAccumulator, columns: np.ndarray, directions: np.ndarray, rotation: np.ndarray, hits,
+                ray_batch: RayBatch | None, effect: RegionEffect | None) -> None:  # fmt: skip
+        """The batch's candidates, echoes and points, appended to ``acc``. Reads neither the rays' scratch
+        nor the regions: it may run while the next batch is cast."""
         candidates, segments = self._candidates(hits, directions, rotation, ray_batch, effect)
         candidates, segments = self._add_false_alarms(candidates, segments, len(columns) * directions.shape[1],
                                                       acc.index, int(columns[0]))  # fmt: skip
@@ -362,7 +394,16 @@ class LidarSimulator:
             region.step(batch_time if previous is None else previous, batch_time)
         self._region_time_s = batch_time
         first = int(columns[0])
-        effects = [region.apply(ray_batch, region_rng(self.seed, frame_index, name, first)) for name, region in self.regions]
+        # regions are independent of each other (own state, own random stream): a large batch applies them
+        # side by side
+        def apply(k: int) -> RegionEffect:
+            name, region = self.regions[k]
+            return region.apply(ray_batch, region_rng(self.seed, frame_index, name, first))
+
+        if n * n_sub >= PARALLEL_MIN_RAYS:
+            effects = workers.run_chunks(apply, len(self.regions))
+        else:
+            effects = [apply(k) for k in range(len(self.regions))]
         return ray_batch, combine(effects, shape)
 
     def _echoes(self, candidates, segments) -> Echoes:
