@@ -22,7 +22,7 @@ _integrate = integrate_inplace.serial
 _collisions = collisions.serial
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, rot1, org1, length, width, height,
          v_lat, ambient, wind_over_speed, wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t, gravity, dt,
          stiff_limit, r0):  # fmt: skip
@@ -48,7 +48,7 @@ def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, 
     return new_pos, new_vel, new_age, above, vertical
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, wheel, diameter, weight, diffusivity,
             airborne, above, vertical, vertical_cubed, rot, org, length, width, height, clearance, wheel_xz, wheel_y,
             n_wheels, arch_r, arch_half_w, min_share, extra):  # fmt: skip
@@ -88,7 +88,7 @@ def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, whee
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def ring_body(draws, counts, wheel_xy, tread_offsets, n_vertices, treads, speed, radius, dt):
     """Body-frame positions (n, 3) m, velocities (n, 3) m/s, side (n,) and wheel (n,) of ``counts[w]``
     particles per wheel w from the uniforms ``draws`` (max count, W, 2): vertex and tread of eq. 7-10
@@ -121,7 +121,7 @@ def ring_body(draws, counts, wheel_xy, tread_offsets, n_vertices, treads, speed,
     return pos, vel, side, wheel
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def poisson_log_pmf(n, log_lam, lam, log_factorial):
     """log P(k) = k log(lam) - lam - log(k!) of a Poisson(lam) for k < n (numpy's exp follows)."""
     out = np.empty(n)
@@ -130,7 +130,7 @@ def poisson_log_pmf(n, log_lam, lam, log_factorial):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def quantiles(pmf, u):
     """The smallest k whose CDF (the running sum of ``pmf``) reaches each uniform of ``u``, at most
     len(pmf) - 1."""
@@ -141,7 +141,7 @@ def quantiles(pmf, u):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def packet_radii(age, later, diffusivity, kappa, lam, population, above, r0, gravity, sphere_radius):
     """Horizontal and vertical semi-axes (m) of every particle ``later`` s after its ``age``, ``above`` m
     above its vehicle's ground plane: those of ``system._packet_axes`` for drop packets (population 1),

@@ -144,7 +144,7 @@ PARALLEL_FROM = 50_000  # particles
 
 
 def _variants(fn):
-    serial = numba.njit(cache=True)(fn)
+    serial = numba.njit(cache=True, nogil=True)(fn)
     holder = {}
 
     def call(*args):

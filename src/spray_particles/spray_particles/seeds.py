@@ -19,7 +19,7 @@ _PCG_MULT = 0x2360ED051FC65DA44385DF649FCCF645
 _M128 = (1 << 128) - 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _seed_words(entropy):
     """The 8 uint32 words (as 4 uint64) that ``SeedSequence(entropy).generate_state(4, np.uint64)`` gives."""
     mask = np.uint64(0xFFFFFFFF)

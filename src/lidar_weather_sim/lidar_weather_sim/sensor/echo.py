@@ -105,7 +105,7 @@ def detect_echoes(
     return Echoes(*out)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _ascending(beam):
     """The beams are in ascending order (grouped)."""
     for i in range(1, len(beam)):
@@ -114,7 +114,7 @@ def _ascending(beam):
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def beam_groups(beam, n_beams):
     """A stable counting sort of ``beam`` (0..n_beams - 1): the order, and each beam's first
     position in it (n_beams + 1,)."""
@@ -131,7 +131,7 @@ def beam_groups(beam, n_beams):
     return order, first
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _beam_order(beam):
     """``np.argsort(beam, kind="stable")`` of beam indices >= 0: a counting sort."""
     return beam_groups(beam, beam.max() + 1)[0]
@@ -250,7 +250,7 @@ def _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf):
 
 
 @numba.njit(cache=True, inline="always")
-def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, out_o, out0, room, buf):
+def _cluster_echoes(r, a, reach, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, out_o, out0, room, buf):
     """Echoes of the overlapping pulses c0..c1 (two or more), written from out0 on; returns how
     many (<= room). ``buf``: scratch for the samples (grown if too short).
 
@@ -270,7 +270,7 @@ def _cluster_echoes(r, a, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, 
     r_min = 1e300
     r_max = -1e300
     for i in range(c0, c1):
-        h = _reach(a[i], thr, s)
+        h = reach[i]
         lo = min(lo, r[i] - h)
         hi = max(hi, r[i] + h)
         total += a[i]
@@ -378,7 +378,7 @@ def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None, 
     return (*out, (starts, counts))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _beam_starts(beam, cuts):
     """``cuts`` moved forward to where the beam changes (dropping empty chunks)."""
     out = np.empty(len(cuts), np.int64)
@@ -426,8 +426,8 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
             while c1 < m and mr[c1] - mr[c1 - 1] < reach[c1 - 1] + reach[c1]:
                 c1 += 1  # pulses that may overlap above the threshold form one cluster
             if c1 - c0 > 1:
-                got = _cluster_echoes(mr, ma, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count, max_echoes - found,
-                                      buf)
+                got = _cluster_echoes(mr, ma, reach, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count,
+                                      max_echoes - found, buf)
             else:
                 got = 0
                 if ma[c0] > thr:
@@ -471,7 +471,7 @@ def select_returns(beam: np.ndarray, amplitude: np.ndarray, runs: tuple[np.ndarr
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _first_max(a, i0, i1):
     """Index of the first highest of a[i0:i1] (the nearest of equal peaks)."""
     best = i0
@@ -481,7 +481,7 @@ def _first_max(a, i0, i1):
     return best
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _select_runs(beam, a, starts, counts, mode, out):
     for c in range(len(counts)):
         i, end = starts[c], starts[c] + counts[c]

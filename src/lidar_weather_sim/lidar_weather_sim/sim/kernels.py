@@ -190,7 +190,7 @@ def compact_candidates(candidates, segments):
     return tuple(x[:count] for x in candidates)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _compact_run(out, starts, counts):
     beam, rng, amp, label, obj = out
     count = 0
@@ -276,13 +276,13 @@ def range_noise(rng: np.random.Generator, sigma: float, n: int, scratch) -> np.n
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _normal(rng, sigma, out):
     for k in range(len(out)):
         out[k] = rng.normal(0.0, sigma)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def kept_echoes(noise, range_m, amplitude, starts, counts, min_range, dark, ranges, kept, ratio, reported):
     """The echoes in the runs (starts, counts) in order: ``ranges`` (where the echoes are) gets
     each one's range plus its ``noise`` (every echo's, reported or not: a return mode changes which

@@ -238,7 +238,7 @@ def _rigid(pose: np.ndarray, actor_id: int) -> tuple[np.ndarray, np.ndarray]:
     return rot, pose[:3, 3]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _is_rotation(rot):
     """``np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) and np.linalg.det(rot) >= 0``, without
     numpy's per-call overhead (rot is near-orthonormal when it passes: the determinant's sign is clear)."""
@@ -272,7 +272,7 @@ def _origin_box(o, lo, hi, box):
     box[3], box[4], box[5] = max(max(hi0, mx0), e0), max(max(hi1, mx1), e1), max(max(hi2, mx2), e2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _closer(idx, shift, dist_b, tri_b, normals, best, max_range):
     """The actor's hits (distance ``shift + dist_b`` along rays ``idx``, triangles ``tri_b``)
     nearer than ``best`` and within ``max_range``: ``best`` takes them (float32); returns their
@@ -291,7 +291,7 @@ def _closer(idx, shift, dist_b, tri_b, normals, best, max_range):
     return rays[:count], tri[:count], nrm[:count]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _set_hits(sel, tri, normals, d, materials, object_ids, actor_id, triangle, normal, material, object_id,
               hit_actor):  # fmt: skip
     """Rays ``sel`` hit the actor's triangles ``tri``: its map-frame float32 normals (flipped to
@@ -338,7 +338,7 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, gather: 
     return normal, material, object_id, hit_actor, box, axis, half
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _bounding_sphere(boxes):
     """Centre (3,) and radius (m) of the sphere around the union of boxes (K, 6) (min, max):
     ``0.5 * (lo + hi)`` and ``0.5 * |hi - lo|`` as numpy's expressions."""
@@ -424,7 +424,7 @@ def _cull(o, d, axis, half_angle, spheres, cones, best, max_range, scratch):
     return out, per_sphere.tolist()
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _cull_blocks(axis, half_angle, cones, tail, pairs):
     """The (sphere, block) pairs of :func:`_cull`, sphere-major, into ``pairs``; block
     ``len(axis)`` (with ``tail``): the rays after the last full block. Returns how many."""
@@ -448,7 +448,7 @@ def _cull_blocks(axis, half_angle, cones, tail, pairs):
     return count
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _compact_cull(idx, shift, start, d64, counts, sphere, block, n_spheres):
     """Move the rays of :func:`_cull`'s pairs (each written from its index x ``block`` on)
     together, in place; returns how many each sphere got."""
