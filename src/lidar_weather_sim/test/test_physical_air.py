@@ -93,3 +93,24 @@ def test_near_field_fog_slabs_fluctuate_as_the_droplets_in_them(profile, visual_
     assert simulated.std() == pytest.approx(drawn.std(), rel=0.10) and drawn.std() > 0.01 * drawn.mean()
     far = out.range_m > NEAR_M  # beyond the near field: the expectation, the same in every beam
     assert len(np.unique(out.reflectance[far & (out.range_m == out.range_m[far][0])])) == 1
+
+
+def test_the_grid_interpolation_is_numpys_bit_for_bit():
+    from lidar_weather_sim.regions.physical_air import GRID_M, _interp_uniform
+
+    rng = np.random.default_rng(7)
+    grid = np.arange(0.05, 180.0 + GRID_M, GRID_M)
+    table = np.cumsum(rng.random(len(grid)))
+    x = np.concatenate([rng.uniform(-1.0, 185.0, 100_000), grid[::7], grid[-1:], grid[:1] - 1e-17, [np.nan, np.inf]])
+    got = _interp_uniform(x, float(grid[0]), GRID_M, grid, table, np.empty(len(x)))
+    want = np.interp(x, grid, table)
+    assert got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("name", ["os1_128_2048", "vlp16", "hdl64e", "scala4"])
+def test_drops_see_the_overlap_function_itself_nearer_and_exactly_one_beyond_full_overlap(name):
+    air = PhysicalAir(load_profile(name), None, ("rain", 10.0))
+    r = np.random.default_rng(3).uniform(0.0, 60.0, 200_000)
+    assert air._overlap(r).tobytes() == air.volume.overlap(r).tobytes()
+    if name == "os1_128_2048":
+        assert air._full_overlap_m < 10.0  # the fast path is taken for the dense sensor

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from functools import partial
 
+import numba
 import numpy as np
 
 from lidar_weather_sim.core.points import Label
@@ -85,6 +86,8 @@ class PhysicalAir:
         self.volume = VolumeReturn(self.power, self.alpha, 1.0, profile.pulse.fwhm_m * FWHM_TO_SIGMA, start,
                                    o.overlap_full_m, overlap)  # fmt: skip
         self._grid = np.arange(max(start, MIN_RANGE_M), self.r_max + GRID_M, GRID_M)
+        widening = overlap is not None and 1e-3 * o.receiver_fov_mrad >= self.divergence  # the view holds the beam
+        self._full_overlap_m = _full_overlap_range(overlap, self._grid) if widening else np.inf
         if self.precip is not None:
             self._cum, self._d_min = self._drop_tables(self.precip)
         self._volume_pulses = self._volume_table()
@@ -143,6 +146,21 @@ class PhysicalAir:
             parts.append(self._drops(hit, w, rng))
         return Scatterers.concatenate(parts)
 
+    def _on_grid(self, x: np.ndarray, table: np.ndarray) -> np.ndarray:
+        """``np.interp(x, self._grid, table)``, bit for bit, without its binary search (the grid is uniform)."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        return _interp_uniform(x, float(self._grid[0]), GRID_M, self._grid, table, np.empty(len(x)))
+
+    def _overlap(self, range_m: np.ndarray) -> np.ndarray:
+        """O(r) at each of ``range_m`` (m): 1 from ``_full_overlap_m`` on, where the receiver's field of view holds
+        the whole beam (there the overlap function gives exactly 1), the function itself nearer."""
+        near = range_m < self._full_overlap_m
+        if near.all():
+            return self.volume.overlap(range_m)
+        out = np.ones(len(range_m))
+        out[near] = self.volume.overlap(range_m[near])
+        return out
+
     def _volume(self, hit: np.ndarray, core: int, weight: float, rng: np.random.Generator) -> Scatterers | None:
         centres, refl, sd, labels = self._volume_pulses
         if not len(centres):
@@ -160,16 +178,16 @@ class PhysicalAir:
 
     def _drops(self, hit: np.ndarray, w: np.ndarray, rng: np.random.Generator) -> Scatterers | None:
         m, r = self.precip, self._grid
-        expected = np.interp(hit, r, self._cum)  # drops per beam in front of its hit
+        expected = self._on_grid(hit, self._cum)  # drops per beam in front of its hit
         beam = np.repeat(np.arange(len(hit)), rng.poisson(expected))
         if not len(beam):
             return None
         # ranges by the inverse of the cumulative count, each in front of its beam's hit
         rng_m = np.interp(rng.random(len(beam)) * expected[beam], self._cum, r)
         # a drop is inside the receiver's field of view or not: the share O(r) of them is seen, at full strength
-        seen = rng.random(len(beam)) < self.volume.overlap(rng_m)
+        seen = rng.random(len(beam)) < self._overlap(rng_m)
         beam, rng_m = beam[seen], rng_m[seen]
-        diameter, sigma = m.sample(len(beam), rng, np.interp(rng_m, r, self._d_min))
+        diameter, sigma = m.sample(len(beam), rng, self._on_grid(rng_m, self._d_min))
         subray = rng.choice(len(w), size=len(beam), p=w / w.sum())
         patch = self.area(rng_m) * w[subray]
         optical = m.dsd.optical(diameter)
@@ -178,3 +196,50 @@ class PhysicalAir:
                           occlusion=np.clip(np.pi * optical**2 / 4.0 / patch, 0.0, 1.0),
                           label=np.full(n, LABELS[m.kind], np.uint8), object_id=np.zeros(n, np.uint32),
                           bypass_overlap=np.ones(n, bool))  # fmt: skip
+
+
+def _full_overlap_range(overlap, grid: np.ndarray) -> float:
+    """The range (m) from which the biaxial ``overlap`` of a receiver whose field of view widens at least as fast as
+    the beam is exactly 1: once its disc holds the beam's it keeps holding it (checked on ``grid``'s points beyond);
+    inf if it never does on the grid."""
+    o = overlap(grid)
+    below = np.flatnonzero(o < 1.0)
+    if len(below) == len(grid):
+        return np.inf
+    start = grid[below[-1] + 1] if len(below) else grid[0]
+    return float(start) if np.all(o[grid >= start] == 1.0) else np.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def _interp_uniform(x, x0, h, xp, fp, out):
+    """``np.interp(x, xp, fp)`` into ``out`` for ``xp`` = x0 + k h (k = 0, 1, ...): the interval from the step count,
+    then numpy's own arithmetic (numpy/_core/src/multiarray/compiled_base.c, arr_interp), so the values are
+    its values bit for bit."""
+    n = len(xp)
+    for i in range(len(x)):
+        v = x[i]
+        if np.isnan(v):
+            out[i] = v
+            continue
+        if v < xp[0]:
+            out[i] = fp[0]
+            continue
+        if v > xp[n - 1]:
+            out[i] = fp[n - 1]
+            continue
+        j = min(max(int((v - x0) / h), 0), n - 1)
+        while j > 0 and xp[j] > v:
+            j -= 1
+        while j < n - 1 and xp[j + 1] <= v:
+            j += 1
+        if j == n - 1 or xp[j] == v:
+            out[i] = fp[j]
+            continue
+        slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+        y = slope * (v - xp[j]) + fp[j]
+        if np.isnan(y):
+            y = slope * (v - xp[j + 1]) + fp[j + 1]
+            if np.isnan(y) and fp[j] == fp[j + 1]:
+                y = fp[j]
+        out[i] = y
+    return out
