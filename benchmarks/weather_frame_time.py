@@ -12,7 +12,9 @@ spray at 16 / 32 / 64 drop packets per wheel per tick (water film 0.7 mm, dry ai
 (every region on: rain 10 mm/h + spray 32 + dirty cover, the speed target of the weather path). Per row: median ms per frame and its ratio to the clear row of the same run; the
 median ms of each stage (region step, region apply, cast, candidates, occlusion, echoes, points;
 ``other``: poses, rays, false alarms, bookkeeping); scatterers the regions returned per frame and
-points per frame. Per profile, a least-squares line of each stage's ms over the scatterers per
+points per frame. Stages are timed on the thread that runs them: where the simulator applies regions side
+by side and detects a batch behind the next one's cast (large batches, ``PARALLEL_MIN_RAYS``) they overlap,
+their sum exceeds the frame and ``other`` comes out negative. Per profile, a least-squares line of each stage's ms over the scatterers per
 frame (all weather rows): how each grows with what is in the air.
 
     python benchmarks/weather_frame_time.py [--profiles scala4,vlp16,hdl64e,os1_128_2048] [--frames N]
