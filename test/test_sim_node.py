@@ -521,6 +521,31 @@ def test_session_applies_settings_at_frame_boundaries(sun_world):
     assert _counts(sun_world, coarse, {2: sunny}) == dark[:1] + bright[1:]
 
 
+def test_session_switching_settings_mid_run_gives_the_clouds_of_one_thread(sun_world, monkeypatch):
+    """With every batch detected in the background (the threshold of the pipeline lowered to scala4's batches),
+    sun, seed and regions requested mid-run take effect at the same frame and give the same bytes as one thread."""
+    import lidar_weather_sim.sim.simulator as simulator
+    from lidar_weather_sim.core import workers
+
+    monkeypatch.setattr(simulator, "PARALLEL_MIN_RAYS", 100)
+    rainy = RuntimeSettings(("atmosphere", "cover"), {"cover": {"texture": "3l"}}, 0.0, 1)
+    sunny_other_seed = RuntimeSettings(("atmosphere",), {}, 500.0, 5)
+
+    def clouds(threads: int) -> list[bytes]:
+        monkeypatch.setattr(workers, "THREADS", threads)
+        session = SimSession(sun_world, rainy, backend=None, ground_truth=True)
+        out = []
+        for i, t in enumerate(np.arange(1, 30) * 0.01):
+            if i == 13:
+                session.request(sunny_other_seed)
+            out += [f.points.tobytes() for f in session.advance(t, sun_world.player)]
+        return out
+
+    one, two = clouds(1), clouds(2)
+    assert len(one) == 7 and one == two
+    assert one[2] != one[5]  # the switch changed the clouds
+
+
 def test_session_drops_the_topics_of_replaced_regions(world):
     """A region set reading /spray/particles is replaced at a frame boundary: until then both sets' topics
     are wanted (the new set's data may arrive early), after it only the new set's."""
