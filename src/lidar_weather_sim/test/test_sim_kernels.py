@@ -342,6 +342,41 @@ def test_an_error_in_a_background_detection_is_raised_by_the_simulator(monkeypat
         _weather_clouds(frames_wanted=1)
 
 
+def test_a_process_forked_with_a_detection_in_the_background_finishes_the_frame(monkeypatch):
+    """os.fork (a fork-based DataLoader, multiprocessing's default on Linux) while a batch is being detected in the
+    background: the child has none of the parent's threads, yet it completes the frame with the same bytes."""
+    import hashlib
+    import os
+    import signal
+
+    import lidar_weather_sim.sim.simulator as simulator
+
+    monkeypatch.setattr(simulator, "PARALLEL_MIN_RAYS", 1)
+    monkeypatch.setattr(workers, "THREADS", 2)
+    sim = LidarSimulator(profile(), street(), backend="open3d", seed=5, regions=[("faults", _dropout())])
+    sim.advance(0.05, Motion())  # half a frame: its last batch is in the background
+    assert sim._detection is not None
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: finish the frame, send its hash, never return into pytest
+        try:
+            signal.alarm(60)
+            frames = sim.advance(0.2, Motion())
+            os.write(write, hashlib.sha256(frames[0].points.tobytes()).hexdigest().encode())
+        finally:
+            os._exit(0)
+    os.close(write)
+    child = os.read(read, 64).decode()
+    os.waitpid(pid, 0)
+    assert child == hashlib.sha256(sim.advance(0.2, Motion())[0].points.tobytes()).hexdigest()
+
+
+def _dropout():
+    from lidar_weather_sim.regions.base import REGISTRY, RegionContext
+
+    return REGISTRY.create("faults", {"dropout_probability": 0.1}, RegionContext(profile=profile()))
+
+
 def test_frames_of_several_batches_keep_the_point_layout():
     sim = LidarSimulator(profile(), street(), backend="open3d")
     got = frames(sim)

@@ -69,6 +69,23 @@ def background() -> ThreadPoolExecutor:
         return _background
 
 
+def _finish_background_before_fork() -> None:
+    """A forked child has none of its parent's threads: what the background thread was given must be done
+    first (its futures are then complete in the child's copy too)."""
+    if _background is not None:
+        _background.submit(lambda: None).result()  # one thread, first in first out: all earlier tasks are done
+
+
+def _forget_threads_in_child() -> None:
+    """The child starts its own pools on first use (the parent's threads are not there)."""
+    global _pool, _background, _pool_lock
+    _pool, _background, _pool_lock = None, None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=_finish_background_before_fork, after_in_child=_forget_threads_in_child)
+
+
 def bounds(n: int, min_size: int, max_chunks: int = MAX_CHUNKS, align: int = 1) -> np.ndarray:
     """Chunk boundaries (k + 1,) over range(n): chunks of at least ``min_size`` (but at most
     ``max_chunks`` of them), boundaries on multiples of ``align``; one chunk when n is small."""
