@@ -11,6 +11,10 @@ with every core busy the caller does the work alone, as fast as without threads.
 ``LWS_SIM_THREADS`` sets the thread count (default: the CPUs this process may use;
 1 disables the pool).
 
+:func:`background` is one more thread, for a pipeline stage that runs behind its caller. A fork
+(``os.fork``, multiprocessing's and DataLoaders' default on Linux) first waits for what it was given,
+and the child starts its own threads on first use.
+
 :class:`Scratch` keeps the large per-batch temporaries from one batch to the next:
 fresh memory costs a page fault per 4 KiB on first touch (several microseconds in a
 VM), and glibc hands large blocks back to the OS when they are freed.
