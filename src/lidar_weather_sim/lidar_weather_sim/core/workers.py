@@ -76,8 +76,12 @@ def background() -> ThreadPoolExecutor:
 def _finish_background_before_fork() -> None:
     """A forked child has none of its parent's threads: what the background thread was given must be done
     first (its futures are then complete in the child's copy too)."""
-    if _background is not None:
+    if _background is None:
+        return
+    try:
         _background.submit(lambda: None).result()  # one thread, first in first out: all earlier tasks are done
+    except RuntimeError:  # shut down (interpreter exit): nothing runs there any more
+        pass
 
 
 def _forget_threads_in_child() -> None:
