@@ -160,7 +160,10 @@ def test_up_sim_foxglove_serves_the_cloud_tf_static_and_actor_boxes(processes, c
     sizes = {f"actor_{a.id}": (a.size.length_m, a.size.width_m, a.size.height_m) for a in load_scenario("highway_clear").actors}
     _, scene = client.received("/actors")[-1]
     entities = [protobuf_fields(e) for e in protobuf_fields(scene)[2]]
-    assert entities and {e[2][0].decode() for e in entities} <= actor_frames <= set(sizes)
+    boxed = {e[2][0].decode() for e in entities}
+    # the bridge may have sent a box before this node's /tf subscription saw that frame: wait for it
+    assert entities and ros.spin_until(lambda: boxed <= actor_frames, timeout_s=30), (boxed, actor_frames)
+    assert actor_frames <= set(sizes), actor_frames
     for entity in entities:
         size = protobuf_fields(protobuf_fields(entity[8][0])[2][0])  # SceneEntity.cubes[0].size
         got = tuple(np.frombuffer(b"".join(size[k][0] for k in (1, 2, 3)), "<f8"))
