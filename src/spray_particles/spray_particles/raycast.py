@@ -58,10 +58,10 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     span_arcsin = np.arcsin(span_sine)
     az_p = np.arctan2(q[:, 1], q[:, 0])
     el_p = np.arcsin(el_sine)
-    order, cell_start, z_sorted = _bin_rays(directions, AZIMUTH_BINS, Z_BINS)
+    order, cell_start, z_sorted, first_bin, bins = _bin_rays(directions, AZIMUTH_BINS, Z_BINS)
     row, ray, sphere, entry, cos_incidence, half_chord = _cast(
-        idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, centres, z_scale, origins, directions,
-        max_range)  # fmt: skip
+        idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin, bins, z_sorted, centres, z_scale,
+        origins, directions, max_range)  # fmt: skip
     if not len(ray):
         return _empty()
     keep = _in_azimuth_order(row, ray, directions, AZIMUTH_BINS)
@@ -113,17 +113,27 @@ def _z_bin(z, n_z):
 
 @numba.njit(cache=True, nogil=True)
 def _bin_rays(directions, n_az, n_z):
-    """Counting sort of the rays by cell (pseudo-angle bin x z bin, row-major): ray order (R,), the
-    first position of each cell in it (n_az * n_z + 1,) and the rays' z (the sine of their
-    elevation) in that order."""
+    """Counting sort of the rays by cell (pseudo-angle bin x z bin, row-major) over the azimuth bins they
+    occupy, ``first``..``first + span - 1``: ray order (R,), the first position of each cell in it
+    (span * n_z + 1,; cell ``(b - first) * n_z + z``), the rays' z (the sine of their elevation) in that
+    order, ``first`` and ``span``. A batch of columns spans a slice of the circle (OS1-128's 10 ms: 36 deg), so
+    its table is that slice's, not the circle's 262 144 cells."""
     n = directions.shape[0]
-    ray_cell = np.empty(n, np.int64)
-    start = np.zeros(n_az * n_z + 1, np.int64)
+    ray_bin = np.empty(n, np.int64)
+    first, last = n_az, -1
     for i in range(n):
-        c = _pseudo_bin(directions[i, 0], directions[i, 1], n_az) * n_z + _z_bin(directions[i, 2], n_z)
+        b = _pseudo_bin(directions[i, 0], directions[i, 1], n_az)
+        ray_bin[i] = b
+        first, last = min(first, b), max(last, b)
+    span = max(last - first + 1, 0)
+    first = min(first, n_az - 1)
+    ray_cell = np.empty(n, np.int64)
+    start = np.zeros(span * n_z + 1, np.int64)
+    for i in range(n):
+        c = (ray_bin[i] - first) * n_z + _z_bin(directions[i, 2], n_z)
         ray_cell[i] = c
         start[c + 1] += 1
-    for c in range(n_az * n_z):
+    for c in range(span * n_z):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
     order = np.empty(n, np.int64)
@@ -133,7 +143,7 @@ def _bin_rays(directions, n_az, n_z):
         order[k] = i
         z_sorted[k] = directions[i, 2]
         fill[ray_cell[i]] += 1
-    return order, start, z_sorted
+    return order, start, z_sorted, first, span
 
 
 @numba.njit(cache=True, nogil=True)
@@ -190,8 +200,8 @@ def _azimuth_bin(azimuth, n_bins):
 
 
 @numba.njit(cache=True, nogil=True)
-def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, centres, z_scale, origins,
-          directions, max_range):  # fmt: skip
+def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin, bins, z_sorted, centres, z_scale,
+          origins, directions, max_range):  # fmt: skip
     """Azimuth windows of the near spheres (their angular radius ``span`` widened by 1e-4 and 1e-9 rad,
     over cos(elevation); windows crossing +-pi split into two rows, listed after all first rows; a
     sphere around the origins gets the full circle once), then the narrow phase over each window's
@@ -223,7 +233,7 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, 
             rp[r], rlo[r], rhi[r] = j, -np.pi, hi_a[j] - 2 * np.pi
             r += 1
     n_az = AZIMUTH_BINS
-    n_z = (cell_start.shape[0] - 1) // n_az
+    n_z = Z_BINS
     b_first, b_last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
     z_lo, z_hi = np.empty(m), np.empty(m)
     zb_first, zb_last = np.empty(m, np.int64), np.empty(m, np.int64)
@@ -238,6 +248,8 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, 
             b_first[r], b_last[r] = (0, n_az - 1) if r < m else (0, -1)
         else:
             b_first[r], b_last[r] = _azimuth_bin(rlo[r], n_az), _azimuth_bin(rhi[r], n_az)
+        # in the rays' table (:func:`_bin_rays`): the bins no ray occupies hold none
+        b_first[r], b_last[r] = max(b_first[r], first_bin) - first_bin, min(b_last[r], first_bin + bins - 1) - first_bin
         for b in range(b_first[r], b_last[r] + 1):  # a ray is a candidate of a row at most once: room for every hit
             room += cell_start[b * n_z + zb_last[p] + 1] - cell_start[b * n_z + zb_first[p]]
     out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
@@ -254,8 +266,8 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, z_sorted, 
 @numba.njit(cache=True, inline="always")
 def _narrow_phase(b_first, b_last, zb_first, zb_last, n_z, cell_start, rp, order, z_sorted, z_lo, z_hi, idx, centres,
                   radius, z_scale, origins, directions, max_range, out):  # fmt: skip
-    """For each window row (sphere ``idx[rp[j]]``'s azimuth bins ``b_first[j]..b_last[j]`` and its z bins,
-    over the rays sorted into cells, ``order``, whose z are ``z_sorted``): the rays within its z span
+    """For each window row (sphere ``idx[rp[j]]``'s azimuth bins ``b_first[j]..b_last[j]`` of the rays' table and
+    its z bins, over the rays sorted into cells, ``order``, whose z are ``z_sorted``): the rays within its z span
     ``z_lo..z_hi`` that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
     ellipsoids become spheres; rays are solved along their own unit length) with the entry in
     (0, max_range); a ray that starts inside enters at 0 with the chord from its origin to the exit.
