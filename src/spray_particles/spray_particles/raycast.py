@@ -146,24 +146,46 @@ def _bin_rays(directions, n_az, n_z):
     return order, start, z_sorted, first, span
 
 
+#: Longest row sorted by insertion (a sphere's hits are a few hundred; one around the sensor takes every ray, whose
+#: pseudo-angle and z bins mix thousands of rays out of this order)
+INSERTION_SORT_MAX = 4096
+
+
 @numba.njit(cache=True, nogil=True)
-def _azimuth_key(row, ray, directions, n_bins):
-    """Per hit: its window row, then its ray's bin of ``n_bins`` equal azimuth steps over [-pi, pi),
-    then the ray, as one integer (arctangents only for the hits, not for every ray)."""
+def _in_azimuth_order(row, ray, directions, n_bins):
+    """Indices that put the hits in (row, azimuth bin, ray) order, the order of a scan over rays sorted into
+    ``n_bins`` equal azimuth bins over [-pi, pi). The narrow phase lists the hits row by row, rows ascending, and
+    a ray once per row: each row's hits are sorted on their own (by bin, then ray; no ties), the order of a sort
+    of all hits by that key. Arctangents once per ray hit, not for every ray or hit."""
     n_rays = directions.shape[0]
-    key = np.empty(row.shape[0], np.int64)
-    for h in range(row.shape[0]):
+    ray_bin = np.full(n_rays, -1, np.int64)
+    n = row.shape[0]
+    key = np.empty(n, np.int64)
+    for h in range(n):
         i = ray[h]
-        a = math.atan2(directions[i, 1], directions[i, 0])
-        b = min(max(int(math.floor((a + math.pi) * (n_bins / (2.0 * math.pi)))), 0), n_bins - 1)
-        key[h] = (row[h] * n_bins + b) * n_rays + i
-    return key
-
-
-def _in_azimuth_order(row: np.ndarray, ray: np.ndarray, directions: np.ndarray, n_bins: int) -> np.ndarray:
-    """Indices that put the hits in (row, azimuth bin, ray) order, the order of a scan over rays sorted
-    into equal azimuth bins (stable: a key occurs once per (sphere window, ray))."""
-    return np.argsort(_azimuth_key(row, ray, directions, n_bins), kind="stable")
+        if ray_bin[i] < 0:
+            a = math.atan2(directions[i, 1], directions[i, 0])
+            ray_bin[i] = min(max(int(math.floor((a + math.pi) * (n_bins / (2.0 * math.pi)))), 0), n_bins - 1)
+        key[h] = ray_bin[i] * n_rays + i
+    out = np.empty(n, np.int64)
+    h0 = 0
+    while h0 < n:
+        h1 = h0 + 1
+        while h1 < n and row[h1] == row[h0]:
+            h1 += 1
+        if h1 - h0 > INSERTION_SORT_MAX:
+            part = np.argsort(key[h0:h1])
+            for k in range(h1 - h0):
+                out[h0 + k] = h0 + part[k]
+        else:  # insertion sort: the narrow phase's order (pseudo-angle, z, ray) is nearly this one
+            for h in range(h0, h1):
+                k = h
+                while k > h0 and key[out[k - 1]] > key[h]:
+                    out[k] = out[k - 1]
+                    k -= 1
+                out[k] = h
+        h0 = h1
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

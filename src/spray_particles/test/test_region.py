@@ -46,6 +46,35 @@ def test_sphere_hits_equal_brute_force_for_cm_spheres_at_50_m_including_the_azim
     assert hits.range_m == pytest.approx(entry[hits.ray, hits.sphere], abs=1e-9)
 
 
+@pytest.mark.parametrize("slice_rad", [0.6, 2 * np.pi])
+def test_sphere_hits_of_a_batch_in_a_slice_of_the_circle_are_every_pair_in_azimuth_order(slice_rad):
+    """A batch of columns spans a slice (OS1-128's 10 ms: 0.6 rad): its rays' cell table covers that slice. Every
+    (ray, sphere) pair the brute force finds, and each sphere's hits in the order of equal azimuth bins, then ray."""
+    from spray_particles.raycast import AZIMUTH_BINS
+
+    rng = np.random.default_rng(7)
+    n_rays = 20000
+    az = rng.uniform(-slice_rad / 2, slice_rad / 2, n_rays) + 0.3
+    el = rng.uniform(-0.3, 0.2, n_rays)
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], 1)
+    o = rng.normal(0, 0.02, (n_rays, 3))
+    c_az = rng.uniform(-0.5, 0.5, 400) * min(slice_rad, 1.0) + 0.3
+    c = np.stack([15 * np.cos(c_az), 15 * np.sin(c_az), rng.uniform(-3, 1, 400)], 1)
+    radius = rng.uniform(0.05, 0.3, 400)
+    hits = sphere_hits(o, d, np.full(n_rays, 1e9), c, radius)
+    v = c[None, :, :] - o[:, None, :]
+    t = np.einsum("rpk,rk->rp", v, d)
+    perp2 = np.einsum("rpk,rpk->rp", v, v) - t * t
+    brute = np.argwhere((perp2 < radius**2) & (t - np.sqrt(np.maximum(radius**2 - perp2, 0)) > 0))
+    assert len(brute) > 1000
+    assert {tuple(x) for x in np.stack([hits.ray, hits.sphere], 1)} == {tuple(x) for x in brute}
+    az_bin = np.floor((np.arctan2(d[:, 1], d[:, 0]) + np.pi) * AZIMUTH_BINS / (2 * np.pi)).astype(np.int64)
+    for sphere in np.unique(hits.sphere):
+        rays = hits.ray[hits.sphere == sphere]
+        key = az_bin[rays] * n_rays + rays
+        assert np.all(np.diff(key) > 0)
+
+
 def _region_with(centres, profile):
     """A spray region whose particle system holds fixed spheres (no emitters)."""
     region = REGISTRY.create("spray", {}, RegionContext(profile))
