@@ -517,3 +517,45 @@ def test_a_candidate_that_conflicts_with_one_accepted_effect_is_tried_in_its_pla
     assert swaps["atmosphere.rain"] == ["cover.dirt"] and swaps["cover.water"] == ["atmosphere.snow"]
     assert {n: b for n, b in swaps.items() if n not in ("atmosphere.rain", "cover.water")} == {
         n: [e.name for e in b] for n, b in plain.items()}
+
+
+class SwapSearch(RoundsSearch):
+    """A RoundsSearch whose rounds with accepted effects free give the held-out gaps of ``freed``:
+    (names accepted, names excluded) -> {candidate name: held-out gap with those accepted effects refitted}."""
+
+    freed: dict = {}
+
+    def joint_round(self, accepted, excluded=()):
+        self.log.append(f"joint round with {sorted(e.name for e in accepted)} free")
+        gaps = self.freed.get((_set(*accepted), _set(*excluded)), {})
+        return [Candidate(e, 0.0, gaps[e.name], 1, tuple(accepted)) for e in self.pool if e.name in gaps]
+
+
+def test_the_last_accepted_weather_effect_gives_way_to_one_that_fits_with_the_first_freed():
+    """Draw case 7 (reference fog 107 m behind dirt 0.66): a weak fog alone imitated the near field the dirt dims
+    (0.248), a sun then qualified beside it (0.131), and neither the plain nor the joint round qualified after
+    that. With the fog free and the sun left out, dirt takes the gap to 0.033: it replaces the sun."""
+    landscape = {_set(): 0.483, _set(FOG): 0.248, _set(SUN): 0.40, _set(DIRT): 0.30, _set(FOG, SUN): 0.131,
+                 _set(FOG, DIRT): 0.033, _set(FOG, DIRT, SUN): 0.0325, _set(FOG, SUN, DIRT): 0.0325}  # fmt: skip
+    search = SwapSearch(landscape, families=("weather",))
+    search.pool = [FOG, SUN, DIRT]
+    search.screened = {(_set(FOG), DIRT.name): 0.20, (_set(FOG, SUN), DIRT.name): 0.125}  # dirt next to the fitted fog
+    search.freed = {(_set(FOG, SUN), _set()): {DIRT.name: 0.125},  # both free: still not the margin below 0.131
+                    (_set(FOG), _set(SUN)): {DIRT.name: 0.033}}  # fmt: skip
+    diag = search.run()
+    assert [e.name for e in diag.effects] == ["atmosphere.fog", "cover.dirt"] and diag.gap_after == 0.033
+    assert [g for _, g in diag.accepted] == [0.483, 0.131]  # dirt came in where the gap with the sun was 0.131
+    assert "joint round with ['atmosphere.fog', 'sensor.sun'] free" in search.log
+    assert "without sensor.sun:irradiance=400:" in search.log
+    # without the swap (as before): the sun stays
+    search.freed = {}
+    assert [e.name for e in search.run().effects] == ["atmosphere.fog", "sensor.sun"]
+
+
+def test_no_swap_is_tried_without_two_fitted_weather_effects():
+    gamma = parse_effect("sensor.intensity_gamma:gamma=0.6")
+    search = SwapSearch({}, families=("weather", "sensor"))
+    search.resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
+    assert search.swap_round([FOG]) == [] and search.swap_round([FOG, gamma]) == [] and search.log == []
+    assert search.swap_round([FOG, SUN]) == [] and search.log == ["without sensor.sun:irradiance=400:",
+                                                                  "joint round with ['atmosphere.fog'] free"]
