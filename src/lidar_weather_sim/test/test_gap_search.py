@@ -559,3 +559,14 @@ def test_no_swap_is_tried_without_two_fitted_weather_effects():
     assert search.swap_round([FOG]) == [] and search.swap_round([FOG, gamma]) == [] and search.log == []
     assert search.swap_round([FOG, SUN]) == [] and search.log == ["without sensor.sun:irradiance=400:",
                                                                   "joint round with ['atmosphere.fog'] free"]
+
+
+def test_no_swap_is_tried_when_the_joint_round_qualifies():
+    landscape = {_set(): 0.483, _set(FOG): 0.248, _set(SUN): 0.40, _set(DIRT): 0.30, _set(FOG, SUN): 0.131,
+                 _set(FOG, DIRT): 0.033, _set(SUN, DIRT): 0.30, _set(FOG, SUN, DIRT): 0.01}  # fmt: skip
+    search = SwapSearch(landscape, families=("weather",))
+    search.pool = [FOG, SUN, DIRT]
+    search.screened = {(_set(FOG), DIRT.name): 0.20, (_set(FOG, SUN), DIRT.name): 0.125}
+    search.freed = {(_set(FOG, SUN), _set()): {DIRT.name: 0.05}}  # dirt with both free qualifies
+    assert [e.name for e in search.run().effects] == ["atmosphere.fog", "sensor.sun", "cover.dirt"]
+    assert not any(line.startswith("without ") for line in search.log)

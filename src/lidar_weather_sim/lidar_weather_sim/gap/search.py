@@ -547,7 +547,8 @@ class GapSearch:
             best = min(fitted, key=lambda c: c.heldout_gap)
             required = self.required(current)
             if best.heldout_gap > required and accepted and required >= 0:  # below 0: no gap can qualify
-                for joint in (self.joint_round(accepted, unconfirmed), self.swap_round(accepted, unconfirmed)):
+                for round_ in (self.joint_round, self.swap_round):  # the swap only when the joint round fails
+                    joint = round_(accepted, unconfirmed)
                     if joint and min(c.heldout_gap for c in joint) <= required:
                         diag.rounds.append(joint)
                         fitted, best = joint, min(joint, key=lambda c: c.heldout_gap)
