@@ -7,7 +7,7 @@ profile run interleaved in one invocation: after a warm-up of ``--warmup-s`` sim
 rows alike. ``advance`` is called every ``--step-s`` of simulated time, as ``lidar-weather-sim run``
 does (10 ms), so region stepping (particles) is part of the frame.
 
-Rows: clear; cover (dirt sample ``--dirt``); fog 50 m; rain 2 / 10 / 50 mm/h; snow 1 / 5 mm/h;
+Rows: clear; cover (dirt sample ``--dirt``); fog 50 m; rain 2 / 10 / 50 mm/h; fog 50 m + rain 10 mm/h; snow 1 / 5 mm/h;
 spray at 16 / 32 / 64 drop packets per wheel per tick (water film 0.7 mm, dry air); ``target``
 (every region on: rain 10 mm/h + spray 32 + dirty cover, the speed target of the weather path). Per row: median ms per frame and its ratio to the clear row of the same run; the
 median ms of each stage (region step, region apply, cast, candidates, occlusion, echoes, points;
@@ -56,6 +56,7 @@ def row_specs(dirt: str) -> dict[str, dict]:
         "fog 50m": dict(weather={**DRY, "fog": {"visual_range_m": 50.0}}, regions=["atmosphere"]),
         **{f"rain {r:g}": dict(weather={**DRY, "precipitation": {"type": "rain", "intensity_mm_h": r}},
                                regions=["atmosphere"]) for r in (2.0, 10.0, 50.0)},
+        "fog 50m + rain 10": dict(weather={**DRY, "fog": {"visual_range_m": 50.0}, **rain10}, regions=["atmosphere"]),
         **{f"snow {r:g}": dict(weather={**DRY, "precipitation": {"type": "snow", "intensity_mm_h": r}},
                                regions=["atmosphere"]) for r in (1.0, 5.0)},
         **{f"spray {k}": dict(weather={**DRY, "road": film}, regions=["spray"], params=spray(k), emits=True)
@@ -162,7 +163,7 @@ def bench_profile(profile: str, rows: list[str], specs: dict, backend: str, fram
             row.frame(record=True)
     results = {row.name: row.summary() for row in live}
     clear_ms = results["clear"]["ms"] if "clear" in results else float("nan")
-    cols = [("profile", 13), ("row", 9), ("ms/frame", 9), ("min ms", 7), ("x clear", 7)] + \
+    cols = [("profile", 13), ("row", 17), ("ms/frame", 9), ("min ms", 7), ("x clear", 7)] + \
            [(s, 10 if s == "candidates" else 9) for s in (*STAGES, "other")] + [("scatterers", 10), ("n points", 8)]  # fmt: skip
     print(f"\n{profile}: atmosphere model {atmosphere_model}, {backend}, {1e3 * period:.0f} ms period, advance every {1e3 * step_s:.0f} ms, "
           f"median of {frames} frames after {warmup_s:g} s, {workers.THREADS} kernel threads")  # fmt: skip

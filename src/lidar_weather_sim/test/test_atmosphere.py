@@ -10,9 +10,10 @@ import pytest
 import yaml
 
 from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.experiments.reproduce import simulate
 from lidar_weather_sim.regions.atmosphere import fit_path
-from lidar_weather_sim.regions.base import REGISTRY, RegionContext
+from lidar_weather_sim.regions.base import REGISTRY, RayBatch, RegionContext
 from lidar_weather_sim.regions.extinction import fog_alpha, rain_alpha, snow_alpha
 from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.sim.simulator import LidarSimulator
@@ -61,6 +62,38 @@ def test_fog_of_50_m_removes_returns_beyond_the_predicted_range(tmp_path):
         assert (len(central) == 1) is seen, distance
         clear = one_frame(LidarSimulator(profile, scene_of(wall(distance, "concrete", 1, half_width=5.0)))).points
         assert np.any(np.abs(clear["azimuth"]) < 1e-6)
+
+
+def _beams(n: int, hit_m: float) -> RayBatch:
+    """``n`` beams of 3 sub-rays along +x, each hitting a wall at ``hit_m`` (m)."""
+    d = np.zeros((n, 3, 3))
+    d[..., 0] = 1.0
+    return RayBatch(frame_index=0, origins=np.zeros((n, 3)), directions=d, sensor_directions=d.copy(),
+                    channel=np.zeros(n, np.int64), time_s=np.zeros(n), weights=np.full(3, 1.0 / 3),
+                    distance=np.full((n, 3), hit_m), normal=np.zeros((n, 3, 3)), material=np.zeros((n, 3), np.int64),
+                    object_id=np.zeros((n, 3), np.uint32), label=np.zeros((n, 3), np.uint8))  # fmt: skip
+
+
+def test_fog_with_rain_draws_each_weather_at_its_own_extinction():
+    """Fog 50 m + rain 10 mm/h: the fog's and the rain's scatterers as each draws them alone (before, the rain
+    class at the total extinction: ~20x its scatterers, all labelled rain), the total extinction, the rain's road."""
+    profile = simple_profile()
+    fog = {"fog": {"visual_range_m": 50.0}}
+    rain = {"precipitation": {"type": "rain", "intensity_mm_h": 10.0}}
+    batch = _beams(20000, 30.0)
+
+    def drawn(weather: dict):
+        region = REGISTRY.create("atmosphere", {}, RegionContext(profile, Weather.model_validate(weather), MATERIALS))
+        return region, region.apply(batch, np.random.default_rng(5))
+
+    (fog_region, fog_alone), (rain_region, rain_alone), (both_region, both) = map(drawn, (fog, rain, {**fog, **rain}))
+    for label in (Label.COVER, Label.FOG, Label.RAIN):
+        expected = sum(int((e.scatterers.label == label).sum()) for e in (fog_alone, rain_alone))
+        got = int((both.scatterers.label == label).sum())
+        assert abs(got - expected) <= 5 * np.sqrt(expected) + 5, (label, got, expected)
+    assert (both.scatterers.label == Label.FOG).sum() > 20 and (both.scatterers.label == Label.RAIN).sum() > 1000
+    np.testing.assert_allclose(both.extinction_per_m, fog_alpha(50.0) + rain_alpha(10.0))
+    assert both_region._wet_scale == rain_region._wet_scale != fog_region._wet_scale
 
 
 def test_wet_and_snow_covered_road():

@@ -153,13 +153,11 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
 def _with_class_params(region, overrides: dict):
     """Rebuild an atmosphere region with some class parameters replaced (used by the fitting script)."""
     from lidar_weather_sim.regions.atmosphere import AtmosphereRegion
-    from lidar_weather_sim.regions.near_field import NearFieldModel
 
     c = region.c.model_copy(update=overrides)
     region.c = c
-    region.near_field = NearFieldModel(c.rate_per_beam, c.cover_share, c.cover_scale_m, c.amplitude_median,
-                                       c.amplitude_sigma_ln, volume_range_m=region.near_field.volume_range_m,
-                                       cover_amp_scale_m=c.cover_amp_scale_m)  # fmt: skip
+    (air,) = region.components  # one weather class: the rooftop's reference weathers
+    region.components = [region.component(c, air.rate_scale, air.label)]
     mats = MaterialTable.default()
     region._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** c.wetness
     assert isinstance(region, AtmosphereRegion)

@@ -17,7 +17,9 @@ Mie, the beam's volume, the volume return as pulses); the road surface is the sa
   (:mod:`lidar_weather_sim.regions.extinction`); the echo stage applies exp(-2 alpha R);
 - near-field scatterers 0-5 m per beam (:mod:`lidar_weather_sim.regions.near_field`): cover
   multipath (wet cover, exponential 0-0.5 m) and drops/flakes/droplets (plateau with
-  the overlap peak); their rate scales with alpha / alpha_reference of the fit.
+  the overlap peak); their rate scales with alpha / alpha_reference of the fit. A fog (visual range
+  below 1 km) with rain or snow draws both classes, each at its own extinction over its reference
+  (volume scatterers labelled FOG and RAIN / SNOW; the road is the precipitation's).
   Their EPW and echo numbers come from the echo stage;
 - drops in front of the street: per beam hitting the scene beyond the near field,
   Poisson scatterers between the end of the near field and the hit, at least ``path_gap_m``
@@ -39,6 +41,7 @@ Mie, the beam's volume, the volume return as pulses); the road surface is the sa
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -117,6 +120,17 @@ class AtmosphereParams(ConfigModel):
     moved_keys: ClassVar[dict[str, str]] = {"road_texture_depth_mm": "moved to weather.road.texture_depth_mm"}
 
 
+@dataclass(frozen=True)
+class AirComponent:
+    """One weather class's part of the fitted air: its parameters, the factor on their rates (the weather's
+    extinction over the fit's reference) and the label of its volume scatterers."""
+
+    c: ClassParams
+    rate_scale: float
+    label: int
+    near_field: NearFieldModel
+
+
 def classify(visual_range_m: float, precipitation: str) -> str:
     if precipitation in ("rain", "snow"):
         return precipitation
@@ -144,14 +158,7 @@ class AtmosphereRegion:
             raise ConfigError(f"{path}: key 'classes.{self.weather_class}' missing (weather class of the scenario)")
         self.c = fit.classes[self.weather_class]
         self.alpha = total_alpha(self.visual_range_m, self.precipitation, self.intensity)
-        ref = fit.reference
-        ref_alpha = {
-            "clear": None,
-            "fog": total_alpha(ref["fog_visual_range_m"], "dry", 0.0),
-            "rain": total_alpha(1.0e5, "rain", ref["rain_mm_h"]),
-            "snow": total_alpha(1.0e5, "snow", ref["snow_mm_h"]),
-        }[self.weather_class]
-        self.rate_scale = 1.0 if ref_alpha is None else self.alpha / ref_alpha
+        self.components = self._fitted_components(fit, params)
         mats = context.materials or MaterialTable.default()
         self._refl = np.append(mats.reflectivity, 1.0)
         film = params.road_water_film_mm if params.road_water_film_mm is not None else w.road.water_film_mm
@@ -165,24 +172,55 @@ class AtmosphereRegion:
             precip = (self.precipitation, self.intensity) if self.precipitation != "dry" and self.intensity > 0 else None
             self.physical = PhysicalAir(context.profile, fog, precip)
             self.alpha = self.physical.alpha
-        self.near_field = NearFieldModel(self.c.rate_per_beam, self.c.cover_share, self.c.cover_scale_m,
-                                         self.c.amplitude_median, self.c.amplitude_sigma_ln,
-                                         volume_range_m=(0.5, params.near_field_max_m),
-                                         cover_amp_scale_m=self.c.cover_amp_scale_m)  # fmt: skip
+
+    def _fitted_components(self, fit: FitFile, params: AtmosphereParams) -> list[AirComponent]:
+        """The fitted air: one weather class scaled by the total extinction, or, when a fog (visual range
+        below 1 km) falls with rain or snow and the class is automatic, each from its own class scaled by its
+        own extinction (the classes are fits of one weather each: rain's near field scaled by a fog's
+        extinction is no rain, and ~20x the scatterers)."""
+        ref = fit.reference
+        ref_alpha = {
+            "clear": None,
+            "fog": total_alpha(ref["fog_visual_range_m"], "dry", 0.0),
+            "rain": total_alpha(1.0e5, "rain", ref["rain_mm_h"]),
+            "snow": total_alpha(1.0e5, "snow", ref["snow_mm_h"]),
+        }
+        mixed = params.weather_class == "auto" and self.precipitation in ("rain", "snow") \
+            and self.visual_range_m < FOG_VISUAL_RANGE_LIMIT_M  # fmt: skip
+        if not mixed:
+            reference = ref_alpha[self.weather_class]
+            return [self.component(self.c, 1.0 if reference is None else self.alpha / reference,
+                                   VOLUME_LABEL[self.weather_class])]  # fmt: skip
+        if "fog" not in fit.classes:
+            raise ConfigError(f"{params.fit_file or fit_path()}: key 'classes.fog' missing (fog with "
+                              f"{self.precipitation} in the scenario)")  # fmt: skip
+        precip_alpha = total_alpha(1.0e5, self.precipitation, self.intensity)
+        fog_alpha = total_alpha(self.visual_range_m, "dry", 0.0)
+        return [self.component(self.c, precip_alpha / ref_alpha[self.precipitation], VOLUME_LABEL[self.precipitation]),
+                self.component(fit.classes["fog"], fog_alpha / ref_alpha["fog"], Label.FOG)]  # fmt: skip
+
+    def component(self, c: ClassParams, rate_scale: float, label: int) -> AirComponent:
+        """The near field and path drops of class parameters ``c`` at ``rate_scale`` x their fitted rates."""
+        near_field = NearFieldModel(c.rate_per_beam, c.cover_share, c.cover_scale_m, c.amplitude_median,
+                                    c.amplitude_sigma_ln, volume_range_m=(0.5, self.p.near_field_max_m),
+                                    cover_amp_scale_m=c.cover_amp_scale_m)  # fmt: skip
+        return AirComponent(c, rate_scale, label, near_field)
 
     def step(self, t0_s: float, t1_s: float) -> None:
         """Stationary weather: nothing to advance."""
 
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, s = batch.shape
-        label = VOLUME_LABEL[self.weather_class]
         scatterers = None
         if self.p.air and self.physical is not None:
             scatterers = self.physical.scatterers(batch, rng)
         elif self.p.air:
-            near = sample_near_field(self.near_field, n, batch.weights, self.profile, rng, Label.COVER, label,
-                                     self.rate_scale)  # fmt: skip
-            scatterers = Scatterers.concatenate([near, self._path_scatterers(batch, rng, label)])
+            parts = []
+            for air in self.components:
+                parts.append(sample_near_field(air.near_field, n, batch.weights, self.profile, rng, Label.COVER,
+                                               air.label, air.rate_scale))  # fmt: skip
+                parts.append(self._path_scatterers(batch, rng, air))
+            scatterers = Scatterers.concatenate(parts)
         ground = np.isfinite(batch.distance) & (np.abs(batch.normal[..., 2]) > 0.9)
         scale = np.where(ground, self._wet_scale, 1.0)
         offset = np.zeros((n, s))
@@ -197,9 +235,9 @@ class AtmosphereRegion:
             range_offset_m=offset,
         )
 
-    def _path_scatterers(self, batch: RayBatch, rng: np.random.Generator, label: int) -> Scatterers | None:
+    def _path_scatterers(self, batch: RayBatch, rng: np.random.Generator, air: AirComponent) -> Scatterers | None:
         """Drops between the near field and the scene hit of each beam (on the central sub-ray's hit range)."""
-        c, p = self.c, self.p
+        c, p, label, rate_scale = air.c, self.p, air.label, air.rate_scale
         if c.path_rate_per_beam <= 0 and c.splash_rate_per_beam <= 0:
             return None
         w = np.asarray(batch.weights, dtype=np.float64)
@@ -214,14 +252,14 @@ class AtmosphereRegion:
         along_axis = np.sqrt(np.maximum(horizontal_sq - batch.sensor_directions[:, core, 1] ** 2, 0.0))
         near = (p.near_field_max_m + p.path_gap_m) / np.maximum(along_axis, 0.1)
         eligible = far > near
-        counts = rng.poisson(c.path_rate_per_beam * self.rate_scale, len(hit)) * eligible
+        counts = rng.poisson(c.path_rate_per_beam * rate_scale, len(hit)) * eligible
         beam = np.repeat(np.arange(len(hit)), counts)
         r = rng.uniform(near[beam], far[beam])
         if c.splash_rate_per_beam > 0:
             # splash: drops bouncing off a surface hit from above (up-facing), in the last splash_depth_m
             # of the path before the gap
             up = eligible & (np.abs(batch.normal[:, core, 2]) > 0.9)
-            n_splash = rng.poisson(c.splash_rate_per_beam * self.rate_scale, len(hit)) * up
+            n_splash = rng.poisson(c.splash_rate_per_beam * rate_scale, len(hit)) * up
             b_splash = np.repeat(np.arange(len(hit)), n_splash)
             r_splash = far[b_splash] - rng.uniform(0.0, p.splash_depth_m, len(b_splash))
             beam, r = np.concatenate([beam, b_splash]), np.concatenate([r, np.maximum(r_splash, near[b_splash])])
