@@ -194,6 +194,25 @@ def test_reproduce_rooftop_takes_another_sensor_profile_and_fit_file(tmp_path, c
 MATCHED_AT_10_FRAMES = 64
 
 
+def test_reproduce_rooftop_runs_the_physical_atmosphere_without_the_fitted_near_field(tmp_path, cli):
+    """``--atmosphere-model physical``: the fit's reference fog from its drop-size distribution; the class's fitted
+    near-field rate no longer acts (it does on the fitted model)."""
+    fit = yaml.safe_load(fit_path().read_text())
+    fit["classes"]["fog"]["rate_per_beam"] *= 3.0
+    fit_file = tmp_path / "fit.yaml"
+    fit_file.write_text(yaml.safe_dump(fit))
+
+    def near_field(model, **kw):
+        return _mean(simulate("fog", False, 2, seed=5, atmosphere_model=model, **kw), "atmosphere", "n_total")
+
+    assert near_field("physical", fit_file=str(fit_file)) == near_field("physical") > 0
+    assert near_field("fitted", fit_file=str(fit_file)) > 1.5 * near_field("fitted")
+    out = tmp_path / "rt"
+    proc = subprocess.run([*cli, "reproduce", "rooftop", "--frames", "1", "--out", str(out), "--atmosphere-model",
+                           "physical"], capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0 and len(json.loads((out / "rooftop.json").read_text())) > 0, proc.stderr
+
+
 def test_rooftop_reproduction_matches_at_least_the_recorded_number_of_paper_means(tmp_path):
     from lidar_weather_sim.experiments.reproduce import reproduce_rooftop, within_sigma
 

@@ -107,10 +107,12 @@ class Condition:
 
 def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file: str | None = None,
              scenario: str = "rooftop_static", overrides: dict | None = None,
-             profile: str | None = None) -> Condition:  # fmt: skip
+             profile: str | None = None, atmosphere_model: str = "fitted") -> Condition:  # fmt: skip
     """Per-frame features of one condition; ``overrides`` replace atmosphere class parameters and
     ``street_gain`` (fitting); ``profile`` (a name in config/sensors or a YAML path) replaces the
-    scenario's sensor, e.g. to see how its noise model acts on the 'with sun' rows."""
+    scenario's sensor, e.g. to see how its noise model acts on the 'with sun' rows; ``atmosphere_model``:
+    the atmosphere region's (``physical``: the fit's reference weather from the drop-size distributions,
+    its class parameters only for the road)."""
     overrides = dict(overrides or {})
     street_gain = overrides.pop("street_gain", None)
     sc = load_scenario(scenario)
@@ -122,7 +124,8 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
     for name in sc.regions:
         params = dict(sc.region_params.get(name, {}))
         if name == "atmosphere":
-            params.update({"weather_class": weather_class, **({"fit_file": str(fit_file)} if fit_file else {})})
+            params.update({"weather_class": weather_class, "model": atmosphere_model,
+                           **({"fit_file": str(fit_file)} if fit_file else {})})  # fmt: skip
             region = REGISTRY.create(name, params, context)
             if overrides:
                 region = _with_class_params(region, overrides)
@@ -253,12 +256,13 @@ def plot(conditions: list[Condition], out_dir: Path) -> list[Path]:
 
 
 def reproduce_rooftop(out_dir: str | Path, frames: int = 30, seed: int = 0, tables_path: str | Path | None = None,
-                      fit_file: str | None = None, plots: bool = True, profile: str | None = None) -> list[dict]:  # fmt: skip
+                      fit_file: str | None = None, plots: bool = True, profile: str | None = None,
+                      atmosphere_model: str = "fitted") -> list[dict]:  # fmt: skip
     """Run all 8 conditions; write rooftop.json, rooftop.md and the PNGs into ``out_dir``; return the rows.
     ``fit_file``: atmosphere parameters (default config/atmosphere_fit.yaml); ``profile``: sensor
-    profile name or YAML path (default the scenario's scala4)."""
+    profile name or YAML path (default the scenario's scala4); ``atmosphere_model``: fitted or physical."""
     tables = load_tables(tables_path)
-    conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile)
+    conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile, atmosphere_model=atmosphere_model)
                   for w in WEATHER_CLASSES for sun in (False, True)]  # fmt: skip
     rows = [r for c in conditions for r in rows_of(c, tables)]
     out = Path(out_dir)  # created once the inputs have loaded: bad inputs leave nothing behind
@@ -276,7 +280,7 @@ def main(args) -> int:
 
     start = time.perf_counter()
     rows = reproduce_rooftop(args.out, frames=args.frames, seed=args.seed, tables_path=args.tables,
-                             fit_file=args.fit_file, profile=args.profile)  # fmt: skip
+                             fit_file=args.fit_file, profile=args.profile, atmosphere_model=args.atmosphere_model)  # fmt: skip
     print(markdown(rows))
     print(f"wrote {args.out}/rooftop.json, rooftop.md, rooftop_atmosphere.png, rooftop_street.png "
           f"in {time.perf_counter() - start:.1f} s")  # fmt: skip
