@@ -6,8 +6,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from lidar_weather_sim.gap import search as search_module
 from lidar_weather_sim.gap.effects import parse_effect
-from lidar_weather_sim.gap.search import MIN_ABS_GAIN, MIN_GAIN, Candidate, Diagnosis, GapSearch
+from lidar_weather_sim.gap.search import MIN_ABS_GAIN, MIN_GAIN, Candidate, Diagnosis, GapSearch, refined_ranks
 from lidar_weather_sim.scenario.schema import load_scenario
 
 FOG, SUN, DIRT = (parse_effect(text) for text in ("atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400",
@@ -570,3 +571,49 @@ def test_no_swap_is_tried_when_the_joint_round_qualifies():
     search.freed = {(_set(FOG, SUN), _set()): {DIRT.name: 0.05}}  # dirt with both free qualifies
     assert [e.name for e in search.run().effects] == ["atmosphere.fog", "sensor.sun", "cover.dirt"]
     assert not any(line.startswith("without ") for line in search.log)
+
+
+def test_every_replacement_of_an_accepted_effect_is_refined_beside_the_best_screened():
+    assert refined_ranks([False, False, False, True, True], 2) == [0, 1, 3, 4]
+    assert refined_ranks([False, True, False], 2) == [0, 1]
+    assert refined_ranks([False, False, False], 2) == [0, 1] and refined_ranks([True], 2) == [0]
+
+
+class ValueSearch(GapSearch):
+    """A GapSearch on a landscape of effect values (draw case 24, rain 9 mm/h behind dirt 0.75 taken for snow):
+    rain is sharp in its value, so on its grid it screens far worse than the accepted snow, refined far better."""
+
+    def __init__(self) -> None:
+        self.families, self.grid, self.refine, self.engine = ("weather",), 5, 2, None
+        self.min_gain, self.min_abs_gain = MIN_GAIN, MIN_ABS_GAIN
+        self.resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
+        self.data_candidates, self.log = [], []
+        self.progress = self.log.append
+
+    def gap(self, effects, split, redraw=0):
+        v = {e.name: e.value for e in effects}
+        dirt = ((v["cover.dirt"] - 0.75) / 0.1) ** 2 * 0.005 if "cover.dirt" in v else 0.3
+        if "atmosphere.rain" in v:
+            air = 0.001 + np.log(v["atmosphere.rain"] / 9.0) ** 2
+        elif "atmosphere.snow" in v:
+            air = 0.0147 + np.log(v["atmosphere.snow"] / 0.3) ** 2
+        else:
+            air = 0.25
+        return air + dirt + 1e-4 * len(set(v) - {"cover.dirt", "atmosphere.rain", "atmosphere.snow"})
+
+
+def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_refined_and_wins(monkeypatch):
+    snow, dirt = parse_effect("atmosphere.snow:intensity=0.3"), parse_effect("cover.dirt:transmission=0.75")
+    search = ValueSearch()
+    required = search.required(search.gap([snow, dirt], "heldout"))
+
+    def rain_of(candidates):
+        (rain,) = [c for c in candidates if c.effect.name == "atmosphere.rain"]
+        return rain
+
+    rain = rain_of(search.joint_round([snow, dirt]))
+    assert rain.heldout_gap <= required and rain.effect.value == pytest.approx(9.0, rel=0.05)
+    assert [e.name for e in rain.companions] == ["cover.dirt"]
+    # refining only the best two (every one a change that does little, beside the snow): rain stays on its grid
+    monkeypatch.setattr(search_module, "refined_ranks", lambda swaps, refine: list(range(min(refine, len(swaps)))))
+    assert rain_of(search.joint_round([snow, dirt])).heldout_gap > 3 * required

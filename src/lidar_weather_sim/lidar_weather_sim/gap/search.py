@@ -461,11 +461,12 @@ class GapSearch:
         candidate's grid values are screened with each accepted weather effect in turn on its whole grid, the
         others as accepted (with one accepted effect: the full two-dimensional grid; the sensor family's effects
         keep their values: read off the data, or on 7-value grids that would make the round 8 times a plain
-        one); the best ``refine`` are refined from there with the accepted effects at their screened values, and
-        every one is scored on the held-out frames with them. A candidate that conflicts with one accepted effect is tried in
+        one); the best ``refine`` (and every one that replaces an accepted effect, :func:`refined_ranks`) are refined
+        from there with the accepted effects at their screened values, and every one is scored on the held-out
+        frames with them. A candidate that conflicts with one accepted effect is tried in
         its place (:meth:`options`): the first of two effects that cannot go together may have been accepted for
         the other (snow at 0.7 mm/h for rain at 21 mm/h behind a dirty cover), which then can no longer be tried."""
-        sets = []  # per candidate: (it, its grid, [(the accepted effects of a job, its grid index in that job)])
+        sets = []  # per candidate: (it, its grid, [(the accepted effects of a job, its grid index in that job)], swap)
         for c, base in self.options(accepted, excluded, swaps=True):
             xs = self._grid(c)
             variants = [(list(base), k) for k in range(len(xs))]
@@ -474,20 +475,22 @@ class GapSearch:
                     variants += [(base[:i] + [self._value(e, y)] + base[i + 1 :], k)
                                  for y in self._grid(e) for k in range(len(xs))]  # fmt: skip
             if len(variants) > len(xs) or len(base) < len(accepted):
-                sets.append((c, xs, variants))
+                sets.append((c, xs, variants, len(base) < len(accepted)))
         gaps = iter(self.gaps([(others + [self._value(c, xs[k])], "screen")
-                               for c, xs, variants in sets for others, k in variants]))  # fmt: skip
+                               for c, xs, variants, _ in sets for others, k in variants]))  # fmt: skip
         screened = []
-        for c, xs, variants in sets:
+        for c, xs, variants, swap in sets:
             row = [next(gaps) for _ in variants]
             j = int(np.argmin(row))
             others, k = variants[j]
-            screened.append((c, others, xs, k, row[j], len(row)))
+            screened.append((c, others, xs, k, row[j], len(row), swap))
         screened.sort(key=lambda s: s[4])
-        jobs = [(others, c, xs, k) for c, others, xs, k, _, _ in screened[: self.refine]]
+        chosen = refined_ranks([s[6] for s in screened], self.refine)
+        jobs = [(others, c, xs, k) for c, others, xs, k, *_ in (screened[r] for r in chosen)]
         fits = [self.fit(*job) for job in jobs] if self.engine is None else self._remote(remote_fit, jobs)
-        fitted = [(others, *(fits[r] if r < len(fits) else (self._value(c, xs[k]), gap, 0)), n)
-                  for r, (c, others, xs, k, gap, n) in enumerate(screened)]  # fmt: skip
+        fits = dict(zip(chosen, fits))
+        fitted = [(others, *(fits[r] if r in fits else (self._value(c, xs[k]), gap, 0)), n)
+                  for r, (c, others, xs, k, gap, n, _) in enumerate(screened)]  # fmt: skip
         heldout = self.gaps([(others + [effect], "heldout") for others, effect, _, _, _ in fitted])
         out = []
         for (others, effect, gap, n, screens), held in zip(fitted, heldout):
@@ -668,6 +671,15 @@ class GapSearch:
             diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
                              for e, (c, g) in zip(refitted, diag.accepted)]  # fmt: skip
         return current
+
+
+def refined_ranks(swaps: list[bool], refine: int) -> list[int]:
+    """Which candidates of a joint round, ranked by their screened gap (``swaps``: each one replaces an accepted
+    effect), are refined: the best ``refine``, and every replacement. A replacement is screened on its coarse grid
+    against the refitted effect it replaces, so it ranks behind candidates that change little (draw case 24: rain
+    on its 5 values in place of a refitted snow, behind a spray at its floor and water in place of the dirt);
+    refined, it may win. Conflicts are few (rain or snow, dirt or water), so are replacements."""
+    return list(range(min(refine, len(swaps)))) + [r for r, swap in enumerate(swaps) if swap and r >= refine]
 
 
 def promise(xs: np.ndarray, row: list[float], k: int) -> float:
