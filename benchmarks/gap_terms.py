@@ -36,10 +36,10 @@ def zone_table(name: str, frames: list[np.ndarray], contexts: list) -> list[str]
         parts = [p[z == k] for p, z in zip(frames, zones)]
         q = np.concatenate(parts) if parts else frames[0][:0]
         if not len(q):
-            rows.append(f"{name:>28} {zone:>6}: none")
+            rows.append(f"{name:>9} {zone:>6}: none")
             continue
         r = np.sqrt(sum(q[a].astype(np.float64) ** 2 for a in ("x", "y", "z")))
-        rows.append(f"{name:>28} {zone:>6}: {len(q) / len(frames):8.1f} per frame, EPW {np.median(q['epw']):6.2f} m, "
+        rows.append(f"{name:>9} {zone:>6}: {len(q) / len(frames):8.1f} per frame, EPW {np.median(q['epw']):6.2f} m, "
                     f"range {np.median(r):6.2f} m, intensity {np.median(q['intensity']):5.0f}")  # fmt: skip
     return rows
 
@@ -65,19 +65,22 @@ def main(argv: list[str] | None = None) -> int:
     _, held = split_frames(len(recording.frames), 1, args.frames)
     measured = measured_signature(recording, held, resim.contexts, resim.channels)
     contexts = [resim.contexts[i] for i in held]
+    short = {name: "nothing" if name == "nothing" else f"set {i}" for i, name in enumerate(sets)}
     terms, gaps, tables = {}, {}, zone_table("recording", [recording.frames[i].points for i in held], contexts)
     for name, effects in sets.items():
         frames = resim.frames(effects, held)
         simulated = resim.signature(effects, held, None, frames)
         terms[name], gaps[name] = gap_terms(measured, simulated), gap_value(measured, simulated)
-        tables += zone_table(name, frames, contexts)
+        tables += zone_table(short[name], frames, contexts)
     keys = [k for k in sorted(set().union(*terms.values())) if max(t.get(k, 0.0) for t in terms.values()) >= 0.01]
-    width = max(12, *(len(n) for n in sets))
     print(f"held-out frames {held}")
-    print(f"{'term':>18} " + " ".join(f"{n:>{width}}" for n in sets))
+    for name, column in short.items():
+        if name != "nothing":
+            print(f"{column}: {name}")
+    print(f"{'term':>18} " + " ".join(f"{c:>8}" for c in short.values()))
     for key in keys:
-        print(f"{key:>18} " + " ".join(f"{terms[n].get(key, 0.0):>{width}.3f}" for n in sets))
-    print(f"{'gap':>18} " + " ".join(f"{gaps[n]:>{width}.4f}" for n in sets))
+        print(f"{key:>18} " + " ".join(f"{terms[n].get(key, 0.0):>8.3f}" for n in sets))
+    print(f"{'gap':>18} " + " ".join(f"{gaps[n]:>8.4f}" for n in sets))
     print("\n".join(tables))
     return 0
 
