@@ -38,7 +38,7 @@ DROPS = {"as is": None, "cover multipath dropped": "cover", "every scatterer dro
 
 
 def dropping(scatterers: Scatterers | None, drop: str | None) -> Scatterers | None:
-    """``scatterers`` without those ``drop`` names (None: all kept)."""
+    """``scatterers`` with ``drop`` removed: ``cover`` the COVER-labelled ones, ``all`` every one; None keeps all."""
     if scatterers is None or drop is None:
         return scatterers
     if drop == "all":
