@@ -22,9 +22,11 @@ Then, for each weather (:mod:`lidar_weather_sim.physics`: DSD, Mie, biaxial over
   A drop of differential backscatter cross-section sigma (m^2/sr) in a beam of cross-section S(r) acts
   as a surface of reflectance ``pi sigma / S(r)``: its peak is ``C pi sigma / (S(r) r^2) exp(-2 alpha r)``
   (C the profile's power constant). Each drop is placed across the beam (a uniform disc, the beam's
-  geometric-mean divergence) and counts only inside the receiver's field of view (a disc ``lens_separation_m``
-  off axis): the overlap O(r) comes out drop by drop; the volume terms use O(r) of
-  :func:`lidar_weather_sim.physics.overlap.biaxial_overlap` with the same discs.
+  geometric-mean divergence) and counts with the share of its light the receiver takes there
+  (:func:`lidar_weather_sim.physics.overlap.point_share` of the profile's ``optics.overlap_model``: ``cone``,
+  wholly inside the receiver's field of view, a disc ``lens_separation_m`` off axis, or not at all; ``defocus``,
+  the share of the aperture's blur on the field stop): the overlap O(r) comes out drop by drop; the volume
+  terms use the model's O(r) (:data:`lidar_weather_sim.physics.overlap.OVERLAP_MODELS`) with the same discs.
   Echoes: runs of the waveform above the threshold ``mu + x sigma`` (under the scenario's sun); range at
   the run's highest sample (parabolic refinement), EPW the length of the run (crossings interpolated
   linearly), at most ``max_echoes`` nearest, none below ``range.min_m``; intensity on the profile's log
@@ -58,7 +60,7 @@ from scipy.signal import fftconvolve
 from lidar_weather_sim.core.points import Label, ReturnType, empty_points
 from lidar_weather_sim.gap.effects import Effect
 from lidar_weather_sim.physics.coefficients import Medium, medium
-from lidar_weather_sim.physics.overlap import biaxial_overlap
+from lidar_weather_sim.physics.overlap import OVERLAP_MODELS, point_share
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold, dark_level
 from lidar_weather_sim.sensor.scan import ScanPattern
@@ -163,9 +165,9 @@ class ReferenceAtmosphere:
         self.separation = o.lens_separation_m
         self.tx_radius, self.rx_radius = o.tx_aperture_radius_m, o.rx_aperture_radius_m
         self.beam_radius = self.tx_radius + self.r * np.tan(0.5 * self.divergence)  # (K,) m
-        self.fov_radius = self.rx_radius + self.r * np.tan(0.5 * self.fov)
-        self.overlap = biaxial_overlap(self.r, self.separation, self.divergence, self.fov, self.tx_radius,
-                                       self.rx_radius)  # fmt: skip
+        self.overlap_model = o.overlap_model
+        self.overlap = OVERLAP_MODELS[o.overlap_model](self.r, self.separation, self.divergence, self.fov,
+                                                       self.tx_radius, self.rx_radius)  # fmt: skip
         self.media: list[Medium] = []
         if atmosphere.fog_m is not None:
             self.media.append(medium("fog", float(atmosphere.fog_m), float(o.wavelength_nm)))
@@ -287,12 +289,13 @@ class ReferenceAtmosphere:
         radius = self.tx_radius + r * np.tan(0.5 * self.divergence)
         rho = radius * np.sqrt(rng.random(len(r)))
         phi = 2.0 * np.pi * rng.random(len(r))
-        fov = self.rx_radius + r * np.tan(0.5 * self.fov)
-        seen = (rho * np.cos(phi) - self.separation) ** 2 + (rho * np.sin(phi)) ** 2 <= fov**2
+        share = point_share(self.overlap_model, np.hypot(rho * np.cos(phi) - self.separation, rho * np.sin(phi)), r,
+                            self.fov, self.rx_radius)  # fmt: skip
+        seen = share > 0
         lo = None if d_lo is None else d_lo[c[seen] - first]
         _, sigma = m.sample(int(seen.sum()), rng, lo)
         r = r[seen]
-        return b[seen], r, self.drop_amplitude(sigma, r) * np.exp(-2.0 * self.alpha * r)
+        return b[seen], r, self.drop_amplitude(sigma, r) * share[seen] * np.exp(-2.0 * self.alpha * r)
 
     def _waveform_beams(self, pts, beam_of_point, sampled, channels, rng) -> np.ndarray:
         """Echoes of the sampled beams (chunks of CHUNK_BEAMS, to bound memory)."""

@@ -30,10 +30,12 @@ and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
   every beam of a channel put its peak on the same spot, where the droplets' own fluctuation moves it by tens of
   centimetres.
 
-The overlap O(r) is the profile's biaxial geometry (:func:`lidar_weather_sim.physics.overlap.biaxial_overlap`:
-lens separation, receiver field of view, apertures) where its optics give it, else the echo stage's
-smoothstep; it is part of each volume pulse's reflectance, and a drop is seen (inside the receiver's field
-of view) with probability O(r) (``bypass_overlap``: the echo stage does not apply its own). The threshold is the dark one (no sun). This is the
+The overlap O(r) is the profile's biaxial geometry (lens separation, receiver field of view, apertures) in its
+``optics.overlap_model`` (:data:`lidar_weather_sim.physics.overlap.OVERLAP_MODELS`) where its optics give it,
+else the echo stage's smoothstep; it is part of each volume pulse's reflectance. A drop is seen with probability
+O(r) at full strength (``cone``: in the receiver's view or not), or, ``defocus``, always with the share of its
+light the field stop takes at its place on the beam's disc (``bypass_overlap``: the echo stage does not apply
+its own). The threshold is the dark one (no sun). This is the
 model :mod:`lidar_weather_sim.gap.reference` computes slowly, drop by drop, with a geometric overlap and
 fog droplet statistics: the fast model is checked against it (``benchmarks/atmosphere_reference.py
 --fast-model physical``). Not modelled: multiple scattering, the fog's fluctuation beyond the near field
@@ -49,7 +51,7 @@ import numpy as np
 
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.physics.coefficients import Medium, medium
-from lidar_weather_sim.physics.overlap import biaxial_overlap
+from lidar_weather_sim.physics.overlap import OVERLAP_MODELS, point_share
 from lidar_weather_sim.regions.base import RayBatch, Scatterers
 from lidar_weather_sim.regions.volume_return import VolumeReturn
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M, dark_level
@@ -77,11 +79,13 @@ class PhysicalAir:
         self.r_max = float(profile.range.max_m)
         self.divergence = 1e-3 * float(np.sqrt(o.divergence_h_mrad * o.divergence_v_mrad))
         self.exit_radius = float(o.tx_aperture_radius_m)
-        overlap = None
+        overlap, self._optics = None, None  # (lens separation m, receiver FOV rad, aperture radius m)
+        self.overlap_model = o.overlap_model
         if o.lens_separation_m is not None and o.receiver_fov_mrad is not None:
-            overlap = partial(biaxial_overlap, separation_m=o.lens_separation_m, divergence_rad=self.divergence,
-                              fov_rad=1e-3 * o.receiver_fov_mrad, tx_radius_m=o.tx_aperture_radius_m,
-                              rx_radius_m=o.rx_aperture_radius_m)  # fmt: skip
+            overlap = partial(OVERLAP_MODELS[o.overlap_model], separation_m=o.lens_separation_m,
+                              divergence_rad=self.divergence, fov_rad=1e-3 * o.receiver_fov_mrad,
+                              tx_radius_m=o.tx_aperture_radius_m, rx_radius_m=o.rx_aperture_radius_m)  # fmt: skip
+            self._optics = (o.lens_separation_m, 1e-3 * o.receiver_fov_mrad, o.rx_aperture_radius_m)
         start = 0.0 if overlap is not None else o.overlap_start_m
         self.volume = VolumeReturn(self.power, self.alpha, 1.0, profile.pulse.fwhm_m * FWHM_TO_SIGMA, start,
                                    o.overlap_full_m, overlap)  # fmt: skip
@@ -184,18 +188,32 @@ class PhysicalAir:
             return None
         # ranges by the inverse of the cumulative count, each in front of its beam's hit
         rng_m = np.interp(rng.random(len(beam)) * expected[beam], self._cum, r)
-        # a drop is inside the receiver's field of view or not: the share O(r) of them is seen, at full strength
-        seen = rng.random(len(beam)) < self._overlap(rng_m)
-        beam, rng_m = beam[seen], rng_m[seen]
+        share = self._seen_share(rng_m, rng)
+        seen = share > 0
+        beam, rng_m, share = beam[seen], rng_m[seen], share[seen]
         diameter, sigma = m.sample(len(beam), rng, self._on_grid(rng_m, self._d_min))
         subray = rng.choice(len(w), size=len(beam), p=w / w.sum())
         patch = self.area(rng_m) * w[subray]
         optical = m.dsd.optical(diameter)
         n = len(beam)
-        return Scatterers(beam=beam, subray=subray, range_m=rng_m, reflectance=np.pi * sigma / patch,
+        return Scatterers(beam=beam, subray=subray, range_m=rng_m, reflectance=np.pi * sigma * share / patch,
                           occlusion=np.clip(np.pi * optical**2 / 4.0 / patch, 0.0, 1.0),
                           label=np.full(n, LABELS[m.kind], np.uint8), object_id=np.zeros(n, np.uint32),
                           bypass_overlap=np.ones(n, bool))  # fmt: skip
+
+
+    def _seen_share(self, range_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The share of each drop's light (at ``range_m``, m) that reaches the detector. Cone overlap: a drop is in
+        the receiver's view or not, so the share O(r) of them is seen, at full strength (1 or 0). Defocused
+        overlap: each drop at a uniform place on the beam's disc gives the share of its blur disc on the field stop
+        (:func:`lidar_weather_sim.physics.overlap.point_share`); its mean over the disc is O(r)."""
+        if self.overlap_model == "cone" or self._optics is None:
+            return (rng.random(len(range_m)) < self._overlap(range_m)).astype(np.float64)
+        separation, fov, rx_radius = self._optics
+        rho = (self.exit_radius + range_m * np.tan(0.5 * self.divergence)) * np.sqrt(rng.random(len(range_m)))
+        phi = 2.0 * np.pi * rng.random(len(range_m))
+        lateral = np.hypot(rho * np.cos(phi) - separation, rho * np.sin(phi))
+        return point_share("defocus", lateral, range_m, fov, rx_radius)
 
 
 def _full_overlap_range(overlap, grid: np.ndarray) -> float:

@@ -70,6 +70,10 @@ class Optics(ConfigModel):
     receiver_fov_mrad: float | None = Field(None, gt=0, description="Full field of view of one receiver channel (mrad)")
     tx_aperture_radius_m: float = Field(0.0, ge=0, description="Radius of the beam at the sender's exit (m)")
     rx_aperture_radius_m: float = Field(0.0, ge=0, description="Radius of the receiver's aperture (m)")
+    overlap_model: Literal["cone", "defocus"] = Field(
+        "cone", description="Biaxial overlap of the physical atmosphere: the receiver's view as a cone from its whole "
+        "aperture (cone) or the aperture's blur on its field stop (defocus), lidar_weather_sim.physics.overlap"
+    )
 
     @property
     def subrays(self) -> int:
