@@ -112,7 +112,7 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
     ``street_gain`` (fitting); ``profile`` (a name in config/sensors or a YAML path) replaces the
     scenario's sensor, e.g. to see how its noise model acts on the 'with sun' rows; ``atmosphere_model``:
     the atmosphere region's (``physical``: the fit's reference weather from the drop-size distributions,
-    its class parameters only for the road)."""
+    its class parameters only for the road, and the sensor's cover term from :func:`cover_term`)."""
     overrides = dict(overrides or {})
     street_gain = overrides.pop("street_gain", None)
     sc = load_scenario(scenario)
@@ -130,6 +130,8 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
             if overrides:
                 region = _with_class_params(region, overrides)
         else:
+            if name == "cover" and atmosphere_model == "physical":
+                params.update(cover_term(fit))
             region = REGISTRY.create(name, params, context)
         regions.append((name, region))
     sim = LidarSimulator(profile, scene, regions=regions, seed=seed,
@@ -151,6 +153,16 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
         for name, (lo, hi) in REGIONS.items():
             xs[name].append(x[(x >= lo) & (x < hi)])
     return Condition(weather_class, sun, rows, {k: np.concatenate(v) for k, v in xs.items()})
+
+
+def cover_term(fit: FitFile) -> dict:
+    """The cover term of a physical-atmosphere rooftop run, as the cover region's ghost parameters: the sensor's own
+    near-field returns (multiple reflection in its window and housing, thesis lines 329, 498, 1626). The physical
+    atmosphere has none of its own. These are the fitted clear class's near field, which is cover multipath
+    (``cover_share`` 0.997): its rate times that share, range scale, median amplitude and log-sd."""
+    c = fit.classes["clear"]
+    return {"near_field_ghost_per_beam": c.rate_per_beam * c.cover_share, "near_field_scale_m": c.cover_scale_m,
+            "near_field_amplitude": c.amplitude_median, "near_field_sigma_ln": c.amplitude_sigma_ln}
 
 
 def _with_class_params(region, overrides: dict):
