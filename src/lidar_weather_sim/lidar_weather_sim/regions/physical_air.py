@@ -201,7 +201,6 @@ class PhysicalAir:
                           label=np.full(n, LABELS[m.kind], np.uint8), object_id=np.zeros(n, np.uint32),
                           bypass_overlap=np.ones(n, bool))  # fmt: skip
 
-
     def _seen_share(self, range_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The share of each drop's light (at ``range_m``, m) that reaches the detector. Cone overlap: a drop is in
         the receiver's view or not, so the share O(r) of them is seen, at full strength (1 or 0). Defocused
