@@ -72,12 +72,7 @@ def defocused_overlap(range_m: np.ndarray, separation_m: float, divergence_rad: 
         ux, uy = (rho[:, None] * np.cos(phi)).ravel(), (rho[:, None] * np.sin(phi)).ravel()
         b = beam[part, None]
         p = np.hypot(separation_m + b * ux, b * uy)  # (n, M) lateral distance of each beam point (m)
-        if rx_radius_m > 0:
-            v = np.broadcast_to(view[part, None], p.shape)
-            share = circle_overlap_area(np.full(p.shape, rx_radius_m), v, p) / (np.pi * rx_radius_m**2)
-        else:
-            share = (p <= view[part, None]).astype(np.float64)
-        out[part] = share.mean(axis=1)
+        out[part] = point_share("defocus", p, r[part, None], fov_rad, rx_radius_m).mean(axis=1)
     return np.clip(out, 0.0, 1.0).reshape(np.shape(range_m))
 
 
