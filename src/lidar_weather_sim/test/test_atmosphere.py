@@ -13,11 +13,11 @@ from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.experiments.reproduce import load_tables, simulate
 from lidar_weather_sim.regions.atmosphere import fit_path
-from lidar_weather_sim.regions.base import REGISTRY, RayBatch, RegionContext
+from lidar_weather_sim.regions.base import REGISTRY, RegionContext
 from lidar_weather_sim.regions.extinction import fog_alpha, rain_alpha, snow_alpha
 from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.sim.simulator import LidarSimulator
-from lidar_weather_sim.testing.fixtures import MATERIALS, one_frame, scene_of, simple_profile, wall
+from lidar_weather_sim.testing.fixtures import MATERIALS, beams_along_x, one_frame, scene_of, simple_profile, wall
 
 
 def test_plugins_are_registered_by_entry_point():
@@ -64,23 +64,13 @@ def test_fog_of_50_m_removes_returns_beyond_the_predicted_range(tmp_path):
         assert np.any(np.abs(clear["azimuth"]) < 1e-6)
 
 
-def _beams(n: int, hit_m: float) -> RayBatch:
-    """``n`` beams of 3 sub-rays along +x, each hitting a wall at ``hit_m`` (m)."""
-    d = np.zeros((n, 3, 3))
-    d[..., 0] = 1.0
-    return RayBatch(frame_index=0, origins=np.zeros((n, 3)), directions=d, sensor_directions=d.copy(),
-                    channel=np.zeros(n, np.int64), time_s=np.zeros(n), weights=np.full(3, 1.0 / 3),
-                    distance=np.full((n, 3), hit_m), normal=np.zeros((n, 3, 3)), material=np.zeros((n, 3), np.int64),
-                    object_id=np.zeros((n, 3), np.uint32), label=np.zeros((n, 3), np.uint8))  # fmt: skip
-
-
 def test_fog_with_rain_draws_each_weather_at_its_own_extinction():
     """Fog 50 m + rain 10 mm/h: the fog's and the rain's scatterers as each draws them alone (before, the rain
     class at the total extinction: ~20x its scatterers, all labelled rain), the total extinction, the rain's road."""
     profile = simple_profile()
     fog = {"fog": {"visual_range_m": 50.0}}
     rain = {"precipitation": {"type": "rain", "intensity_mm_h": 10.0}}
-    batch = _beams(20000, 30.0)
+    batch = beams_along_x(np.full(20000, 30.0))
 
     def drawn(weather: dict):
         region = REGISTRY.create("atmosphere", {}, RegionContext(profile, Weather.model_validate(weather), MATERIALS))

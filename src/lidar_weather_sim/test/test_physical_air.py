@@ -8,20 +8,9 @@ import pytest
 
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.physics.coefficients import medium
-from lidar_weather_sim.regions.base import RayBatch
 from lidar_weather_sim.regions.physical_air import NEAR_M, PhysicalAir
 from lidar_weather_sim.sensor.profile import load_profile
-
-
-def batch(hits: np.ndarray, subrays: int = 3) -> RayBatch:
-    n = len(hits)
-    d = np.zeros((n, subrays, 3))
-    d[..., 0] = 1.0
-    return RayBatch(frame_index=0, origins=np.zeros((n, 3)), directions=d, sensor_directions=d.copy(),
-                    channel=np.zeros(n, np.int64), time_s=np.zeros(n), weights=np.full(subrays, 1.0 / subrays),
-                    distance=np.repeat(hits[:, None], subrays, axis=1), normal=np.zeros((n, subrays, 3)),
-                    material=np.zeros((n, subrays), np.int64), object_id=np.zeros((n, subrays), np.uint32),
-                    label=np.zeros((n, subrays), np.uint8))  # fmt: skip
+from lidar_weather_sim.testing.fixtures import beams_along_x as batch
 
 
 def test_extinction_is_the_media_at_the_profiles_wavelength():

@@ -47,6 +47,11 @@ pair dimmed only the scene: fog 107 m behind dirt 0.66 then kept its full near-f
 behind it 242 far returns a frame where the simulator, which dims it, gives 920), and the gap search
 could not name the dirt (gap draw case 7).
 
+With an AC-coupled receiver (``detection.ac_coupling_tau_m`` > 0, :mod:`lidar_weather_sim.sensor.ac_coupling`)
+the volume terms (fog with its droplets placed one by one, the small drops) pass its high-pass before the pulse
+convolution, undershoot included; the scene's returns and the drops seen one by one keep the profile's pulse,
+which is fitted to measured echoes and so is the filtered pulse already.
+
 Limits (documented, not modelled): no multiple scattering, one return mode (``all``), a top-hat beam.
 """
 
@@ -55,7 +60,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import fftconvolve
+from scipy.signal import fftconvolve, lfilter
 
 from lidar_weather_sim.core.points import Label, ReturnType, empty_points
 from lidar_weather_sim.gap.effects import Effect
@@ -323,8 +328,11 @@ class ReferenceAtmosphere:
         parts = {}
         for lab, (b, r, a, vol) in self._particles(n, rng).items():
             seen = r < hit[b]
-            parts[lab] = cover * fftconvolve(np.where(in_front, vol, 0.0) + self._deposit(b[seen], r[seen], a[seen], n),
-                                             self.kernel[None, :], mode="same", axes=1)  # fmt: skip
+            volume, drops = np.where(in_front, vol, 0.0), self._deposit(b[seen], r[seen], a[seen], n)
+            if lab == Label.FOG:  # fog's droplets are a volume, one by one or not
+                volume, drops = volume + drops, 0.0
+            parts[lab] = cover * fftconvolve(self._ac_coupled(volume) + drops, self.kernel[None, :], mode="same",
+                                             axes=1)  # fmt: skip
         wave = scene + sum(parts.values())
         # echoes: runs above the threshold, nearest max_echoes per beam
         above = wave > self.threshold
@@ -410,6 +418,19 @@ class ReferenceAtmosphere:
             idx == first, ReturnType.FIRST, np.where(idx == last, ReturnType.LAST, ReturnType.SECOND)))  # fmt: skip
         out["return_type"] = rt.astype(np.uint8)
         return out
+
+    def _ac_coupled(self, density: np.ndarray) -> np.ndarray:
+        """(n, K) peaks per cell after the receiver's AC coupling (``detection.ac_coupling_tau_m``; 0: unchanged):
+        each cell's amount spread evenly over it, less what the high-pass's exponential tails of it and of the
+        cells before it put inside it. The undershoot stays in (negative cells)."""
+        tau = self.profile.detection.ac_coupling_tau_m
+        if tau <= 0:
+            return density
+        decay = np.exp(-self.dx / tau)
+        own = tau / self.dx * (1.0 - decay)  # share of a cell's amount that leaves it as tail
+        tail = lfilter([own], [1.0, -decay], density, axis=1)  # tail mass at each cell's far edge
+        before = np.pad(tail[:, :-1], ((0, 0), (1, 0)))
+        return density - (1.0 - decay) * before - (1.0 - own) * density
 
     def _deposit(self, beam: np.ndarray, r: np.ndarray, a: np.ndarray, n: int) -> np.ndarray:
         """(n, K) peaks of drops (beam index, range m, peak) shared linearly between the two nearest cell centres

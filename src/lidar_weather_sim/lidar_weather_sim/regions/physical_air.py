@@ -54,6 +54,7 @@ from lidar_weather_sim.physics.coefficients import Medium, medium
 from lidar_weather_sim.physics.overlap import OVERLAP_MODELS, point_share
 from lidar_weather_sim.regions.base import RayBatch, Scatterers
 from lidar_weather_sim.regions.volume_return import VolumeReturn
+from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M, dark_level
 
 NEAR_M = 5.0  # the near field (m), as the reference's
@@ -76,6 +77,7 @@ class PhysicalAir:
         self.alpha = sum(m.alpha for m in (self.fog, self.precip) if m is not None)
         self.power = float(det.power_constant)
         self.threshold = dark_level(det)
+        self.tau = float(det.ac_coupling_tau_m)
         self.r_max = float(profile.range.max_m)
         self.divergence = 1e-3 * float(np.sqrt(o.divergence_h_mrad * o.divergence_v_mrad))
         self.exit_radius = float(o.tx_aperture_radius_m)
@@ -137,6 +139,11 @@ class PhysicalAir:
             area = self.area(centres[near])
             # reflectance pi (summed sigma) / S: its sd pi sqrt(lam E[sigma^2]) / S, lam = number S h
             sd[near] = np.pi * np.sqrt(mean_s2 * area * width[near]) / area * overlap[near]
+        # the slabs' extents, and the share of a reflectance the echo stage makes a peak of (the LIDAR equation
+        # without C, overlap and weight): the AC coupling filters the peaks' density, not the reflectance
+        r = np.maximum(centres, MIN_RANGE_M)
+        self._slab_edges = (centres - 0.5 * width)[keep], (centres + 0.5 * width)[keep]
+        self._slab_gain = (np.exp(-2.0 * self.alpha * r) / (r * r))[keep]
         return centres[keep], (np.pi * beta * width * overlap)[keep], sd[keep], labels[keep]
 
     # -- per batch -----------------------------------------------------------------------------------
@@ -176,6 +183,11 @@ class PhysicalAir:
         if len(varies):
             reflectance = reflectance.copy()
             reflectance[varies] = np.maximum(refl[k[varies]] + sd[k[varies]] * rng.standard_normal(len(varies)), 0.0)
+        if self.tau > 0:
+            (lower, upper), gain = self._slab_edges, self._slab_gain[k]
+            reflectance = highpass_slabs(reflectance * gain, lower[k], upper[k], beam, self.tau) / gain
+            kept = reflectance > 0
+            beam, k, reflectance, n = beam[kept], k[kept], reflectance[kept], int(kept.sum())
         return Scatterers(beam=beam, subray=np.full(n, core), range_m=centres[k], reflectance=reflectance / weight,
                           occlusion=np.zeros(n), label=labels[k], object_id=np.zeros(n, np.uint32),
                           bypass_overlap=np.ones(n, bool))  # fmt: skip

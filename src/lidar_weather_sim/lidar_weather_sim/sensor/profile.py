@@ -108,6 +108,10 @@ class Detection(ConfigModel):
     intensity_dynamic_range: float = Field(
         1.0e4, gt=1, description="Peak amplitude ratio above the dark threshold mapped onto intensity 0-255 (log scale)"
     )
+    ac_coupling_tau_m: float = Field(
+        0.0, ge=0, description="Time constant of the receiver's AC coupling (first-order high-pass) in range units (m), "
+        "applied to the atmosphere's volume return (physical model and reference); 0: DC-coupled"
+    )
 
 
 class SensorProfile(ConfigModel):

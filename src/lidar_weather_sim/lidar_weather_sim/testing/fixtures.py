@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidar_weather_sim.regions.base import RayBatch
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh
 from lidar_weather_sim.scene.scene import Scene
@@ -75,3 +76,17 @@ def one_frame(sim, pose=None, start_s: float = 0.0):
     if len(frames) != 1:
         raise AssertionError(f"expected one frame, got {len(frames)}")
     return frames[0]
+
+
+def beams_along_x(hits_m: np.ndarray, subrays: int = 3) -> RayBatch:
+    """A region's ray batch: one beam per entry of ``hits_m`` along +x from the origin, ``subrays`` equal sub-rays
+    each hitting at that range (m; inf: nothing)."""
+    hits_m = np.asarray(hits_m, dtype=np.float64)
+    n = len(hits_m)
+    d = np.zeros((n, subrays, 3))
+    d[..., 0] = 1.0
+    return RayBatch(frame_index=0, origins=np.zeros((n, 3)), directions=d, sensor_directions=d.copy(),
+                    channel=np.zeros(n, np.int64), time_s=np.zeros(n), weights=np.full(subrays, 1.0 / subrays),
+                    distance=np.repeat(hits_m[:, None], subrays, axis=1), normal=np.zeros((n, subrays, 3)),
+                    material=np.zeros((n, subrays), np.int64), object_id=np.zeros((n, subrays), np.uint32),
+                    label=np.zeros((n, subrays), np.uint8))  # fmt: skip
