@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from lidar_weather_sim.core.points import Label, empty_points
+from lidar_weather_sim.core.points import Label, ReturnType, empty_points
 from lidar_weather_sim.gap.effects import parse_effect
 from lidar_weather_sim.gap.hahner import KOSCHMIEDER, HahnerFog
 from lidar_weather_sim.gap.measured import make_measured
@@ -152,12 +152,15 @@ def test_unsampled_beams_keep_their_return_attenuated(scala4):
 
 
 def test_hahner_attenuates_every_return_by_beer_lambert(scala4):
-    fog = HahnerFog(scala4, 300.0)
+    """Hahner's single-return rule (a sensor reporting its strongest echo): strong returns stay, attenuated."""
+    strongest = scala4.model_copy(update={"detection": scala4.detection.model_copy(update={"return_mode": "strongest"})})
+    fog = HahnerFog(strongest, 300.0)
     alpha = KOSCHMIEDER / 300.0
     ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
     ranges = np.array([2.0, 5.0, 10.0, 20.0, 40.0])
     a = np.full(len(ranges), 1e4 * fog.threshold)  # strong returns: above the soft echo
     pts = _points(ref, ranges, a)
+    pts["time_stamp"] = np.arange(len(ranges))  # five beams
     out = fog.apply(pts, np.random.default_rng(0))
     assert len(out) == len(ranges) and np.all(out["label"] == Label.STATIC)
     np.testing.assert_allclose(out["epw"], epw_of(a * np.exp(-2.0 * alpha * ranges), fog.threshold, fog.sigma),
@@ -174,6 +177,29 @@ def test_hahner_soft_echo_replaces_weak_returns_and_grows_with_alpha(scala4):
     ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
     out = thick.apply(_points(ref, [30.0], [2.0 * thick.threshold]), np.random.default_rng(0))
     assert len(out) == 1 and out["label"][0] == Label.FOG and out["distance"][0] < 10.0
+
+
+def test_hahner_on_a_sensor_reporting_every_echo_adds_the_soft_echo_before_the_hard_returns(scala4):
+    """scala4 reports every echo (up to 3): a beam with two strong returns behind the soft echo keeps both as echoes
+    2 and 3; a beam with three keeps the nearer two; a beam whose return lies before the soft echo gets none; a weak
+    return lost to extinction leaves the soft echo alone (IDENTICAL). Echo numbers and return types renumbered."""
+    fog = HahnerFog(scala4, 40.0)
+    ref = ReferenceAtmosphere(scala4, Atmosphere(fog_m=1e5))
+    strong = 1e4 * fog.threshold
+    assert fog.soft_peak > fog.threshold and fog.soft_range_m < 8.0
+    ranges = [10.0, 20.0, 12.0, 15.0, 18.0, 0.3, 30.0]
+    amplitudes = [strong, strong, strong, strong, strong, strong, 1.5 * fog.threshold]
+    pts = _points(ref, ranges, amplitudes)
+    pts["time_stamp"] = [1, 1, 2, 2, 2, 3, 4]
+    out = fog.apply(pts, np.random.default_rng(0))
+    by_beam = {int(t): out[out["time_stamp"] == t] for t in (1, 2, 3, 4)}
+    for t, hard in ((1, [10.0, 20.0]), (2, [12.0, 15.0])):
+        b = by_beam[t]
+        assert list(b["label"]) == [Label.FOG, Label.STATIC, Label.STATIC] and list(b["echo"]) == [1, 2, 3]
+        np.testing.assert_allclose(b["distance"][1:], hard, rtol=1e-6)
+        assert list(b["return_type"]) == [ReturnType.FIRST, ReturnType.SECOND, ReturnType.LAST]
+    assert list(by_beam[3]["label"]) == [Label.STATIC]  # the cover-range return lies before the soft echo
+    assert list(by_beam[4]["label"]) == [Label.FOG] and by_beam[4]["return_type"][0] == ReturnType.IDENTICAL
 
 
 def test_make_measured_reference_writes_a_readable_bag_with_weather_labels(tmp_path):

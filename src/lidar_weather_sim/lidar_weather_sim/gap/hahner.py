@@ -21,13 +21,20 @@ cloud (it needs no scene, only the points):
   the soft point), with the soft peak's intensity and EPW (label FOG).
 
 Beams without a return stay empty (the method works on existing points only), as in the paper.
+
+**Return mode.** Hahner et al. worked on a single-return sensor (a Velodyne HDL-64 reporting its strongest
+echo), where the soft echo replaces the hard return it beats (the rule above). A sensor reporting every echo
+(``detection.return_mode: all``, scala4's) reports both: there the soft echo is added to its beam as the first
+echo when it beats the threshold and lies before the beam's nearest return, the hard returns above the
+threshold stay as later echoes, and the nearest ``max_echoes`` are kept (echo numbers and return types
+renumbered). A beam is a channel's firing: its points share channel and time stamp.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from lidar_weather_sim.core.points import Label
+from lidar_weather_sim.core.points import Label, ReturnType
 from lidar_weather_sim.gap.reference import epw_of, intensity_bytes, scene_pulses
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold, dark_level
@@ -68,12 +75,45 @@ class HahnerFog:
         return float(r[i]), float(s[i])
 
     def apply(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """``points`` (the project's layout) in this fog: hard returns attenuated, soft echoes replacing them."""
+        """``points`` (the project's layout) in this fog: hard returns attenuated, soft echoes replacing them
+        (single return) or added before them (return mode ``all``; module doc)."""
         d = points["distance"].astype(np.float64)
         hard, width = scene_pulses(points, self.threshold, self.sigma, self.dark, self.log_span)
         hard = hard * np.exp(-2.0 * self.alpha * d)
+        if self.profile.detection.return_mode == "all":
+            return self._every_echo(points, d, hard, width, rng)
         soft = (self.soft_peak > hard) & (self.soft_peak > self.threshold) & (self.soft_range_m < d)
-        keep = soft | (hard > self.threshold)
+        return self._write(points, hard, width, soft, soft | (hard > self.threshold), rng)
+
+    def _every_echo(self, points, d, hard, width, rng) -> np.ndarray:
+        """Return mode ``all``: each beam's soft echo before its returns, the hard returns above the threshold behind."""
+        beam = points["channel"].astype(np.int64) << 32 | points["time_stamp"].astype(np.int64)
+        keys, first, inverse = np.unique(beam, return_index=True, return_inverse=True)
+        nearest = np.full(len(keys), np.inf)
+        np.minimum.at(nearest, inverse, d)
+        foggy = (self.soft_peak > self.threshold) & (self.soft_range_m < nearest)
+        # the soft echo of a beam: a copy of one of its points (direction, channel, time), moved by _write
+        rows = np.concatenate([np.flatnonzero(hard > self.threshold), first[foggy]])
+        soft = np.zeros(len(rows), bool)
+        soft[len(rows) - int(foggy.sum()):] = True
+        out = self._write(points[rows], hard[rows], width[rows], soft, np.ones(len(rows), bool), rng)
+        order = np.lexsort((out["distance"], beam[rows]))
+        out, beam = out[order], beam[rows][order]
+        start = np.searchsorted(beam, beam, side="left")
+        rank = np.arange(len(out)) - start
+        kept = rank < self.profile.detection.max_echoes
+        out, beam, rank = out[kept], beam[kept], rank[kept]
+        last = np.searchsorted(beam, beam, side="right") - 1 - np.searchsorted(beam, beam, side="left")
+        if "echo" in (out.dtype.names or ()):
+            out["echo"] = rank + 1
+        if "return_type" in (out.dtype.names or ()):
+            out["return_type"] = np.where(last == 0, ReturnType.IDENTICAL, np.where(
+                rank == 0, ReturnType.FIRST, np.where(rank == last, ReturnType.LAST, ReturnType.SECOND)))  # fmt: skip
+        return out
+
+    def _write(self, points, hard, width, soft, keep, rng) -> np.ndarray:
+        """The ``keep`` points of ``points``, ``soft`` ones as fog points at the soft echo, the rest with their
+        attenuated peaks ``hard``."""
         out = points[keep].copy()
         hard, soft, width = hard[keep], soft[keep], width[keep]
         amp = np.where(soft, self.soft_peak, hard)
