@@ -10,9 +10,9 @@ from scipy.integrate import cumulative_trapezoid
 from lidar_weather_sim.regions.physical_air import PhysicalAir
 from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
 from lidar_weather_sim.sensor.echo import detect_echoes
-from lidar_weather_sim.sensor.profile import SensorProfile, load_profile
+from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import Threshold, peak_amplitude
-from lidar_weather_sim.testing.fixtures import beams_along_x
+from lidar_weather_sim.testing.fixtures import beams_along_x, receiver_variant
 
 
 def brute_force_highpass(density, r: np.ndarray, tau: float) -> np.ndarray:
@@ -70,20 +70,13 @@ def first_echoes(profile: SensorProfile, visual_range_m: float, n_beams: int = 3
     return len(first) / n_beams, float(np.median(e.range_m[first])), float(np.median(e.epw_m[first]))
 
 
-def coupled(tau: float, overlap_model: str = "defocus") -> SensorProfile:
-    data = load_profile("scala4").model_dump()
-    data["optics"]["overlap_model"] = overlap_model
-    data["detection"]["ac_coupling_tau_m"] = tau
-    return SensorProfile.model_validate(data)
-
-
 def test_ac_coupling_turns_fogs_long_volume_echo_into_a_short_near_one():
     """scala4's optics with the aperture's defocus. DC-coupled, fog at 30 m and at 2 km visual range gives every beam
     one echo 5-12 m long starting in the near field. AC-coupled (tau 0.1 m) the dense fog's echo is its rise only,
     ~2 m long near 1.2 m (Hahner et al. 2021 measured a soft echo of ~1.5 m EPW near 1.1 m in their fog chamber),
     and fog of 2 km visual range falls below the threshold."""
-    dc_dense, dc_thin = first_echoes(coupled(0.0), 30.0), first_echoes(coupled(0.0), 2000.0)
+    dc_dense, dc_thin = first_echoes(receiver_variant("scala4", "defocus", 0.0), 30.0), first_echoes(receiver_variant("scala4", "defocus", 0.0), 2000.0)
     assert dc_dense[0] == dc_thin[0] == 1.0 and dc_dense[2] > 10.0 and dc_thin[2] > 5.0
-    share, range_m, epw = first_echoes(coupled(0.1), 30.0)
+    share, range_m, epw = first_echoes(receiver_variant("scala4", "defocus", 0.1), 30.0)
     assert share == 1.0 and 0.9 < range_m < 1.5 and 1.2 < epw < 2.5
-    assert first_echoes(coupled(0.1), 2000.0)[0] < 0.05
+    assert first_echoes(receiver_variant("scala4", "defocus", 0.1), 2000.0)[0] < 0.05

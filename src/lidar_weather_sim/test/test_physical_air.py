@@ -11,6 +11,10 @@ from lidar_weather_sim.physics.coefficients import medium
 from lidar_weather_sim.regions.physical_air import NEAR_M, PhysicalAir
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.testing.fixtures import beams_along_x as batch
+from lidar_weather_sim.testing.fixtures import receiver_variant
+
+#: scala4's optics before its receiver: the cone overlap (a drop seen wholly or not) and a DC-coupled volume
+SCALA4_CONE_DC = receiver_variant("scala4", "cone", 0.0)
 
 
 def test_extinction_is_the_media_at_the_profiles_wavelength():
@@ -20,7 +24,7 @@ def test_extinction_is_the_media_at_the_profiles_wavelength():
 
 
 def test_rain_drops_are_seeded_in_front_of_the_hit_and_as_many_as_the_beam_volume_holds():
-    air = PhysicalAir(load_profile("scala4"), None, ("rain", 10.0))
+    air = PhysicalAir(SCALA4_CONE_DC, None, ("rain", 10.0))
     hits = np.where(np.arange(4000) % 2 == 0, 8.0, np.inf)
     a = air.scatterers(batch(hits), np.random.default_rng(3))
     b = air.scatterers(batch(hits), np.random.default_rng(3))
@@ -37,7 +41,7 @@ def test_rain_drops_are_seeded_in_front_of_the_hit_and_as_many_as_the_beam_volum
 
 
 def test_fog_gives_every_beam_its_volume_return_up_to_the_hit():
-    air = PhysicalAir(load_profile("scala4"), 50.0, None)
+    air = PhysicalAir(SCALA4_CONE_DC, 50.0, None)
     out = air.scatterers(batch(np.array([3.0, 40.0, np.inf])), np.random.default_rng(0))
     assert set(out.label) == {Label.FOG} and out.bypass_overlap.all() and not out.occlusion.any()
     per_beam = np.bincount(out.beam, minlength=3)
@@ -45,7 +49,7 @@ def test_fog_gives_every_beam_its_volume_return_up_to_the_hit():
     assert out.range_m[out.beam == 0].max() < 3.0
     # haze: the same slabs, each as strong as its backscatter (beta) is (beyond the near field, where the slabs
     # do not fluctuate from beam to beam)
-    haze = PhysicalAir(load_profile("scala4"), 5000.0, None).scatterers(batch(np.array([40.0])), np.random.default_rng(0))
+    haze = PhysicalAir(SCALA4_CONE_DC, 5000.0, None).scatterers(batch(np.array([40.0])), np.random.default_rng(0))
     fog = (out.beam == 1) & (out.range_m > NEAR_M)
     common = np.isin(out.range_m[fog], haze.range_m)
     ratio = haze.reflectance[np.isin(haze.range_m, out.range_m[fog])] / out.reflectance[fog][common]
@@ -60,7 +64,7 @@ def test_near_field_fog_slabs_fluctuate_as_the_droplets_in_them(profile, visual_
     through O(r)). Each droplet takes the Mie cross-section of the nearest diameter of the medium's grid (the
     grid the model integrates on: between its nodes the resonances are not resolved, and interpolating there
     smooths them, lowering E[sigma^2] by ~20 %). Mean within 2 %, standard deviation within 10 %."""
-    prof = load_profile(profile)
+    prof = receiver_variant(profile, ac_coupling_tau_m=0.0)  # the slabs before the receiver
     air = PhysicalAir(prof, visual_range_m, None)
     n_beams = 4000
     out = air.scatterers(batch(np.full(n_beams, np.inf)), np.random.default_rng(5))

@@ -13,7 +13,7 @@ from lidar_weather_sim.regions.base import RayBatch
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh
 from lidar_weather_sim.scene.scene import Scene
-from lidar_weather_sim.sensor.profile import SensorProfile
+from lidar_weather_sim.sensor.profile import SensorProfile, load_profile
 
 MATERIALS = MaterialTable.default()
 
@@ -90,3 +90,16 @@ def beams_along_x(hits_m: np.ndarray, subrays: int = 3) -> RayBatch:
                     distance=np.repeat(hits_m[:, None], subrays, axis=1), normal=np.zeros((n, subrays, 3)),
                     material=np.zeros((n, subrays), np.int64), object_id=np.zeros((n, subrays), np.uint32),
                     label=np.zeros((n, subrays), np.uint8))  # fmt: skip
+
+
+def receiver_variant(name: str, overlap_model: str | None = None, ac_coupling_tau_m: float | None = None) -> SensorProfile:
+    """Profile ``name`` with another overlap model (``cone`` | ``defocus``) and / or AC-coupling time constant (m;
+    0: DC-coupled), named after them: e.g. scala4's optics before its receiver, ``receiver_variant("scala4", "cone", 0)``."""
+    data = load_profile(name).model_dump(mode="json")
+    if overlap_model is not None:
+        data["optics"]["overlap_model"] = overlap_model
+        data["name"] += f"_{overlap_model}"
+    if ac_coupling_tau_m is not None:
+        data["detection"]["ac_coupling_tau_m"] = float(ac_coupling_tau_m)
+        data["name"] += f"_{ac_coupling_tau_m:g}"
+    return SensorProfile.model_validate(data)
