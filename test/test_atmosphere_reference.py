@@ -290,18 +290,23 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, 
     assert np.corrcoef(*hist)[0, 1] >= 0.85, np.corrcoef(*hist)[0, 1]
 
 
-def test_gap_with_the_physical_model_names_the_reference_fog_and_fits_its_visual_range(tmp_path):
-    """Fog made by the reference (written apart from the simulator): `gap --atmosphere-model physical` names
-    atmosphere.fog alone, its visual range within 25 %, and at least halves the held-out gap."""
+@pytest.mark.parametrize("generator, visual_range_m", [("reference", 60.0), ("hahner", 90.0)])
+def test_gap_with_the_physical_model_names_the_generators_fog_and_fits_its_visual_range(generator, visual_range_m,
+                                                                                       tmp_path):  # fmt: skip
+    """Fog made by the reference or by the Hahner et al. generator (both written apart from the simulator):
+    `gap --atmosphere-model physical` names atmosphere.fog alone, its visual range within 25 %, and at least
+    halves the held-out gap. The Hahner fog was named in none of the draw's 4 cases while scala4's receiver was
+    DC-coupled with the cone overlap (its fog echo 12-16 m long, the generator's ~1.5 m) and the generator
+    replaced hard returns as a single-return sensor does (docs/atmosphere_reference.md, session 31)."""
     from lidar_weather_sim.gap.command import run_gap
 
     scenario = load_scenario("highway_clear")
-    make_measured(scenario, [parse_effect("atmosphere.fog:visual_range=60")], tmp_path / "measured", frames=24,
-                  generator="reference")  # fmt: skip
+    make_measured(scenario, [parse_effect(f"atmosphere.fog:visual_range={visual_range_m}")], tmp_path / "measured",
+                  frames=24, generator=generator)  # fmt: skip
     result = run_gap(tmp_path / "measured", scenario, tmp_path / "gap", atmosphere_model="physical", fit_frames=8,
                      heldout_frames=8, screen_frames=2)  # fmt: skip
     (fog,) = result["effects"]
-    assert fog["name"] == "atmosphere.fog" and fog["params"]["visual_range"] == pytest.approx(60.0, rel=0.25)
+    assert fog["name"] == "atmosphere.fog" and fog["params"]["visual_range"] == pytest.approx(visual_range_m, rel=0.25)
     assert result["gap_after"] <= 0.5 * result["gap_before"]
     patched = yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text())
     assert patched["region_params"]["atmosphere"]["model"] == "physical"  # what `run` then simulates
