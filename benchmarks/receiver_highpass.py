@@ -1,5 +1,5 @@
-"""What an AC-coupled receiver, or the aperture's defocus, would make of fog's volume return (issue 22's
-receiver model, not built).
+"""What an AC-coupled receiver, or the aperture's defocus, makes of fog's volume return (issue 22's receiver
+model; the simulator's is :mod:`lidar_weather_sim.sensor.ac_coupling`, applied to the volume only).
 
 The physical atmosphere (``regions/physical_air.py``) and the reference both give, in fog, one echo per
 beam 12-16 m wide, where the thesis measured a 0.94 m EPW in 0-5 m (Table 3). A receiver front end that is
@@ -11,10 +11,11 @@ pulse and thresholds it at the dark threshold, as the echo stage does; and it re
 start, peak and EPW per visual range and tau, with the EPW a hard target's lone pulse at 10x the threshold
 then has (with and without the filter) beside it.
 
-``--overlap defocus`` replaces the profile's overlap by :func:`lidar_weather_sim.physics.overlap.defocused_overlap`
-on the same optics (the receiver aperture's blur on its field stop, which the cone model of
+``--overlap cone|defocus`` sets the profile's overlap model (default: its own; scala4 ships ``defocus``, the
+receiver aperture's blur on its field stop, which the cone model of
 :func:`~lidar_weather_sim.physics.overlap.biaxial_overlap` leaves out); the overlap itself is printed first at
-a few ranges.
+a few ranges. Here the high-pass also acts on the lone target's pulse (the simulator's fitted pulse already is
+the filtered one).
 
     python benchmarks/receiver_highpass.py [--profile scala4] [--taus 0,0.25,0.5,1,2,4] [--ranges 30,100,500]
         [--overlap cone|defocus]
@@ -24,14 +25,12 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
-from functools import partial
 
 import numpy as np
 from scipy.signal import lfilter
 
-from lidar_weather_sim.physics.overlap import defocused_overlap
 from lidar_weather_sim.regions.physical_air import PhysicalAir
-from lidar_weather_sim.sensor.profile import load_profile
+from lidar_weather_sim.testing.fixtures import receiver_variant
 
 DR = 0.005  # grid step (m)
 OVERLAP_RANGES_M = (0.5, 0.7, 1.0, 1.4, 1.8, 2.5, 3.5, 5.0, 7.0, 10.0, 20.0)
@@ -55,27 +54,18 @@ def first_echo(r: np.ndarray, w: np.ndarray, thr: float) -> tuple[float, float, 
     return r[run[0]], r[run[np.argmax(w[run])]], r[run[-1]] - r[run[0]]
 
 
-def defocused(profile, air: PhysicalAir):
-    """The profile's optics' overlap with the aperture's defocus (:func:`defocused_overlap`)."""
-    o = profile.optics
-    return partial(defocused_overlap, separation_m=o.lens_separation_m, divergence_rad=air.divergence,
-                   fov_rad=1e-3 * o.receiver_fov_mrad, tx_radius_m=o.tx_aperture_radius_m,
-                   rx_radius_m=o.rx_aperture_radius_m)  # fmt: skip
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default="scala4")
     parser.add_argument("--taus", default="0,0.25,0.5,1,2,4", help="high-pass time constants, m of range (0: none)")
     parser.add_argument("--ranges", default="30,100,500", help="fog visual ranges (m)")
-    parser.add_argument("--overlap", choices=("cone", "defocus"), default="cone",
-                        help="the profile's overlap (cone) or the same optics with the aperture's defocus")
+    parser.add_argument("--overlap", choices=("cone", "defocus"),
+                        help="the profile's optics with this overlap model (default: the profile's own)")
     args = parser.parse_args()
-    profile = load_profile(args.profile)
+    profile = receiver_variant(args.profile, args.overlap, 0.0)  # the volume before any receiver filter
     r = np.arange(0.0, 60.0, DR)
-    air0 = PhysicalAir(profile, 500.0, None)
-    volume = air0.volume if args.overlap == "cone" else replace(air0.volume, overlap_fn=defocused(profile, air0))
-    print(f"{args.profile} overlap ({args.overlap}): " + ", ".join(
+    volume = PhysicalAir(profile, 500.0, None).volume
+    print(f"{args.profile} overlap ({profile.optics.overlap_model}): " + ", ".join(
         f"{x:g} m {o:.3f}" for x, o in zip(OVERLAP_RANGES_M, volume.overlap(np.array(OVERLAP_RANGES_M)))))
     print(f"{args.profile}: pulse FWHM {profile.pulse.fwhm_m} m; first echo of the fog's volume return "
           "(start / peak / EPW, m; peak over threshold) and a lone hard-target pulse at 10x threshold (EPW, m)")
