@@ -1,10 +1,10 @@
 """How dense the thesis' rooftop fog can have been for the physical atmosphere (issue 22, item 3).
 
-The rooftop fog's visual range was never measured: the fit (``config/atmosphere_fit.yaml``, ``reference``)
-assumes 500 m. Its near field (paper 2 Table 3, fog, 0-5 m) holds 313 +- 55 detections a frame without sun,
+The rooftop fog's visual range was never measured: the physical runs' states (``config/rooftop_physical.yaml``,
+fitted by ``benchmarks/fit_physical_rooftop.py``) hold ~2.8 km. Its near field (paper 2 Table 3, fog, 0-5 m) holds 313 +- 55 detections a frame without sun,
 EPW 0.94 m, barely above the clear nights' 244, which the thesis puts on the cover (lines 329, 498, 1626).
 This script runs ``lidar_weather_sim.experiments.reproduce.simulate`` with the physical atmosphere
-(``atmosphere_model="physical"``, no cover term) on the rooftop fog rows at each visual range of
+(``atmosphere_model="physical"``, with the states' window ghosts) on the rooftop fog rows at each visual range of
 ``--ranges`` and prints the atmosphere region's n_total, n_peak, x_sigma and EPW and the street's n_e2 beside
 the paper's, to show at which fog density the single-scattering volume return stops filling every beam.
 The physical model takes a visual range of 10 km or more as clear air
@@ -16,15 +16,12 @@ The physical model takes a visual range of 10 km or more as clear air
 from __future__ import annotations
 
 import argparse
-import tempfile
-from pathlib import Path
 
 import numpy as np
-import yaml
 
 from lidar_weather_sim.experiments.reproduce import load_tables, simulate
+from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states
 from lidar_weather_sim.gap.features import summarize
-from lidar_weather_sim.regions.atmosphere import fit_path
 
 ATMOSPHERE = ("n_total", "n_peak", "x_sigma", "epw_mean")
 PAPER = {"n_total": "n_total", "n_peak": "n_peak", "x_sigma": "x_sigma_cm", "epw_mean": "epw_m"}
@@ -34,13 +31,11 @@ def row(cells: list[str]) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
-def fit_file_at(visual_range_m: float, directory: Path) -> str:
-    """A copy of the atmosphere fit whose reference fog is ``visual_range_m`` (m)."""
-    fit = yaml.safe_load(fit_path().read_text())
-    fit["reference"]["fog_visual_range_m"] = float(visual_range_m)
-    path = directory / f"fit_{visual_range_m:g}.yaml"
-    path.write_text(yaml.safe_dump(fit))
-    return str(path)
+def states_at(visual_range_m: float) -> RooftopStates:
+    """The shipped rooftop states with the fog class's visual range set to ``visual_range_m`` (m)."""
+    data = load_states().model_dump()
+    data["classes"]["fog"]["fog_visual_range_m"] = float(visual_range_m)
+    return RooftopStates.model_validate(data)
 
 
 def main() -> None:
@@ -57,16 +52,14 @@ def main() -> None:
         paper = [tables["atmosphere_region"][PAPER[f]]["fog"][key] for f in ATMOSPHERE]
         paper.append(tables["street_region"]["n_e2"]["fog"][key])
         print(row(["paper", "w" if sun else "w/o", *(f"{m:g} +- {s:g}" for m, s in paper)]))
-    with tempfile.TemporaryDirectory() as tmp:
-        for visual_range in (float(v) for v in args.ranges.split(",")):
-            for sun in (False, True):
-                c = simulate("fog", sun, args.frames, args.seed, fit_file_at(visual_range, Path(tmp)),
-                             atmosphere_model="physical")  # fmt: skip
-                near = summarize([f["atmosphere"] for f in c.frames])
-                street = summarize([f["street"] for f in c.frames])
-                cells = [near[f][0] * (100.0 if f == "x_sigma" else 1.0) for f in ATMOSPHERE] + [street["n_e2"][0]]
-                print(row([f"{visual_range:g}", "w" if sun else "w/o",
-                           *("n/a" if not np.isfinite(v) else f"{v:.3g}" for v in cells)]), flush=True)  # fmt: skip
+    for visual_range in (float(v) for v in args.ranges.split(",")):
+        for sun in (False, True):
+            c = simulate("fog", sun, args.frames, args.seed, atmosphere_model="physical", states=states_at(visual_range))
+            near = summarize([f["atmosphere"] for f in c.frames])
+            street = summarize([f["street"] for f in c.frames])
+            cells = [near[f][0] * (100.0 if f == "x_sigma" else 1.0) for f in ATMOSPHERE] + [street["n_e2"][0]]
+            print(row([f"{visual_range:g}", "w" if sun else "w/o",
+                       *("n/a" if not np.isfinite(v) else f"{v:.3g}" for v in cells)]), flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

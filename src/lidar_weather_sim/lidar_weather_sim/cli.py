@@ -438,8 +438,11 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--fit-file", help="atmosphere parameters, e.g. from benchmarks/fit_atmosphere.py --out "
                                               "(default config/atmosphere_fit.yaml)")
     reproduce.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, default="fitted",
-                           help="the atmosphere region's model (physical: the fit's reference fog, rain and snow from "
+                           help="the atmosphere region's model (physical: fog, rain and snow of --states from "
                                 "their drop-size distributions; default fitted)")
+    reproduce.add_argument("--states", help="physical model: the weather, street and window states per class, e.g. "
+                                            "from benchmarks/fit_physical_rooftop.py --out (default "
+                                            "config/rooftop_physical.yaml)")
     reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.experiments.reproduce", fromlist=["main"]).main(a))
 
     measured = commands.add_parser("make-measured", help="render 'measured' data with hidden effects and nuisance")

@@ -12,6 +12,7 @@ import yaml
 from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.experiments.reproduce import load_tables, simulate
+from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states
 from lidar_weather_sim.regions.atmosphere import fit_path
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
 from lidar_weather_sim.regions.extinction import fog_alpha, rain_alpha, snow_alpha
@@ -182,10 +183,12 @@ def test_reproduce_rooftop_takes_another_sensor_profile_and_fit_file(tmp_path, c
 #: not to pass: clear air lost its fitted "dust" path scatterers, which matched the clear-night street
 #: but put ~1000 noise points into every clear scala4 driving frame.)
 MATCHED_AT_10_FRAMES = 64
+#: the same for the physical atmosphere with config/rooftop_physical.yaml, of the 80 means of Tables 3-4
+PHYSICAL_MATCHED_AT_10_FRAMES = 53
 
 
 def test_reproduce_rooftop_runs_the_physical_atmosphere_without_the_fitted_near_field(tmp_path, cli):
-    """``--atmosphere-model physical``: the fit's reference fog from its drop-size distribution; the class's fitted
+    """``--atmosphere-model physical``: the states' fog from its drop-size distribution; the class's fitted
     near-field rate no longer acts (it does on the fitted model)."""
     fit = yaml.safe_load(fit_path().read_text())
     fit["classes"]["fog"]["rate_per_beam"] *= 3.0
@@ -204,14 +207,44 @@ def test_reproduce_rooftop_runs_the_physical_atmosphere_without_the_fitted_near_
 
 
 def test_physical_rooftop_clear_nights_get_the_sensors_cover_term():
-    """The physical atmosphere has no cover returns of its own; its rooftop runs take the sensor's cover term
-    (``reproduce.cover_term``, the cover region's ghosts): the clear night's near field then holds the paper's
-    244 +- 16 detections a frame (0 without it), and fewer under the sun's raised threshold."""
+    """The physical atmosphere has no cover returns of its own; its rooftop runs take the window's ghosts of
+    config/rooftop_physical.yaml (the cover region's): the clear night's near field then holds the paper's
+    244 +- 16 detections a frame (0 without them), and fewer under the sun's raised threshold."""
     paper, sigma = load_tables()["atmosphere_region"]["n_total"]["clear"]["sun_false"]
     night = _mean(simulate("clear", False, 4, seed=3, atmosphere_model="physical"), "atmosphere", "n_total")
     day = _mean(simulate("clear", True, 4, seed=3, atmosphere_model="physical"), "atmosphere", "n_total")
     assert abs(night - paper) <= sigma, night
     assert day < 0.7 * night
+
+
+def test_physical_rooftop_takes_the_weather_and_the_window_from_its_states():
+    """The rain class's rate and wet window come from the states: doubling the window's ghosts (0.1 -> 0.2 a beam)
+    doubles the near field's cover peak (0-0.5 m), and 20 mm/h of rain instead of a drizzle puts drops over
+    0.5-5 m, widening the near field."""
+    states = load_states()
+
+    def rain(**changes):
+        data = states.model_dump()
+        data["classes"]["rain"].update({"precipitation_mm_h": 0.1, "window_ghosts_per_beam": 0.1, **changes})
+        return simulate("rain", False, 6, seed=2, atmosphere_model="physical", states=RooftopStates.model_validate(data))
+
+    base, wet, heavy = rain(), rain(window_ghosts_per_beam=0.2), rain(precipitation_mm_h=20.0)
+    cover = [int(np.sum(c.x["atmosphere"] < 0.5)) for c in (base, wet)]
+    assert 1.7 < cover[1] / cover[0] < 2.3, cover
+    assert _mean(heavy, "atmosphere", "x_sigma") > 3 * _mean(base, "atmosphere", "x_sigma")
+
+
+def test_physical_rooftop_reproduction_matches_at_least_the_recorded_number_of_paper_means(tmp_path):
+    """``reproduce rooftop --atmosphere-model physical`` with config/rooftop_physical.yaml
+    (benchmarks/fit_physical_rooftop.py --columns all) on a seed the fit did not use."""
+    from lidar_weather_sim.experiments.reproduce import reproduce_rooftop, within_sigma
+
+    rows = reproduce_rooftop(tmp_path, frames=10, seed=0, plots=False, atmosphere_model="physical")
+    regions = [within_sigma(r) for r in rows if r["region"] != "both" and within_sigma(r) is not None]
+    assert len(regions) == 80
+    assert sum(regions) >= PHYSICAL_MATCHED_AT_10_FRAMES, [
+        (r["weather"], r["sun"], r["region"], r["parameter"], r["sim_mean"], r["paper_mean"]) for r in rows if within_sigma(r) is False
+    ]
 
 
 def test_rooftop_reproduction_matches_at_least_the_recorded_number_of_paper_means(tmp_path):

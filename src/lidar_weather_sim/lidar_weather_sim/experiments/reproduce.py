@@ -25,6 +25,7 @@ import yaml
 
 from lidar_weather_sim.core.config import load_yaml
 from lidar_weather_sim.experiments.rooftop import ATMOSPHERE_REGION_M, STREET_REGION_X_M, RooftopPose, bounded_lot_scene
+from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states
 from lidar_weather_sim.gap.features import FEATURES, UNITS, frame_features, summarize
 from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, FitFile, fit_path
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
@@ -107,19 +108,25 @@ class Condition:
 
 def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file: str | None = None,
              scenario: str = "rooftop_static", overrides: dict | None = None,
-             profile: str | None = None, atmosphere_model: str = "fitted") -> Condition:  # fmt: skip
+             profile: str | None = None, atmosphere_model: str = "fitted",
+             states: RooftopStates | None = None) -> Condition:  # fmt: skip
     """Per-frame features of one condition; ``overrides`` replace atmosphere class parameters and
     ``street_gain`` (fitting); ``profile`` (a name in config/sensors or a YAML path) replaces the
     scenario's sensor, e.g. to see how its noise model acts on the 'with sun' rows; ``atmosphere_model``:
-    the atmosphere region's (``physical``: the fit's reference weather from the drop-size distributions,
-    its class parameters only for the road, and the sensor's cover term from :func:`cover_term`)."""
+    the atmosphere region's (``physical``: the weather, street and window of the class from ``states``,
+    default config/rooftop_physical.yaml, :mod:`lidar_weather_sim.experiments.rooftop_states`)."""
     overrides = dict(overrides or {})
     street_gain = overrides.pop("street_gain", None)
     sc = load_scenario(scenario)
     profile = load_profile(profile or sc.sensor.profile)
     fit = load_yaml(fit_file or fit_path(), FitFile)
     scene = lot_scene(MaterialTable.default(), fit.street_gain if street_gain is None else street_gain)
-    context = RegionContext(profile, reference_weather(weather_class, fit), scene.materials)
+    if atmosphere_model == "physical":
+        states = states or load_states()
+        weather = states.weather(weather_class)
+    else:
+        weather = reference_weather(weather_class, fit)
+    context = RegionContext(profile, weather, scene.materials)
     regions = []
     for name in sc.regions:
         params = dict(sc.region_params.get(name, {}))
@@ -131,11 +138,11 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
                 region = _with_class_params(region, overrides)
         else:
             if name == "cover" and atmosphere_model == "physical":
-                params.update(cover_term(fit))
+                params.update(states.cover_params(weather_class))
             region = REGISTRY.create(name, params, context)
         regions.append((name, region))
-    sim = LidarSimulator(profile, scene, regions=regions, seed=seed,
-                         sun_irradiance_w_m2=fit.day_irradiance_w_m2 if sun else 0.0)  # fmt: skip
+    day = states.day_irradiance_w_m2 if atmosphere_model == "physical" else fit.day_irradiance_w_m2
+    sim = LidarSimulator(profile, scene, regions=regions, seed=seed, sun_irradiance_w_m2=day if sun else 0.0)
     pose = RooftopPose.for_profile(profile)
     out, t = [], 0.0
     while len(out) < frames:
@@ -153,16 +160,6 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
         for name, (lo, hi) in REGIONS.items():
             xs[name].append(x[(x >= lo) & (x < hi)])
     return Condition(weather_class, sun, rows, {k: np.concatenate(v) for k, v in xs.items()})
-
-
-def cover_term(fit: FitFile) -> dict:
-    """The cover term of a physical-atmosphere rooftop run, as the cover region's ghost parameters: the sensor's own
-    near-field returns (multiple reflection in its window and housing, thesis lines 329, 498, 1626). The physical
-    atmosphere has none of its own. These are the fitted clear class's near field, which is cover multipath
-    (``cover_share`` 0.997): its rate times that share, range scale, median amplitude and log-sd."""
-    c = fit.classes["clear"]
-    return {"near_field_ghost_per_beam": c.rate_per_beam * c.cover_share, "near_field_scale_m": c.cover_scale_m,
-            "near_field_amplitude": c.amplitude_median, "near_field_sigma_ln": c.amplitude_sigma_ln}
 
 
 def _with_class_params(region, overrides: dict):
@@ -271,12 +268,15 @@ def plot(conditions: list[Condition], out_dir: Path) -> list[Path]:
 
 def reproduce_rooftop(out_dir: str | Path, frames: int = 30, seed: int = 0, tables_path: str | Path | None = None,
                       fit_file: str | None = None, plots: bool = True, profile: str | None = None,
-                      atmosphere_model: str = "fitted") -> list[dict]:  # fmt: skip
+                      atmosphere_model: str = "fitted", states_file: str | None = None) -> list[dict]:  # fmt: skip
     """Run all 8 conditions; write rooftop.json, rooftop.md and the PNGs into ``out_dir``; return the rows.
     ``fit_file``: atmosphere parameters (default config/atmosphere_fit.yaml); ``profile``: sensor
-    profile name or YAML path (default the scenario's scala4); ``atmosphere_model``: fitted or physical."""
+    profile name or YAML path (default the scenario's scala4); ``atmosphere_model``: fitted or physical;
+    ``states_file``: the physical runs' weather, street and window states (default config/rooftop_physical.yaml)."""
     tables = load_tables(tables_path)
-    conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile, atmosphere_model=atmosphere_model)
+    states = load_states(states_file) if atmosphere_model == "physical" else None
+    conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile, atmosphere_model=atmosphere_model,
+                           states=states)
                   for w in WEATHER_CLASSES for sun in (False, True)]  # fmt: skip
     rows = [r for c in conditions for r in rows_of(c, tables)]
     out = Path(out_dir)  # created once the inputs have loaded: bad inputs leave nothing behind
@@ -294,7 +294,8 @@ def main(args) -> int:
 
     start = time.perf_counter()
     rows = reproduce_rooftop(args.out, frames=args.frames, seed=args.seed, tables_path=args.tables,
-                             fit_file=args.fit_file, profile=args.profile, atmosphere_model=args.atmosphere_model)  # fmt: skip
+                             fit_file=args.fit_file, profile=args.profile, atmosphere_model=args.atmosphere_model,
+                             states_file=args.states)  # fmt: skip
     print(markdown(rows))
     print(f"wrote {args.out}/rooftop.json, rooftop.md, rooftop_atmosphere.png, rooftop_street.png "
           f"in {time.perf_counter() - start:.1f} s")  # fmt: skip
