@@ -11,10 +11,11 @@ per-sensor near-field fit. What paper 2 leaves open are the states of its scenes
   the fog's visual range or the rain / snow rate; the street's water film (fog, rain) or snow cover (snow);
 - with ``--columns all``, "day" (1): the irradiance of the sunlit rows (the receiver's day mode).
 
-Fixed, not fitted here: the sensor's sun response (detection.sun_noise_per_w_m2, Table 2, and the
-irradiance 343 W/m^2 of atmosphere_fit.yaml) and the asphalt's backscatter (street_gain) - 2 numbers
-fitted before on clear weather -, the geometry of config/rooftop.yaml. The fitted model
-(config/atmosphere_fit.yaml) has 46 (11 per class, street_gain, the irradiance).
+Fixed, not fitted here: the slope of the sensor's sun noise (detection.sun_noise_per_w_m2, Table 2) and
+the asphalt's backscatter (street_gain of atmosphere_fit.yaml) - 2 numbers fitted before on clear weather,
+shared with the fitted model -, the geometry of config/rooftop.yaml; with ``--columns night`` also the day
+mode (``day_irradiance_w_m2`` of the start file). The fitted model
+(config/atmosphere_fit.yaml) has 36 (6 near-field numbers per class, 11 street numbers, street_gain).
 
 ``--columns night`` (default) fits on the night ("w/o") columns of Tables 3-4 plus Table 2 (both
 columns: the sun response is calibrated on it); the sun columns of Tables 3-4 are then predictions.
