@@ -189,7 +189,8 @@ PHYSICAL_MATCHED_AT_10_FRAMES = 53
 
 def test_reproduce_rooftop_runs_the_physical_atmosphere_without_the_fitted_near_field(tmp_path, cli):
     """``--atmosphere-model physical``: the states' fog from its drop-size distribution; the class's fitted
-    near-field rate no longer acts (it does on the fitted model)."""
+    near-field rate no longer acts (it does on the fitted model). States that miss a class, or states given to the
+    fitted model, exit 2 with a one-line reason naming the file, and write nothing."""
     fit = yaml.safe_load(fit_path().read_text())
     fit["classes"]["fog"]["rate_per_beam"] *= 3.0
     fit_file = tmp_path / "fit.yaml"
@@ -204,6 +205,14 @@ def test_reproduce_rooftop_runs_the_physical_atmosphere_without_the_fitted_near_
     proc = subprocess.run([*cli, "reproduce", "rooftop", "--frames", "1", "--out", str(out), "--atmosphere-model",
                            "physical"], capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0 and len(json.loads((out / "rooftop.json").read_text())) > 0, proc.stderr
+    bad = tmp_path / "states.yaml"  # states without rain, fog and snow; then good states on the fitted model
+    bad.write_text("window_ghosts: {scale_m: 0.1, amplitude: 2, sigma_ln: 0.5}\nclasses: {clear: {window_ghosts_per_beam: 0.2}}\n")
+    for extra, reason in ((["--atmosphere-model", "physical"], "no state for rain, fog, snow"),
+                          ([], "add --atmosphere-model physical")):  # fmt: skip
+        proc = subprocess.run([*cli, "reproduce", "rooftop", "--frames", "1", "--out", str(tmp_path / "bad"), "--states",
+                               str(bad), *extra], capture_output=True, text=True, timeout=600)  # fmt: skip
+        assert proc.returncode == 2 and str(bad) in proc.stderr and reason in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "bad").exists()
 
 
 def test_physical_rooftop_clear_nights_get_the_sensors_cover_term():

@@ -273,6 +273,8 @@ def reproduce_rooftop(out_dir: str | Path, frames: int = 30, seed: int = 0, tabl
     ``fit_file``: atmosphere parameters (default config/atmosphere_fit.yaml); ``profile``: sensor
     profile name or YAML path (default the scenario's scala4); ``atmosphere_model``: fitted or physical;
     ``states_file``: the physical runs' weather, street and window states (default config/rooftop_physical.yaml)."""
+    if states_file and atmosphere_model != "physical":
+        raise ValueError(f"--states {states_file}: the states are the physical atmosphere's; add --atmosphere-model physical")
     tables = load_tables(tables_path)
     states = load_states(states_file) if atmosphere_model == "physical" else None
     conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile, atmosphere_model=atmosphere_model,
