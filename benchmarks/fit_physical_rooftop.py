@@ -3,18 +3,18 @@
 
 The physical atmosphere (drop-size distributions, Mie at 905 nm, scala4's optics and receiver) has no
 per-sensor near-field fit. What paper 2 leaves open are the states of its scenes
-(:mod:`lidar_weather_sim.experiments.rooftop_states`), fitted here, 16 numbers in all (17 with the day mode):
+(:mod:`lidar_weather_sim.experiments.rooftop_states`), fitted here, 18 numbers in all:
 
-- clear (4): the window ghosts per beam, their range scale, median peak and log-sd (shared by the
-  classes: the window's multipath);
+- clear (5): the window ghosts per beam; their range scale, median peak, log-sd, and the street layer's
+  (channel 1's) ghost rate relative to the other layers' (shared by the classes: the window's multipath);
 - fog, rain, snow (4 each): the window's ghosts per beam and its transmission (wet or snowy window);
   the fog's visual range or the rain / snow rate; the street's water film (fog, rain) or snow cover (snow);
-- with ``--columns all``, "day" (1): the irradiance of the sunlit rows (the receiver's day mode).
+- "day" (1): the irradiance of the sunlit rows (the receiver's day mode), on every class's sunlit rows
+  (``--columns all``) or on Table 2's day row alone (``--columns night``).
 
 Fixed, not fitted here: the slope of the sensor's sun noise (detection.sun_noise_per_w_m2, Table 2) and
 the asphalt's backscatter (street_gain of atmosphere_fit.yaml) - 2 numbers fitted before on clear weather,
-shared with the fitted model -, the geometry of config/rooftop.yaml; with ``--columns night`` also the day
-mode (``day_irradiance_w_m2`` of the start file). The fitted model
+shared with the fitted model -, the geometry of config/rooftop.yaml. The fitted model
 (config/atmosphere_fit.yaml) has 36 (6 near-field numbers per class, 11 street numbers, street_gain).
 
 ``--columns night`` (default) fits on the night ("w/o") columns of Tables 3-4 plus Table 2 (both
@@ -25,7 +25,7 @@ Check a fit on another seed with ``lidar-weather-sim reproduce rooftop --atmosph
 --states FILE --frames 30``.
 
 Usage: python benchmarks/fit_physical_rooftop.py [--columns night|all] [--frames 10] [--iters 80]
-       [--classes clear,fog,rain,snow] [--out FILE]
+       [--classes clear,day,fog,rain,snow] [--start FILE] [--out FILE]
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ SEED = 12345
 #: per class: (field path in the states, lower bound, upper bound); all searched on a log scale
 FREE = {
     "clear": {"classes.clear.window_ghosts_per_beam": (0.01, 2.0), "window_ghosts.scale_m": (0.01, 1.0),
-              "window_ghosts.amplitude": (0.5, 50.0), "window_ghosts.sigma_ln": (0.05, 3.0)},
+              "window_ghosts.amplitude": (0.5, 50.0), "window_ghosts.sigma_ln": (0.05, 3.0),
+              "window_ghosts.channel_weights.1": (0.2, 10.0)},
     "day": {"day_irradiance_w_m2": (10.0, 1400.0)},
     "fog": {"classes.fog.window_ghosts_per_beam": (0.01, 2.0), "classes.fog.fog_visual_range_m": (30.0, 9000.0),
             "classes.fog.road_water_film_mm": (0.001, 10.0), "classes.fog.window_transmission": (0.3, 1.0)},
@@ -58,16 +59,21 @@ FREE = {
 }  # fmt: skip
 
 
+def _key(container, key: str):
+    return int(key) if isinstance(container, list) else key
+
+
 def get(data: dict, path: str) -> float:
+    """The value at a dotted ``path`` (list items by index, e.g. window_ghosts.channel_weights.1)."""
     for key in path.split(".")[:-1]:
-        data = data[key]
-    return float(data[path.split(".")[-1]])
+        data = data[_key(data, key)]
+    return float(data[_key(data, path.split(".")[-1])])
 
 
 def put(data: dict, path: str, value: float) -> None:
     for key in path.split(".")[:-1]:
-        data = data[key]
-    data[path.split(".")[-1]] = float(value)
+        data = data[_key(data, key)]
+    data[_key(data, path.split(".")[-1])] = float(value)
 
 
 def loss(z: np.ndarray) -> float:
@@ -79,7 +85,8 @@ def loss(z: np.ndarray) -> float:
 
 def residuals(states: RooftopStates, group: str, tables: dict, frames: int, columns: str, seed: int) -> np.ndarray:
     """z = (sim - paper) / paper sigma of a group's target means: a class's (Tables 3-4 regions; Table 2 for
-    clear; the night columns alone with ``columns`` night, beside Table 2), or "day": every class's sun rows."""
+    clear; the night columns alone with ``columns`` night, beside Table 2), or "day": every class's sun rows
+    (Table 2's day row alone with ``columns`` night)."""
     conditions = [(w, True) for w in WEATHER_CLASSES] if group == "day" else [(group, False), (group, True)]
     z = []
     for weather, sun in conditions:
@@ -129,9 +136,8 @@ def main() -> None:
                         help="night: Tables 3-4 w/o sun plus Table 2; all: every column")  # fmt: skip
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--iters", type=int, default=80, help="simulations per class (Nelder-Mead evaluations)")
-    parser.add_argument("--classes", default="clear,fog,rain,snow",
-                        help="clear first: it sets the shared ghosts; 'day' (with --columns all): the receiver's "
-                             "day mode on every class's sun rows")  # fmt: skip
+    parser.add_argument("--classes", default="clear,day,fog,rain,snow",
+                        help="clear first: it sets the shared ghosts; 'day': the receiver's day mode")
     parser.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data)")
     parser.add_argument("--start", help="states to start from (default config/rooftop_physical.yaml)")
     parser.add_argument("--out", default=str(states_path()), help="states file to write (default %(default)s)")

@@ -155,6 +155,20 @@ def test_the_clean_covers_near_field_ghosts_come_at_their_rate_beyond_the_minimu
     assert len(one_frame(_sim(profile, seed=5, texture="clean")).points) == columns  # rate 0: no ghost
 
 
+def test_window_ghosts_come_at_each_channels_weight():
+    """``near_field_ghost_channel_weights`` scales the ghost rate per channel (channel 0 = lowest): weights 0, 1, 3 on
+    three layers give no ghost on the first and ~3x as many on the third as on the second; a list of the wrong
+    length is refused, naming the parameter."""
+    profile = simple_profile(scan__columns=6001, beams=[{"elevation_deg": e} for e in (-1.0, 0.0, 1.0)])
+    points = one_frame(_sim(profile, seed=4, texture="clean", near_field_ghost_per_beam=0.1,
+                            near_field_ghost_channel_weights=[0.0, 1.0, 3.0])).points  # fmt: skip
+    per_channel = np.bincount(points["channel"][points["label"] == Label.COVER], minlength=3)
+    assert per_channel[0] == 0 and per_channel[1] > 100
+    assert per_channel[2] / per_channel[1] == pytest.approx(3.0, rel=0.15), per_channel
+    with pytest.raises(ConfigError, match="near_field_ghost_channel_weights"):
+        _sim(profile, texture="clean", near_field_ghost_per_beam=0.1, near_field_ghost_channel_weights=[1.0, 2.0])
+
+
 def test_a_weather_behind_the_cover_returns_through_its_transmission_twice_less_the_forward_scatter():
     """What a fog or rain spread along a beam returns through the cover (the reference's cover term):
     1 for a clean cover; for thesis sample 3l (forward share > 0) each beam's mean T^2 over its sub-rays

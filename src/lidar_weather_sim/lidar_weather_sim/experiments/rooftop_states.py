@@ -12,8 +12,10 @@ profile's optics) these states are the rooftop reproduction's free parameters, f
   the window and housing, thesis lines 329 and 498; clean in clear weather, wet or snowy
   otherwise: "the presence of water or dirt on the cover caused by the different weather types
   also influences the form of the distribution", line 1626);
-- shared by the classes, the window ghosts' range scale (m), median peak over the dark threshold
-  and log-sd of that peak.
+- shared by the classes, the window ghosts' range scale (m), median peak over the dark threshold,
+  log-sd of that peak, and their relative rate per channel (the window's reflections need not reach
+  every layer's receiver alike: paper 2's street beams carry ~2x the near-field echoes of an average
+  beam, Table 4 n_e2 against Table 3 n_total).
 
 The receiver's day mode (its automatic gain control, thesis line 1536: one state for every sunlit
 frame) is the profile's sun noise at ``day_irradiance_w_m2``; free only when the sun columns are
@@ -41,6 +43,8 @@ class WindowGhosts(ConfigModel):
     scale_m: float = Field(gt=0, description="Exponential range scale of the ghosts (m)")
     amplitude: float = Field(gt=0, description="Median ghost peak over the dark threshold")
     sigma_ln: float = Field(ge=0, description="Log-sd of the ghost peak")
+    channel_weights: list[float] | None = Field(None, description="Relative ghost rate of each channel (channel 0 = "
+                                                "lowest); none = 1 for every channel")  # fmt: skip
 
 
 class ClassState(ConfigModel):
@@ -82,7 +86,8 @@ class RooftopStates(ConfigModel):
         g, s = self.window_ghosts, self.state(weather_class)
         film = {"mean_transmission": s.window_transmission} if s.window_transmission < 1 else {}
         return {**film, "near_field_ghost_per_beam": s.window_ghosts_per_beam,
-                "near_field_scale_m": g.scale_m, "near_field_amplitude": g.amplitude, "near_field_sigma_ln": g.sigma_ln}  # fmt: skip
+                "near_field_scale_m": g.scale_m, "near_field_amplitude": g.amplitude, "near_field_sigma_ln": g.sigma_ln,
+                "near_field_ghost_channel_weights": g.channel_weights}  # fmt: skip
 
     def state(self, weather_class: str) -> ClassState:
         return self.classes[weather_class]

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from lidar_weather_sim.core.config import ConfigModel
+from lidar_weather_sim.core.config import ConfigError, ConfigModel
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect
 from lidar_weather_sim.regions.cover_textures import CoverTexture, make_texture, with_mean
@@ -46,6 +46,10 @@ class CoverParams(ConfigModel):
     near_field_scale_m: float = Field(0.1, gt=0, description="Exponential range scale of cover returns (m)")
     near_field_amplitude: float = Field(3.0, gt=0, description="Median cover-return peak over the dark threshold")
     near_field_sigma_ln: float = Field(0.8, ge=0, description="Log-sd of the cover-return peak amplitude")
+    near_field_ghost_channel_weights: list[float] | None = Field(
+        None, description="Relative ghost rate of each channel (channel 0 = lowest elevation; the rate per beam is "
+        "near_field_ghost_per_beam times its channel's weight): a window whose reflections reach some layers' "
+        "receivers more; none = 1 for every channel")
     near_field_ghost_per_beam: float = Field(0.0, ge=0, le=10, description="Mean near-field ghosts per beam and "
                                              "frame: cover returns of the clean window and housing, added to the "
                                              "texture's")  # fmt: skip
@@ -71,6 +75,11 @@ class CoverRegion:
         scan = self.profile.scan
         self._az = np.deg2rad([scan.azimuth_min_deg, scan.azimuth_max_deg])
         self._tables: list[np.ndarray] | None = None  # see _pattern_samples
+        weights = params.near_field_ghost_channel_weights
+        if weights is not None and (len(weights) != len(self.profile.beams) or min(weights) < 0):
+            raise ConfigError(f"cover near_field_ghost_channel_weights {weights}: need {len(self.profile.beams)} "
+                              f"weights >= 0, one per channel of profile '{self.profile.name}'")  # fmt: skip
+        self._ghost_weights = None if weights is None else np.asarray(weights, dtype=np.float64)
 
     def step(self, t0_s: float, t1_s: float) -> None:
         """Stateless in time: the blend weight is a function of each beam's firing time."""
@@ -136,12 +145,15 @@ class CoverRegion:
         t = t * _forward_scatter_factors(np.asarray(batch.weights, dtype=np.float64), mix("forward_share"))[None, :]
         extra = mix("extra_range_sigma_m")
         offset = rng.normal(0.0, extra, (n, s)) if extra > 0 else None
-        rate = mix("near_field_per_beam") + self.p.near_field_ghost_per_beam
+        texture_rate, ghosts = mix("near_field_per_beam"), self.p.near_field_ghost_per_beam
+        rate = texture_rate + ghosts
         scatterers = None
         if rate > 0:
             model = NearFieldModel(rate, 1.0, self.p.near_field_scale_m, self.p.near_field_amplitude,
                                    self.p.near_field_sigma_ln)  # fmt: skip
-            scatterers = sample_near_field(model, n, batch.weights, self.profile, rng, Label.COVER, Label.COVER)
+            scale = 1.0 if self._ghost_weights is None else \
+                (texture_rate + ghosts * self._ghost_weights[batch.channel]) / rate  # fmt: skip
+            scatterers = sample_near_field(model, n, batch.weights, self.profile, rng, Label.COVER, Label.COVER, scale)
         return RegionEffect(transmission=t, scatterers=scatterers, range_offset_m=offset)
 
 
