@@ -8,18 +8,18 @@ profile's optics) these states are the rooftop reproduction's free parameters, f
 - per weather class, the scene: the fog's visual range (m); the rain or snow rate (mm/h, snow as
   water equivalent); the street's water film (mm) or snow cover (m);
 - per weather class, the sensor's window: its one-way transmission (a film of water or snow) and
-  its near-field ghosts per beam (multiple reflection in
-  the window and housing, thesis lines 329 and 498; clean in clear weather, wet or snowy
-  otherwise: "the presence of water or dirt on the cover caused by the different weather types
-  also influences the form of the distribution", line 1626);
+  its near-field ghosts per beam (multiple reflection in the window and housing, thesis lines 329
+  and 498; clean in clear weather, wet or snowy otherwise: "the presence of water or dirt on the
+  cover caused by the different weather types also influences the form of the distribution", line
+  1626);
 - shared by the classes, the window ghosts' range scale (m), median peak over the dark threshold,
   log-sd of that peak, and their relative rate per channel (the window's reflections need not reach
   every layer's receiver alike: paper 2's street beams carry ~2x the near-field echoes of an average
   beam, Table 4 n_e2 against Table 3 n_total).
 
 The receiver's day mode (its automatic gain control, thesis line 1536: one state for every sunlit
-frame) is the profile's sun noise at ``day_irradiance_w_m2``; free only when the sun columns are
-fitted too. Not free: the asphalt's 905 nm backscatter (``street_gain`` of
+frame) is the profile's sun noise at ``day_irradiance_w_m2``, fitted on the sunlit rows or on Table 2's
+day row alone. Not free: the asphalt's 905 nm backscatter (``street_gain`` of
 ``config/atmosphere_fit.yaml``, the clear-night street EPW) and the geometry (``config/rooftop.yaml``).
 """
 
