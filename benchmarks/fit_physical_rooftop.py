@@ -120,13 +120,12 @@ def fit_group(data: dict, weather: str, tables: dict, args) -> tuple[dict, np.nd
     step = np.where(x0 + 0.7 > hi, -0.7, 0.7)  # into the bounds
     simplex = x0 + np.vstack([np.zeros(len(x0)), np.diag(step)])
     if len(keys) == 1:  # Nelder-Mead needs two points; a 1-D search is cheaper anyway
-        res = minimize_scalar(lambda v: f(np.array([v])), bounds=(lo[0], hi[0]), method="bounded",
-                              options={"xatol": 0.01, "maxiter": args.iters})  # fmt: skip
-        best = unpack(np.array([res.x]))
-        return best, residuals(RooftopStates.model_validate(best), weather, tables, args.frames, args.columns, SEED)
-    res = minimize(f, x0, method="Nelder-Mead", options={"maxfev": args.iters, "xatol": 1e-2, "fatol": 1e-3,
-                                                          "initial_simplex": simplex})  # fmt: skip
-    best = unpack(res.x)
+        x = np.atleast_1d(minimize_scalar(lambda v: f(np.array([v])), bounds=(lo[0], hi[0]), method="bounded",
+                                          options={"xatol": 0.01, "maxiter": args.iters}).x)  # fmt: skip
+    else:
+        x = minimize(f, x0, method="Nelder-Mead", options={"maxfev": args.iters, "xatol": 1e-2, "fatol": 1e-3,
+                                                            "initial_simplex": simplex}).x  # fmt: skip
+    best = unpack(x)
     return best, residuals(RooftopStates.model_validate(best), weather, tables, args.frames, args.columns, SEED)
 
 
