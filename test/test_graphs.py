@@ -154,6 +154,13 @@ def test_resolve_types_conditions_and_errors():
         assert "foxglove_bridge_node" not in [p.name for p in resolve(load_graph(graph))]
     loop = {p.name: p for p in resolve(load_graph("closed_loop"), {"filter": "false"})}
     assert list(loop) == ["lidar_sim_node", "ego_controller_node"] and loop["ego_controller_node"].parameters["cloud_topic"] == "/lidar/points"
+    # $(graph nodes): the clock waits for every other node the graph starts; none: the parameter is left out
+    assert loop["lidar_sim_node"].parameters["wait_for_ready"] == ["ego_controller_node"]
+    assert loop["lidar_sim_node"].parameters["synchronous"] is True
+    assert loop["lidar_sim_node"].parameters["sync_topics"] == ["/ego/cmd_speed"]
+    filtered = resolve(load_graph("closed_loop"), {"filter": "true", "synchronous": "false"})[0].parameters
+    assert filtered["wait_for_ready"] == ["weather_filter_node", "ego_controller_node"] and filtered["synchronous"] is False
+    assert "wait_for_ready" not in node.parameters
     for bad, match in (({"nope": "1"}, "has no argument nope"), ({"pose_source": "gps"}, "not one of"),
                        ({"max_frames": "1.5"}, "is not a int"), ({"filter": "maybe"}, "not one of"),
                        ({"regions": "[]"}, "cannot hold an empty list")):  # fmt: skip

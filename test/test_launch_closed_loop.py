@@ -2,8 +2,8 @@
 
 Starts the closed loop without the filter (lidar_sim_node in scenario mode ->
 ego_controller_node -> /ego/cmd_speed) and checks: clouds on /lidar/points at
-the profile's rate on sim time, one speed command per cloud, within the
-controller's limits. Skipped where launch_testing is not installed (here:
+the profile's rate on sim time, one speed command per cloud stamped with that
+cloud's stamp (synchronous mode), within the controller's limits. Skipped where launch_testing is not installed (here:
 test/test_closed_loop.py runs the same graph through the project's own runner).
 """
 
@@ -49,11 +49,11 @@ class TestClosedLoop(unittest.TestCase):
 
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import PointCloud2
-        from std_msgs.msg import Float64
+        from geometry_msgs.msg import TwistStamped
 
         clouds, commands = [], []
         self.node.create_subscription(PointCloud2, "/lidar/points", clouds.append, qos_profile_sensor_data)
-        self.node.create_subscription(Float64, "/ego/cmd_speed", commands.append, 10)
+        self.node.create_subscription(TwistStamped, "/ego/cmd_speed", commands.append, 10)
         deadline = time.monotonic() + 90.0
         while (len(clouds) < 25 or len(commands) < 25) and time.monotonic() < deadline:
             rclpy.spin_once(self.node, timeout_sec=0.1)
@@ -61,7 +61,9 @@ class TestClosedLoop(unittest.TestCase):
         self.assertGreaterEqual(len(commands), 25)
         stamps = [c.header.stamp.sec * 10**9 + c.header.stamp.nanosec for c in clouds]
         self.assertTrue(all((b - a) % 40_000_000 == 0 and b > a for a, b in zip(stamps, stamps[1:])), stamps)
-        self.assertTrue(all(0.0 <= c.data <= 24.72 + 1e-6 for c in commands))  # 0 .. the cruise speed (m/s)
+        self.assertTrue(all(0.0 <= c.twist.linear.x <= 24.72 + 1e-6 for c in commands))  # 0 .. the cruise speed (m/s)
+        answered = {c.header.stamp.sec * 10**9 + c.header.stamp.nanosec for c in commands}
+        self.assertTrue(set(stamps[5:20]) <= answered)  # synchronous mode: every cloud answered (after discovery)
 
 
 @launch_testing.post_shutdown_test()

@@ -199,7 +199,7 @@ def test_scenario_mode_drives_clock_and_publishes_clouds_and_tf(processes, ros, 
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import PointCloud2
-    from std_msgs.msg import Float64
+    from geometry_msgs.msg import TwistStamped
     from tf2_msgs.msg import TFMessage
 
     proc = node_process(processes, pose_source="scenario", time_step_s=0.01, realtime_factor=1.0)
@@ -224,10 +224,10 @@ def test_scenario_mode_drives_clock_and_publishes_clouds_and_tf(processes, ros, 
     t = frames["base_link"].header.stamp.sec + frames["base_link"].header.stamp.nanosec * 1e-9
     np.testing.assert_allclose(_xyz(frames["base_link"]), world.player.base_link_poses(np.array([t]))[0][0], atol=1e-6)
 
-    # closed loop: /ego/cmd_speed 0 stops the ego (base_link stops moving on /tf)
-    speed = node.create_publisher(Float64, "/ego/cmd_speed", 10)
+    # closed loop: /ego/cmd_speed 0 (unstamped: from now) stops the ego (base_link stops moving on /tf)
+    speed = node.create_publisher(TwistStamped, "/ego/cmd_speed", 10)
     assert ros.spin_until(lambda: speed.get_subscription_count() > 0, timeout_s=20)
-    speed.publish(Float64(data=0.0))
+    speed.publish(TwistStamped())
     ros.spin_until(lambda: False, timeout_s=0.5)
     n = len(tfs)
     assert ros.spin_until(lambda: len(tfs) >= n + 20, timeout_s=20)

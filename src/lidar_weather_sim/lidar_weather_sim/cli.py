@@ -599,12 +599,15 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--use-sim-time", action="store_true", help="log times from /clock")
     record.set_defaults(func=_cmd_record)
 
-    closed = commands.add_parser("closed-loop", help="adaptive cruise demo over DDS: speed traces with/without filter, report")
+    closed = commands.add_parser("closed-loop", help="adaptive cruise demo over DDS: speed traces with/without filter, "
+                                 "report; exit 1 if a variant's braking is not the expected one")
     closed.add_argument("--scenario", default="highway_spray_crosswind", help="scenario name or YAML path")
     closed.add_argument("--seconds", type=positive_float, default=6.0, help="simulated seconds per run")
     closed.add_argument("--box-at", type=non_negative_float, default=3.0, help="box variant: the box appears at this time (s)")
     closed.add_argument("--out", default="closed_loop_report", help="report directory (report.md, speed.png, traces)")
-    closed.add_argument("--realtime-factor", type=positive_float, default=1.0, help="sim / wall-clock speed")
+    closed.add_argument("--realtime-factor", type=positive_float, default=1.0, help="sim / wall-clock speed (at most)")
+    closed.add_argument("--free-running", action="store_true", help="do not wait for the controller's answer to each "
+                        "cloud (the trace then depends on the machine's speed)")
     closed.set_defaults(func=_cmd_closed_loop)
 
     ouster = commands.add_parser("import-ouster", help="real OS1-128 street recording (ouster-sdk sdist) as bag + mesh")

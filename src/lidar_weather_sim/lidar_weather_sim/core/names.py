@@ -6,6 +6,7 @@ TOPIC_POINTS_REMOVED = "/lidar/points/removed"
 TOPIC_TF = "/tf"
 TOPIC_TF_STATIC = "/tf_static"
 TOPIC_CLOCK = "/clock"
+TOPIC_CMD_SPEED = "/ego/cmd_speed"  # geometry_msgs/TwistStamped: twist.linear.x (m/s), stamp = the cloud it answers
 
 FRAME_MAP = "map"
 FRAME_BASE_LINK = "base_link"

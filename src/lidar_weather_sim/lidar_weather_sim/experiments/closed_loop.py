@@ -8,6 +8,10 @@ box variants add a static box (label obstacle) in the ego's lane that appears
 at ``box_at_s``, ``box_ahead_m`` ahead of where the ego would be by then.
 "Brakes" is fixed in :mod:`lidar_weather_sim.control.acc` (commanded deceleration
 > 2 m/s^2 for >= 0.3 s). The report (report.md, speed.png, the traces) goes to ``out``.
+The graph runs in synchronous mode (:mod:`lidar_weather_sim.ros.sync`): the traces are the same
+on a fast, a slow and a loaded machine. The expected table: without the filter the spray makes
+the ego brake; with the filter it does not; with a box in the lane it brakes either way.
+:func:`main` exits 1 when a variant differs from it.
 """
 
 from __future__ import annotations
@@ -33,6 +37,11 @@ class Variant:
     name: str
     filter: bool
     box: bool
+
+    @property
+    def should_brake(self) -> bool:
+        """The expected outcome: brakes for a box, and for the spray unless the filter removes it."""
+        return self.box or not self.filter
 
 
 VARIANTS = (Variant("no filter", False, False), Variant("filter", True, False),
@@ -80,7 +89,8 @@ def read_trace(path: Path, variant: Variant, status: int) -> Trace:
 
 
 def run_variant(variant: Variant, scenario: str, seconds: float, out: Path, *, box_at_s: float = 3.0,
-                box_ahead_m: float = 50.0, realtime_factor: float = 1.0, emit=None) -> Trace:  # fmt: skip
+                box_ahead_m: float = 50.0, realtime_factor: float = 1.0, synchronous: bool = True,
+                emit=None) -> Trace:  # fmt: skip
     """Run one variant over DDS; returns the controller's trace."""
     slug = variant.name.replace(" + ", "_").replace(" ", "_")
     scen = str(box_scenario(scenario, box_at_s, box_ahead_m, out)) if variant.box else scenario
@@ -88,7 +98,8 @@ def run_variant(variant: Variant, scenario: str, seconds: float, out: Path, *, b
     trace = out / f"trace_{slug}.csv"
     trace.unlink(missing_ok=True)
     args = {"scenario": scen, "filter": str(variant.filter).lower(), "max_frames": str(frames),
-            "realtime_factor": str(realtime_factor), "trace_csv": str(trace)}  # fmt: skip
+            "realtime_factor": str(realtime_factor), "trace_csv": str(trace),
+            "synchronous": str(synchronous).lower()}  # fmt: skip
     log = (out / f"log_{slug}.txt").open("w")
     try:
         status = run(resolve(load_graph("closed_loop"), args), out / f"run_{slug}", emit=lambda s: log.write(s + "\n"))
@@ -141,6 +152,23 @@ def main(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     traces = [run_variant(v, args.scenario, args.seconds, out, box_at_s=args.box_at,
-                          realtime_factor=args.realtime_factor, emit=print) for v in VARIANTS]  # fmt: skip
+                          realtime_factor=args.realtime_factor, synchronous=not args.free_running,
+                          emit=print) for v in VARIANTS]  # fmt: skip
     print(f"report: {write_report(traces, args.scenario, out)}")
-    return 0 if all(t.exit_status == 0 and len(t.stamp_s) for t in traces) else 1
+    wrong = unexpected(traces)
+    for line in wrong:
+        print(f"closed-loop: {line}")
+    return 1 if wrong else 0
+
+
+def unexpected(traces: list[Trace]) -> list[str]:
+    """One line per variant that failed or whose braking differs from :attr:`Variant.should_brake`."""
+    lines = []
+    for tr in traces:
+        if tr.exit_status != 0 or not len(tr.stamp_s):
+            lines.append(f"{tr.variant.name}: the graph exited with status {tr.exit_status} after "
+                         f"{len(tr.stamp_s)} commands (its log: log_*.txt in the report directory)")  # fmt: skip
+        elif tr.brakes != tr.variant.should_brake:
+            lines.append(f"{tr.variant.name}: {'brakes' if tr.brakes else 'does not brake'}, expected "
+                         f"{'braking' if tr.variant.should_brake else 'no braking'}")  # fmt: skip
+    return lines

@@ -27,7 +27,6 @@ shut down (in a graph that a reader ends when it is done with the bag, e.g.
 
 from __future__ import annotations
 
-import importlib
 import itertools
 import time
 
@@ -40,16 +39,11 @@ from rosgraph_msgs.msg import Clock
 
 from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF_STATIC
 from lidar_weather_sim.io.bags import BagError, read_messages, typestore
+from lidar_weather_sim.ros.conversions import message_class
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def message_class(msgtype: str):
-    """rclpy message class of ``pkg/msg/Name``."""
-    package, _, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{package}.msg"), name)
 
 
 def _time(ns: int):

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import importlib
 from functools import lru_cache
 
 import numpy as np
 
 from lidar_weather_sim.io.cloud_codec import DecodedCloud, MessageTypes, NanPolicy, build_message, decode_message
+
+
+def message_class(msgtype: str):
+    """rclpy message class of ``pkg/msg/Name``."""
+    package, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{package}.msg"), name)
 
 
 @lru_cache(maxsize=1)

@@ -2,8 +2,11 @@
 
 Subscribes ``cloud_topic`` (default /lidar/points/filtered, SensorDataQoS); per
 cloud it finds the nearest obstacle in its lane and publishes the commanded
-speed (std_msgs/Float64, m/s) on /ego/cmd_speed, which lidar_sim_node's
-scenario player follows. Logic and parameters: :mod:`lidar_weather_sim.control.acc`
+speed on /ego/cmd_speed (geometry_msgs/TwistStamped: ``twist.linear.x`` in m/s
+along base_link's x, ``header.stamp`` = the cloud's stamp, ``header.frame_id``
+base_link), which lidar_sim_node's scenario player applies from the start of the
+next frame. A cloud it has answered already (the simulator's synchronous mode sends
+an unanswered cloud again) gets the same command again. Logic and parameters: :mod:`lidar_weather_sim.control.acc`
 (every AccConfig field is a parameter). Time is the cloud's header stamp (sim
 time). ``trace_csv``: if set, one line per cloud for the closed-loop report: stamp_s,
 detected_m (nearest in-lane cluster), distance_m (the confirmed obstacle the
@@ -14,20 +17,18 @@ cluster), cmd_speed_m_s, decel_m_s2, points.
 from __future__ import annotations
 
 import numpy as np
+from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Float64
 
 from lidar_weather_sim.control.acc import AccConfig, AccState, ObstacleTrack, clusters, step
 from lidar_weather_sim.core.config import ConfigError, validate
-from lidar_weather_sim.core.names import TOPIC_POINTS_FILTERED
+from lidar_weather_sim.core.names import FRAME_BASE_LINK, TOPIC_CMD_SPEED, TOPIC_POINTS_FILTERED
 from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
-
-TOPIC_CMD_SPEED = "/ego/cmd_speed"
 
 
 class EgoControllerNode(Node):
@@ -44,7 +45,8 @@ class EgoControllerNode(Node):
         self._trace = open(trace, "w", buffering=1) if trace else None  # noqa: SIM115 (closed in destroy_node)
         if self._trace:
             self._trace.write("stamp_s,detected_m,distance_m,label,cmd_speed_m_s,decel_m_s2,points\n")
-        self._pub = self.create_publisher(Float64, TOPIC_CMD_SPEED, 10)
+        self._pub = self.create_publisher(TwistStamped, TOPIC_CMD_SPEED, 10)
+        self._last: TwistStamped | None = None  # the newest command, sent again for a repeated cloud
         self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data)
         self.commands = 0
         self._logged: set[str] = set()
@@ -62,6 +64,8 @@ class EgoControllerNode(Node):
             return
         t = stamp_to_ns(msg.header.stamp) * 1e-9
         if self.state.time_s is not None and t <= self.state.time_s:
+            if self._last is not None and self._last.header.stamp == msg.header.stamp:
+                self._pub.publish(self._last)  # a repeated cloud: its answer again
             return  # old or repeated cloud
         distances = [float(points["x"][c[0]]) for c in found]
         has_label = "label" in points.dtype.names
@@ -70,7 +74,11 @@ class EgoControllerNode(Node):
         detected = distances[0] if distances else None
         distance = track.distance_m if track is not None else None
         speed, decel = step(self.state, t, distance, self.cfg)
-        self._pub.publish(Float64(data=float(speed)))
+        command = TwistStamped()
+        command.header.stamp, command.header.frame_id = msg.header.stamp, FRAME_BASE_LINK
+        command.twist.linear.x = float(speed)
+        self._pub.publish(command)
+        self._last = command
         self.commands += 1
         if self._trace:
             text = lambda d: "" if d is None else f"{d:.3f}"  # noqa: E731

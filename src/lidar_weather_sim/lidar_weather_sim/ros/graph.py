@@ -13,6 +13,9 @@ Substitution: a parameter value or remapping target written ``$(arg NAME)`` is
 replaced by the argument's value, parsed as a YAML scalar or list as
 ``ros2 launch`` does (``true`` -> bool, ``0.5`` -> float, ``[a, b]`` -> list); a
 parameter whose argument is empty is left out (the node's default applies).
+A parameter value written ``$(graph nodes)`` becomes the names of every other node the
+graph starts (the clock's ``wait_for_ready``: :mod:`lidar_weather_sim.ros.readiness`); left out
+when there is none.
 Conditions: ``if: NAME`` starts the node only when the argument is true,
 ``unless: NAME`` only when it is false. ``required: true``: when that node
 exits, the whole graph shuts down (launch's ``on_exit=Shutdown()``).
@@ -47,6 +50,7 @@ from lidar_weather_sim.core.paths import config_dir
 _ARG = re.compile(r"^\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)$")
 _ARG_ANYWHERE = re.compile(r"\$\(arg ([A-Za-z_][A-Za-z0-9_]*)\)")
 TRUE, FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off", "")
+GRAPH_NODES = "$(graph nodes)"
 
 
 class Argument(ConfigModel):
@@ -193,16 +197,18 @@ def _typed(name: str, text: str, kind: str) -> Any:
 def resolve(graph: Graph, given: dict[str, str] | None = None) -> list[NodePlan]:
     """The nodes to start for these argument values, in description order."""
     values = argument_values(graph, given or {})
+    started = [node for node in graph.nodes if not (node.if_ and not _truth(node.if_, values[node.if_]))
+               and not (node.unless and _truth(node.unless, values[node.unless]))]  # fmt: skip
     plans = []
-    for node in graph.nodes:
-        if node.if_ and not _truth(node.if_, values[node.if_]):
-            continue
-        if node.unless and _truth(node.unless, values[node.unless]):
-            continue
+    for node in started:
         params = {}
         for key, value in node.parameters.items():
             m = _ARG.match(value) if isinstance(value, str) else None
-            if m is None:
+            if value == GRAPH_NODES:
+                others = [other.name for other in started if other.name != node.name]
+                if others:
+                    params[key] = others
+            elif m is None:
                 params[key] = value
             elif values[m.group(1)].strip():
                 arg = m.group(1)

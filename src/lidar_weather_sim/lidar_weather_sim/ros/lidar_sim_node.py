@@ -37,7 +37,7 @@ import math
 import time
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import TransformStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
@@ -46,7 +46,6 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
 from lidar_weather_sim.core.config import ConfigError
@@ -56,6 +55,7 @@ from lidar_weather_sim.core.names import (
     FRAME_MAP,
     RETURN_MODES,
     TOPIC_CLOCK,
+    TOPIC_CMD_SPEED,
     TOPIC_POINTS,
     TOPIC_TF,
     TOPIC_TF_STATIC,
@@ -74,13 +74,14 @@ from lidar_weather_sim.regions.topic_inputs import TopicInputs
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.ros.qos import CLOCK_QOS, TF_QOS, TF_STATIC_QOS
+from lidar_weather_sim.ros.readiness import ReadyGate
+from lidar_weather_sim.ros.sync import FrameSync
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scenario.transforms import FrameTransform, moving_transforms, static_transforms
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.sim.simulator import scenario_settings
 
-TOPIC_CMD_SPEED = "/ego/cmd_speed"
 POSE_SOURCES = ("scenario", "tf", "odometry")
 RUNTIME = ("regions", "region_params", "sun_irradiance_w_m2", "seed")
 LINGER_S = 1.0  # after max_frames: the writer stays this long (s) before the process ends
@@ -138,6 +139,16 @@ class LidarSimNode(Node):
         p("seed", settings["seed"], "Random seed: same seed and poses, same clouds", (0, 2**31 - 1), False)
         self.max_frames = p("max_frames", 0, "Stop after publishing this many clouds (0 = run until shut down)", (0, 2**31 - 1))
         wait = p("wait_for_subscriber", False, "Start the poses (scenario: the clock) once /lidar/points has a subscriber")
+        ready = p("wait_for_ready", [], "Node names: start the poses (scenario: the clock) once each has said it is "
+                  "ready on /<node>/ready (graphs: every other node)", None)
+        ready_timeout = p("ready_timeout_s", 600.0, "Fail when wait_for_ready is not met after this long (s, wall clock; "
+                          "0 = wait for ever)", (0.0, 1e5))
+        synchronous = p("synchronous", False, "Scenario mode: after each cloud, advance only once every sync_topics "
+                        "topic has answered with that cloud's stamp (CARLA's synchronous mode)")
+        sync_topics = p("sync_topics", [TOPIC_CMD_SPEED], "Synchronous mode: the topics (with a std_msgs/Header) whose "
+                        "answer to each cloud the clock waits for", None)
+        sync_timeout = p("sync_timeout_s", 10.0, "Synchronous mode: stop the run when a sync topic stays silent this "
+                         "long (s, wall clock)", (0.1, 1e5))
         self.exit_when_input_ends = p("exit_when_input_ends", False, "tf/odometry: exit once the pose publishers have left")
         gap = p("odometry_max_gap_s", 1.0, "Odometry: skip a stamp this far (s) from the last, unless the next confirms it",
                 (1e-3, 3600.0))
@@ -167,6 +178,15 @@ class LidarSimNode(Node):
         self._logged: set[str] = set()
         self._points = self.create_publisher(PointCloud2, TOPIC_POINTS, qos_profile_sensor_data)
         self.mode = mode
+        self._hold_for_subscriber = wait
+        self.error: str | None = None  # why the run stopped early (a silent consumer, a node never ready)
+        for name, value in (("wait_for_ready", ready), ("sync_topics", sync_topics)):
+            if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+                raise ConfigError(f"{name} must be a string array, got {value!r}")
+        self._ready = ReadyGate(self, list(ready), ready_timeout)
+        if synchronous and mode != "scenario":
+            raise ConfigError(f"synchronous needs pose_source scenario (the node's own clock), not {mode}")
+        self._sync = FrameSync(self, list(sync_topics), sync_timeout) if synchronous else None
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # not sim time: runs without /clock
         if mode == "scenario":
             self._tick, self._dt, self._t = 0, dt, 0.0
@@ -175,11 +195,13 @@ class LidarSimNode(Node):
             if publish_tf:
                 self._static = self.create_publisher(TFMessage, TOPIC_TF_STATIC, TF_STATIC_QOS)
                 self._static.publish(_tf_message(0, static_transforms(self.world.player, self.base, self.frame)))
-            self.create_subscription(Float64, TOPIC_CMD_SPEED, self._on_speed, 10)
+            self.create_subscription(TwistStamped, TOPIC_CMD_SPEED, self._on_speed, 10)
+            self._commanded_s = 0.0  # simulated time of the newest speed command in effect
             self._hold = wait  # until /lidar/points has a subscriber
             self.create_timer(dt / rtf if rtf > 0 else 0.0, self._on_tick, clock=steady)
         else:
-            self._wait = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if wait else None
+            gated = wait or self._ready.pending
+            self._wait = self.create_timer(0.05, lambda: self._subscribe_input(odom_topic), clock=steady) if gated else None
             self._subscribe_input(odom_topic)
         self.get_logger().info(
             f"scenario '{scenario.name}', profile '{self.world.profile.name}' "
@@ -187,12 +209,14 @@ class LidarSimNode(Node):
             f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
             + (f"; regions read {', '.join(self.topic_inputs.topics)}" if self.topic_inputs.topics else "")
             + (f"; starts once {TOPIC_POINTS} has a subscriber" if wait else "")
+            + (f"; starts once {', '.join(self._ready.pending)} are ready" if self._ready.pending else "")
+            + (f"; synchronous on {', '.join(sync_topics)}" if synchronous else "")
         )
 
     def _subscribe_input(self, odom_topic: str) -> None:
         """Subscribe to /tf_static and /tf or odometry (with the wait_for_subscriber gate: once it opens)."""
         if self._wait is not None:
-            if self._points.get_subscription_count() == 0:
+            if (self._hold_for_subscriber and self._points.get_subscription_count() == 0) or not self._gate_open():
                 return
             self.destroy_timer(self._wait)
             self._wait = None
@@ -310,23 +334,53 @@ class LidarSimNode(Node):
             return self._once(f"odometry: {str(exc).split(':')[0]}", f"odometry: {exc}")
         self._step([stamp])
 
-    def _on_speed(self, msg: Float64) -> None:
+    def _on_speed(self, msg: TwistStamped) -> None:
+        """A speed command answering the cloud stamped ``msg.header.stamp``: in effect from the start of the
+        next frame (stamp + scan period), or from now if that has passed (free-running, a late answer);
+        a zero stamp: from now."""
+        speed = msg.twist.linear.x
         try:
-            if not math.isfinite(msg.data):
-                raise ValueError(f"speed {msg.data} is not finite")
+            if not math.isfinite(speed):
+                raise ValueError(f"speed {speed} is not finite")
             if self.world.player.ego is None:
                 raise ValueError("the scenario has no ego (mesh-only, driven by its trajectory): speed commands "
                                  "are ignored")  # fmt: skip
-            self.world.player.ego.command_speed(self._t, msg.data)
+            stamp_ns = stamp_to_ns(msg.header.stamp)
+            wanted = stamp_ns * 1e-9 + self.world.profile.period_s if stamp_ns else self._t
+            if wanted < self._t - 1e-9 and self._sync is None:
+                self._once("late command", f"{TOPIC_CMD_SPEED}: the command for the cloud stamped "
+                           f"{stamp_ns * 1e-9:.3f} s came after {wanted:.3f} s, applied at {self._t:.3f} s (the run "
+                           "is free-running: synchronous:=true makes it deterministic)", "applied late")  # fmt: skip
+            self._commanded_s = max(wanted, self._t, self._commanded_s)
+            self.world.player.ego.command_speed(self._commanded_s, speed)
         except ValueError as exc:
             self._once(f"{TOPIC_CMD_SPEED}: {str(exc).split(' ')[0]}", f"{TOPIC_CMD_SPEED}: {exc}")
 
     # -- time ----------------------------------------------------------------------------
+    def _gate_open(self) -> bool:
+        """The wait_for_ready nodes are all ready (a node never ready stops the run: :attr:`error`)."""
+        try:
+            return self._ready.check()
+        except TimeoutError as exc:
+            self.error = str(exc)
+            return False
+
     def _on_tick(self) -> None:
+        if self.error:
+            return
         if self._hold:
             if self._points.get_subscription_count() == 0:
                 return
             self._hold = False
+        if not self._gate_open():
+            return
+        if self._sync is not None:
+            try:
+                if not self._sync.answered(self._points):
+                    return
+            except TimeoutError as exc:
+                self.error = str(exc)
+                return
         self._tick += 1
         self._t = t = self._tick * self._dt
         ego = self.world.player.ego  # None: a mesh-only scenario driven by its trajectory (no road to leave)
@@ -365,8 +419,8 @@ class LidarSimNode(Node):
 
     @property
     def finished(self) -> bool:
-        """max_frames clouds published, or (scenario mode) the ego reached the end of its road."""
-        return 0 < self.max_frames <= self.published or self.road_end_s is not None
+        """max_frames clouds published, (scenario mode) the ego reached the end of its road, or :attr:`error`."""
+        return 0 < self.max_frames <= self.published or self.road_end_s is not None or self.error is not None
 
     def _stamp_ns(self, time_s: float) -> int:
         """Simulated seconds -> ROS stamp (scenario mode: simulated time is ROS time)."""
@@ -390,6 +444,8 @@ class LidarSimNode(Node):
             msg, _ = cloud_to_msg(frame.points, self._stamp_ns(frame.stamp_s), self.frame)
             self._points.publish(msg)
             self.published += 1
+            if self._sync is not None:
+                self._sync.sent(msg)
         for topic in self.topic_inputs.topics:
             waited = self.published - self._subscribed_at.get(topic, self.published)  # clouds since it was wanted
             if waited >= SILENT_INPUT_FRAMES and self.topic_inputs.latest(topic) is None:
@@ -415,6 +471,9 @@ def _spin(node: LidarSimNode) -> None:
         ended = node.input_ended  # then all the input sent is queued here
         if not _spin_once(executor, POLL_S) and ended:
             break  # ... and cast
+    if node.error:
+        node.get_logger().error(node.error)
+        raise SystemExit(1)
     if node.finished:  # max_frames or road end: the last clouds are best effort; give them time to reach the readers
         linger_until = time.monotonic() + LINGER_S
         while not stop_requested() and time.monotonic() < linger_until:

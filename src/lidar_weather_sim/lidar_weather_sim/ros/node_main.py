@@ -17,7 +17,8 @@ even a busy node. ``finish`` always runs (the recorder closes its bag there), be
 is torn down. A node stuck in C code (where no Python signal handler can run) still answers SIGUSR1:
 it prints every thread's Python stack on stderr (``faulthandler``), which ``lidar-weather-sim up``
 asks for before its SIGKILL. Every node starts with the Fast DDS profile for dense clouds
-(:mod:`lidar_weather_sim.ros.dds_profile`).
+(:mod:`lidar_weather_sim.ros.dds_profile`) and, once built, says it is ready on ``/<node>/ready``
+(:mod:`lidar_weather_sim.ros.readiness`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.signals import SignalHandlerOptions
 
 from lidar_weather_sim.ros.dds_profile import use_large_message_profile
+from lidar_weather_sim.ros.readiness import announce_ready
 
 N = TypeVar("N")
 POLL_S = 0.1  # longest wait in a spin loop (s): the reaction time to a signal
@@ -67,6 +69,7 @@ def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] = spin
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, _on_signal)
             node = _build(name, build, config_errors)
+            announce_ready(node)  # the constructor did the warm-up: /<node>/ready (latched)
             try:
                 if not stop_requested():
                     spin(node)

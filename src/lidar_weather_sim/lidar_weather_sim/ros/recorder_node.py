@@ -73,7 +73,7 @@ class RecorderNode(Node):
                 qos = QoSProfile(depth=self.depth, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             else:
                 qos = QoSProfile(depth=self.depth, reliability=ReliabilityPolicy.RELIABLE)
-            from lidar_weather_sim.ros.bag_player_node import message_class
+            from lidar_weather_sim.ros.conversions import message_class
 
             callback = lambda data, t=topic, m=msgtype: self._write(t, m, data)  # noqa: E731
             self._subs[topic] = self.create_subscription(message_class(msgtype), topic, callback, qos, raw=True)
