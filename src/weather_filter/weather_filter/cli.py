@@ -1,5 +1,6 @@
-"""``weather-filter``: evaluate the weather filters on a bag and train the learned filter.
+"""``weather-filter``: filter a bag, evaluate the weather filters on a bag and train the learned filter.
 
+    weather-filter apply BAG --out BAG2 [--method M] [--fallback dror|dsor] [--topic T] [--removed TOPIC] [--overwrite]
     weather-filter eval BAG [--method M] [--fallback dror|dsor] [--topic T] [--out FILE.json] [--param NAME=VALUE ...]
     weather-filter train [BAG ...] [--sim SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]] ...] [--synthetic-frames N] [--out MODEL.joblib]
     weather-filter train-weather --sim SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]] ... [--k K] [--out MODEL.joblib]
@@ -62,6 +63,21 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         with open(args.out, "w") as stream:
             stream.write(text + "\n")
     print(text)
+    return 0
+
+
+def _cmd_apply(args: argparse.Namespace) -> int:
+    import warnings
+
+    from weather_filter.apply import apply_bag
+    from weather_filter.filters import GeometryFallbackWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", GeometryFallbackWarning)
+        warnings.showwarning = lambda message, *rest, **kw: print(f"weather-filter apply: warning: {message}", file=sys.stderr)
+        report = apply_bag(args.bag, args.out, topic=args.topic, method=args.method, fallback=args.fallback,
+                           removed_topic=args.removed, overwrite=args.overwrite)  # fmt: skip
+    print(f"{args.out}: {report.summary()}")
     return 0
 
 
@@ -277,8 +293,20 @@ def _engine_options(parser: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from weather_filter.learned import TRAIN_OBJECT_RECALL
 
-    parser = argparse.ArgumentParser(prog="weather-filter", description="LiDAR weather filters: evaluation and training.")
+    parser = argparse.ArgumentParser(prog="weather-filter", description="LiDAR weather filters: offline filtering, evaluation and training.")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    ap = commands.add_parser("apply", help="filter a recording offline as weather_filter_node would; every other topic is kept")
+    ap.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
+    ap.add_argument("--out", required=True, metavar="BAG2", help="output rosbag2 directory (MCAP)")
+    ap.add_argument("--topic", help="PointCloud2 topic to filter (default: the bag's only one)")
+    ap.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS, metavar="METHOD",
+                    help="filter (default %(default)s, the node's): " + ", ".join(METHODS))  # fmt: skip
+    ap.add_argument("--fallback", default="dror", choices=GEOMETRY_METHODS,
+                    help="geometry-only filter for clouds lacking the method's fields (default dror, the node's)")  # fmt: skip
+    ap.add_argument("--removed", metavar="TOPIC", help="also write the removed points on this topic")
+    ap.add_argument("--overwrite", action="store_true", help="replace BAG2 if it exists")
+    ap.set_defaults(func=_cmd_apply)
 
     ev = commands.add_parser("eval", help="precision/recall of removing weather points on a labelled bag (JSON)")
     ev.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")

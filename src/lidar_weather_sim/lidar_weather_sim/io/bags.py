@@ -253,6 +253,27 @@ def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iter
     return (BagMessage(t, m, log, _deserialize(bag, m, d)) for t, m, log, d in _raw(bag, topics))
 
 
+def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+    """(topic, msgtype, log_time_ns, CDR bytes) of every message of BAG (or of ``topics``), as stored:
+    what a copy of the bag writes back with :meth:`BagWriter.write_serialized`."""
+    return _raw(_open_bag(path), topics)
+
+
+def cloud_topic(path: str | Path, topic: str | None = None) -> str:
+    """``topic`` if the bag has it as a PointCloud2 topic; without ``topic``, the bag's only PointCloud2 topic."""
+    info = bag_info(path)
+    clouds = [t.name for t in info.topics if t.msgtype == POINTCLOUD2]
+    if topic is not None:
+        if topic not in clouds:
+            raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}; its cloud topics: "
+                           f"{', '.join(clouds) or 'none'}")  # fmt: skip
+        return topic
+    if len(clouds) != 1:
+        raise BagError(f"bag {info.path} has {len(clouds)} {POINTCLOUD2} topics ({', '.join(clouds) or 'none'}): "
+                       "name one with --topic")  # fmt: skip
+    return clouds[0]
+
+
 def read_clouds(path: str | Path, topic: str = TOPIC_POINTS, nan_policy: NanPolicy = "drop") -> Iterator[CloudFrame]:
     """Decoded PointCloud2 frames of ``topic``; non-finite points handled per ``nan_policy``."""
     info = bag_info(path)
