@@ -1,5 +1,7 @@
-# The two commands of README.md. Both set the workspace up on first use (idempotent).
-.PHONY: setup demo test clean
+# The two commands of README.md (demo, test) and the full test run. Each sets the workspace up on first use (idempotent).
+.PHONY: setup demo test test-all coverage clean
+
+FAST := not slow and not validation
 
 setup:
 	@bash scripts/setup.sh
@@ -7,8 +9,16 @@ setup:
 demo: setup
 	@bash scripts/demo.sh
 
-test: setup
+test: setup  ## the fast tier: unit tests and quick DDS/CLI integration tests (~10 min on 2 cores)
+	@bash scripts/test.sh -m "$(FAST)" $(PYTEST_ARGS)
+
+test-all: setup  ## every test: the fast tier plus the slow and validation tiers
 	@bash scripts/test.sh $(PYTEST_ARGS)
+
+coverage: setup  ## both tiers with line coverage per package (log/coverage/)
+	@LWS_COVERAGE=fast bash scripts/test.sh -m "$(FAST)" $(PYTEST_ARGS)
+	@LWS_COVERAGE=all bash scripts/test.sh $(PYTEST_ARGS)
+	@.venv/bin/python scripts/coverage_table.py log/coverage/fast.json log/coverage/all.json
 
 clean:
 	rm -rf build install log

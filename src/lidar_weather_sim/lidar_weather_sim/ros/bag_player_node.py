@@ -14,7 +14,10 @@ that needs a static frame before that frame.
 Parameters: ``bag`` (path), ``topics`` (string array, empty = all), ``rate``
 (playback speed factor), ``publish_clock`` (bool), ``clock_hz`` (Hz),
 ``wait_for_topics`` (string array: start only when each has a subscriber),
-``wait_timeout_s`` (s, then start anyway), ``stay_after_playing`` (bool).
+``wait_timeout_s`` (s, then start anyway), ``wait_for_ready`` (string array of node names: start
+once each has said it is ready on /<node>/ready, :mod:`lidar_weather_sim.ros.readiness`; graphs give
+every other node), ``ready_timeout_s`` (s: a node not ready by then ends the run, status 1),
+``stay_after_playing`` (bool).
 A topic this node plays counts as subscribed once a reader is matched to its
 publisher (what was published before would be lost to a volatile reader, or
 reach a transient-local one late); any other topic once a subscription shows in
@@ -41,6 +44,7 @@ from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF_STATIC
 from lidar_weather_sim.io.bags import BagError, read_messages, typestore
 from lidar_weather_sim.ros.conversions import message_class
 from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
+from lidar_weather_sim.ros.readiness import ReadyGate
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -65,10 +69,13 @@ class BagPlayerNode(Node):
         self.clock_hz = self.declare_parameter("clock_hz", 100.0, d(description="/clock rate between messages (Hz)", floating_point_range=[hz])).value
         wait = self.declare_parameter("wait_for_topics", [""], d(description="Start when each has a subscriber")).value
         self.wait_timeout_s = self.declare_parameter("wait_timeout_s", 30.0, d(description="Start anyway after (s)")).value
+        ready = self.declare_parameter("wait_for_ready", [""], d(description="Start once each of these nodes is ready")).value
+        ready_timeout = self.declare_parameter("ready_timeout_s", 600.0, d(description="Fail when they are not ready after (s)")).value
         stay = d(description="After playing, run on until shut down")
         self.stay_after_playing = self.declare_parameter("stay_after_playing", False, stay).value
         self.topics = [t for t in topics if t] or None
         self.wait_for = [t for t in wait if t]
+        self._ready = ReadyGate(self, [n for n in ready if n], ready_timeout)
         if not self.bag:
             raise BagError("parameter 'bag' is empty: give the bag to play")
         self.messages = [m for m in read_messages(self.bag, self.topics) if not (self.publish_clock and m.topic == TOPIC_CLOCK)]
@@ -90,7 +97,18 @@ class BagPlayerNode(Node):
         return own.get_subscription_count() > 0 if own is not None else self.count_subscribers(topic) > 0
 
     def wait_for_subscribers(self) -> None:
-        """Until each ``wait_for_topics`` topic has a subscriber; meanwhile /clock stands at the bag's start."""
+        """Until each ``wait_for_ready`` node is ready, then until each ``wait_for_topics`` topic has a
+        subscriber; meanwhile /clock stands at the bag's start. A node never ready: status 1, one line."""
+        while not stop_requested():
+            try:
+                if self._ready.check():
+                    break
+            except TimeoutError as exc:
+                self.get_logger().error(str(exc))
+                raise SystemExit(1) from None
+            if self._clock is not None and self.messages:
+                self._clock.publish(Clock(clock=_time(self.messages[0].log_time_ns)))
+            rclpy.spin_once(self, timeout_sec=0.05)
         deadline = time.monotonic() + self.wait_timeout_s
         while time.monotonic() < deadline and not stop_requested() and not all(self._subscribed(t) for t in self.wait_for):
             if self._clock is not None and self.messages:
