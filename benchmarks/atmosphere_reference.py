@@ -1,4 +1,4 @@
-"""Fast atmosphere model vs the independent reference (issue 22), per weather, on one profile.
+"""Fast atmosphere model vs the independent reference, per weather, on one profile.
 
     python benchmarks/atmosphere_reference.py [--frames 10] [--profile scala4] [--weathers fog:30,rain:10]
         [--fast-model fitted|physical] [--columns N]

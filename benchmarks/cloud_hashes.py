@@ -1,4 +1,4 @@
-"""Hashes of the clouds of the weather rows, to show a change left them bit-identical (issue 21).
+"""Hashes of the clouds of the weather rows, to show a change left them bit-identical.
 
 Each row of ``weather_frame_time.py`` (highway_clear with 10 vehicles) on ``--profile``, for both atmosphere
 models, simulated for ``--frames`` frames at ``--seed`` on the Open3D backend: the row's point count and the

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Fit the physical-atmosphere rooftop runs' free states to paper 2 (issue 22 item 3).
+"""Fit the physical-atmosphere rooftop runs' free states to paper 2.
 
 The physical atmosphere (drop-size distributions, Mie at 905 nm, scala4's optics and receiver) has no
 per-sensor near-field fit. What paper 2 leaves open are the states of its scenes

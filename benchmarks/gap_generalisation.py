@@ -1,4 +1,4 @@
-"""Gap-search generalisation baseline (issue 22): `gap` on the seeded cases of config/gap_cases.yaml.
+"""Gap-search generalisation baseline: `gap` on the seeded cases of config/gap_cases.yaml.
 
     python benchmarks/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
         [--atmosphere-model fitted|physical] [--fast-via-sim] [--reuse-bags] [--json F]

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""How long can near-field echoes be that the sun thins as much as paper 2 says? (issue 22 item 3)
+"""How long can near-field echoes be that the sun thins as much as paper 2 says?
 
 Paper 2 Table 3: under sun the near field (0-5 m) keeps 0.35-0.40 of its detections in every weather, yet its mean
 EPW stays at 0.75-0.86 m (0.94-1.02 m at night). Echoes of the profile's Gaussian pulse (FWHM F) cross a threshold

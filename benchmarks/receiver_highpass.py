@@ -1,4 +1,4 @@
-"""What an AC-coupled receiver, or the aperture's defocus, makes of fog's volume return (issue 22's receiver
+"""What an AC-coupled receiver, or the aperture's defocus, makes of fog's volume return (a receiver
 model; the simulator's is :mod:`lidar_weather_sim.sensor.ac_coupling`, applied to the volume only).
 
 The physical atmosphere (``regions/physical_air.py``) and the reference both give, in fog, one echo per

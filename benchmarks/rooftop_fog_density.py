@@ -1,4 +1,4 @@
-"""How dense the thesis' rooftop fog can have been for the physical atmosphere (issue 22, item 3).
+"""How dense the thesis' rooftop fog can have been for the physical atmosphere.
 
 The rooftop fog's visual range was never measured: the physical runs' states (``config/rooftop_physical.yaml``,
 fitted by ``benchmarks/fit_physical_rooftop.py``) hold ~2.8 km. Its near field (paper 2 Table 3, fog, 0-5 m) holds 313 +- 55 detections a frame without sun,

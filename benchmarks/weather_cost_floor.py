@@ -1,4 +1,4 @@
-"""What the weather path costs before the echo stage sees a scatterer (issue 21): CPU time on one thread.
+"""What the weather path costs before the echo stage sees a scatterer: CPU time on one thread.
 
 Rows of ``weather_frame_time.py`` (highway_clear with 10 vehicles, advance every 10 ms) on one thread
 (kernel threads 1, regions one after the other, no background detection), in CPU ms per frame

@@ -1,4 +1,4 @@
-"""Issue 6: the weather filters on labelled simulation never used in training, and the per-frame KNN.
+"""The weather filters on labelled simulation never used in training, and the per-frame KNN.
 
     python benchmarks/weather_filter_eval.py [--no-train] [--methods dror,dsor,lior,echo,learned]
 

@@ -253,7 +253,7 @@ def test_pulse_sigma_is_the_profiles(scala4):
 def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, tmp_path):
     """The atmosphere region's ``model: physical`` against the reference, written apart from it, on the same clear
     frames and seed: detections in 0-5 m within 10 %, all detections within 12 %, the 0-5 m range histogram (5 cm
-    bins, mean over frames) with Pearson >= 0.85 (issue 22 asks 0.9; measured over 6 frames: fog 30 m 0.99,
+    bins, mean over frames) with Pearson >= 0.85 (the target is 0.9; measured over 6 frames: fog 30 m 0.99,
     rain 10 mm/h 0.95, snow 5 mm/h 0.92). OS1-128 with 32 columns (every beam simulated by the reference) in thin
     fog: 0.95 over 4 frames; 0.37 before the fog's near-field droplets fluctuated from beam to beam (every beam
     of a channel then peaked on the same spot of its flat-topped echo). Fog behind a dirty cover (gap draw case 7):
@@ -297,7 +297,7 @@ def test_gap_with_the_physical_model_names_the_generators_fog_and_fits_its_visua
     `gap --atmosphere-model physical` names atmosphere.fog alone, its visual range within 25 %, and at least
     halves the held-out gap. The Hahner fog was named in none of the draw's 4 cases while scala4's receiver was
     DC-coupled with the cone overlap (its fog echo 12-16 m long, the generator's ~1.5 m) and the generator
-    replaced hard returns as a single-return sensor does (docs/atmosphere_reference.md, session 31)."""
+    replaced hard returns as a single-return sensor does (docs/atmosphere_reference.md)."""
     from lidar_weather_sim.gap.command import run_gap
 
     scenario = load_scenario("highway_clear")

@@ -1,6 +1,6 @@
 """Closed loop over DDS: lidar_sim_node -> [weather_filter_node] -> ego_controller_node -> /ego/cmd_speed -> the player.
 
-"Brakes" is fixed before any run (issue 8): commanded deceleration > 2 m/s^2 for
+"Brakes" is fixed before any run: commanded deceleration > 2 m/s^2 for
 >= 0.3 s, computed from the controller's commanded-speed trace (one command per
 cloud, stamped with the cloud's sim time). Scenario highway_spray_crosswind
 (light rain, a spraying vehicle in the left lane, a crosswind that blows its
@@ -83,7 +83,7 @@ def test_closed_loop_brakes_for_the_box_and_not_for_filtered_weather(tmp_path):
     seen = boxed.label[boxed.stamp_s >= start]
     seen = seen[np.isfinite(seen)]  # clouds with a confirmed obstacle (none while the box is hidden by spray)
     assert len(seen) >= 10 and np.mean(seen == OBSTACLE) > 0.8, seen
-    # seen through the crosswind's spray within 1.5 s of appearing (1.93 s at 8387df7), then braked for at the
+    # seen through the crosswind's spray within 1.5 s of appearing, then braked for at the
     # controller's full deceleration: the box is too close to stop 5 m before it (a late sighting, not a timid one)
     assert start <= BOX_AT_S + 1.5
     before = int(np.searchsorted(boxed.stamp_s, start)) - 1

@@ -99,7 +99,7 @@ def test_spray_and_the_car_throwing_it_on_the_real_recording(tmp_path):
     warm = np.count_nonzero(first["label"] == Label.SPRAY)
     cold = scenario.model_copy(update={"region_params": {"spray": {"warmup_s": 0.0}}})
     cold = np.count_nonzero(Resimulator(real, cold).frames(spray, [0])[0]["label"] == Label.SPRAY)
-    assert warm >= 10 and warm >= 4 * cold, (warm, cold)  # session 23: 20 and 2 (the frame's own 0.1 s)
+    assert warm >= 10 and warm >= 4 * cold, (warm, cold)  # measured: 20 and 2 (the frame's own 0.1 s)
     out = tmp_path / "street_spray"
     done = subprocess.run([sys.executable, "-m", "lidar_weather_sim.cli", "make-measured", "ouster_street_spray",
                            "--on", str(bag), "--hide", "spray:water_film=2.0", "--with-actors", "--out", str(out)],

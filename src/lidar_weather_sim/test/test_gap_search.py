@@ -93,7 +93,7 @@ class RoundsSearch(LandscapeSearch):
 @pytest.mark.parametrize("families, named", [(("weather", "sensor"), ["sensor.intensity_gamma"]),
                                              (("weather",), ["sensor.intensity_gamma", "sensor.range_noise"])])  # fmt: skip
 def test_a_sensor_effect_must_earn_the_margin_again_on_an_independent_redraw(families, named):
-    """The sensor-family VLP-16 draws' phantom (session 20): after the hidden gamma, a 3 mm range noise (the bound)
+    """The sensor-family VLP-16 draws' phantom: after the hidden gamma, a 3 mm range noise (the bound)
     takes one held-out draw from 0.0031 to 0.0004, best of the round by that draw's noise; on another draw it
     gains nothing. The gamma itself wins on both draws. Without the sensor family the rule is not applied."""
     gamma, noise, bias = (parse_effect(t) for t in ("sensor.intensity_gamma:gamma=0.6", "sensor.range_noise:sigma=0.003",
@@ -488,7 +488,7 @@ def test_a_recorded_return_mode_is_evident_and_no_other_is_tried():
 
 def test_a_recorded_return_mode_is_not_refitted():
     """The real OS1-128 recording (codes: STRONGEST): read off and accepted as strongest, the joint refit beside
-    the beams' origin moved it to first, which fitted the calibration frames a hair better (session 23)."""
+    the beams' origin moved it to first, which fitted the calibration frames a hair better."""
 
     class ModeSearch(LandscapeSearch):
         refit = GapSearch.refit

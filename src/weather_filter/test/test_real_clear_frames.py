@@ -1,4 +1,4 @@
-"""Issue 6 on the real clear OS1-128 street recording (``lidar-weather-sim import-ouster``, left in
+"""The filter's target on the real clear OS1-128 street recording (``lidar-weather-sim import-ouster``, left in
 ``.venv/cache/ouster_real/os1_128_street`` by ``make setup``): the filters must remove <= 0.5 % of
 the points. The frames carry no EPW or echo fields, so the default filter (``echo``, as in the node and
 ``weather-filter eval``) runs through the geometry-only fallback, with a warning."""

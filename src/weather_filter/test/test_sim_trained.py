@@ -1,4 +1,4 @@
-"""Issue 6 on labelled simulation: the shipped learned filter and per-frame weather KNN on runs simulated here
+"""The filter's targets on labelled simulation: the shipped learned filter and per-frame weather KNN on runs simulated here
 with fixed seeds (scenarios and seeds never used in training), the numba feature pass against a direct
 numpy/scipy computation, and the reproducibility of ``weather-filter train --sim``.
 
@@ -176,7 +176,7 @@ def test_shipped_model_meets_its_floor_on_held_out_runs(spec, cache):
 
 # spec -> (class, least share of frames named so); measured 1.0 each, wf_train_fog / wf_train_snow 0.95,
 # highway_spray 0.85; wf_heldout_mixed (snow 1.5 mm/h in fog 600 m) 0.85 since the fitted air draws fog with snow per
-# class (session 29: the snow class had been scaled by the fog's extinction too, ~4x its near field; 1.0 then). The fog and snow runs through the heavier dirt of the point filter's training scenarios
+# class (scaling the snow class by the fog's extinction too, ~4x its near field, gave 1.0). The fog and snow runs through the heavier dirt of the point filter's training scenarios
 # (never trained on by the KNN) were named rain and fog/rain in every frame by KNN v1 (linear counts, no heavy dirt
 # or spray mist in its runs); the light rain of highway_spray, under the spray mist, was named rain in 0.55 of
 # the frames by v2 (no isotropic part: fog and snow in the rest).

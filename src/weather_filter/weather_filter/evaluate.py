@@ -1,6 +1,6 @@
 """Evaluation of a filter on a bag (``weather-filter eval``).
 
-Definitions (issue 6): points to remove are labels 10-15, points to keep
+Definitions: points to remove are labels 10-15, points to keep
 labels 1-3 (label 0 counts in neither). Weather precision = removed weather /
 all removed points with a label in 1-3 or 10-15; recall = removed weather / weather;
 F1 their harmonic mean; ``object_recall`` = kept / points with labels 1-3;

@@ -341,7 +341,7 @@ class EchoAwareFilter(PointFilter):
 #: Geometry-only filters usable on any cloud with x, y, z.
 GEOMETRY_METHODS = ("dror", "dsor")
 
-#: Parameters of a geometry-only filter when it stands in for a method whose fields the cloud lacks (issue 6:
+#: Parameters of a geometry-only filter when it stands in for a method whose fields the cloud lacks (the target:
 #: on real clear frames the filter must remove <= 0.5 % of the points). Without intensity/EPW/echo nothing
 #: tells a raindrop from a leaf or an edge pixel, so the fallback removes only what a clear scene does not
 #: produce: fewer than 2 neighbours within 5 angular steps (sizes in units of the cloud's own resolution,

@@ -36,7 +36,7 @@ DEFAULT_MODEL = MODELS_DIR / f"weather_point_mlp_v{MODEL_VERSION}.joblib"
 #: keeping at least this share of the (reweighted) solid training points. v4: 0.99985. At 0.9997 the rule
 #: stopped binding once the spray's drop packets were capped in height only near the ground: the best training
 #: F1 sat at threshold 0.69, which kept 99.48 % of the held-out os1_128_2048 solid points (F1 0.947), short of
-#: issue 6's 99.5 %; 0.99985 gives 0.81-0.82 there. (v3: 0.999, with which the v4 features' model kept 99.46 % of the
+#: the 99.5 % target; 0.99985 gives 0.81-0.82 there. (v3: 0.999, with which the v4 features' model kept 99.46 % of the
 #: held-out scala4 solid points and removed 10-20 % of the vehicle seen through spray ahead in the 128-channel
 #: held-out runs.)
 TRAIN_OBJECT_RECALL = 0.99985

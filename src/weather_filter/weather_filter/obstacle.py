@@ -62,10 +62,10 @@ PAPER_FEATURES = ("x", "y", "echo", "channel", "epw", "n_radial", "n_small", "n_
 V2_FEATURES = tuple(FEATURE_NAMES)
 #: The v2 model's hidden layer (a deviation: the paper's 10 units underfit the v2 runs, train box F 0.80).
 V2_HIDDEN = (32,)
-#: The v3 model's features (session 23): v2's plus the extents of each detection's bird's-eye cluster
+#: The v3 model's features: v2's plus the extents of each detection's bird's-eye cluster
 #: (weather_filter.obstacle_clusters), aimed at the car ahead's rear that v2 takes for a box; its hidden layer: v2's.
 V3_FEATURES = V2_FEATURES + CLUSTER_FEATURES
-#: The v4 model's features (session 24): v3's plus the occupancy history of each detection's cell
+#: The v4 model's features: v3's plus the occupancy history of each detection's cell
 #: (weather_filter.obstacle_history), aimed at the car ahead's rear, which holds its place frame after frame.
 V4_FEATURES = V3_FEATURES + HISTORY_FEATURES
 #: The v4 model's classifier (a deviation: gradient-boosted trees, scikit-learn's HistGradientBoostingClassifier,
@@ -89,7 +89,7 @@ AUGMENT_TRAIN_RUNS_WIDE = AUGMENT_TRAIN_RUNS + (
     "highway_spray:22:40@25", "wf_train_rain_spray:22:40@26", "wf_train_crosswind_spray:22:40@27",
     "proving_ground_39:22:40@28", "wf_train_snow:23:40@29", "wf_train_fog:23:40@30",
 )  # fmt: skip
-#: v2 model's training runs (issue 24 retrain; chosen after AUGMENT_TEST_RUNS_V2 was committed, never looking at
+#: v2 model's training runs (chosen after AUGMENT_TEST_RUNS_V2 was committed, never looking at
 #: its figures): every simulation run of AUGMENT_TRAIN_RUNS_WIDE but the validation ones below, plus curved_clear
 #: (curved road, guard rail, car ahead in the ego lane), the wf_knn_highway* runs (dirt on the cover) and more
 #: snow / crosswind seeds; each simulation run augmented twice, once keeping the sensor model's EPW (``@SEED``,
@@ -124,7 +124,7 @@ AUGMENT_VALIDATION_RUNS_V2 = (
 #: runs): these teach the physics' boxes. Other seeds than the benchmark's (500): that one stays held out.
 SIM_BOXES_TRAIN_V2 = (700, 40)
 SIM_BOXES_VALIDATION_V2 = (900, 20)
-#: v3 model's training runs (session 23): v2's plus two training scenarios with the car ahead in the ego lane
+#: v3 model's training runs: v2's plus two training scenarios with the car ahead in the ego lane
 #: (wf_train_lead_ahead_rain: straight highway in rain; wf_train_lead_ahead_curved: the curved road), each at two
 #: simulation seeds, augmented with the sensor's EPW and with EPW matched to the car ahead. Chosen after the v2
 #: list's figures were known (v2's false obstacles there: the rear of the car ahead in the ego lane); measured on
@@ -153,7 +153,7 @@ AUGMENT_TEST_RUNS = (
     "highway_spray:111:40@111", "proving_ground_55:111:40@112", "proving_ground_60:111:40@113",
     "wf_heldout_mixed:111:40@114", "highway_spray_crosswind:111:40@115",
 )  # fmt: skip
-#: Second held-out list (issue 24 retrain), fixed and committed BEFORE any model was trained on the retrain's
+#: Second held-out list, fixed and committed BEFORE any model was trained on the v2 model's
 #: data, never used to choose anything: new simulation seeds (211) and augmentation seeds (211-217) of the same
 #: held-out scenarios, plus two scenarios in no training run: wf_knn_spray_mist (highway spray in rain, the car
 #: 16 m ahead-left) and wf_knn_curved_dirt (curved road, snow, dirt on the cover, a car 15 m ahead in the ego
@@ -164,7 +164,7 @@ AUGMENT_TEST_RUNS_V2 = (
     "wf_heldout_mixed:211:40@214:lead", "highway_spray_crosswind:211:40@215:lead",
     "wf_knn_spray_mist:211:40@216:lead", "wf_knn_curved_dirt:211:40@217:lead",
 )  # fmt: skip
-#: Third held-out list (session 23), fixed and committed BEFORE the v3 model (cluster extents) was trained (its
+#: Third held-out list, fixed and committed BEFORE the v3 model (cluster extents) was trained (its
 #: feature code written, never run), never used to choose anything: the v2 list's scenarios at new simulation
 #: seeds (311) and augmentation seeds (311-317). The v2 list's figures (and its false obstacles: the car ahead in the ego lane of
 #: wf_heldout_mixed) were known when v3 was designed, so for v3 the v2 list is validation, not held out.
@@ -173,7 +173,7 @@ AUGMENT_TEST_RUNS_V3 = (
     "wf_heldout_mixed:311:40@314:lead", "highway_spray_crosswind:311:40@315:lead",
     "wf_knn_spray_mist:311:40@316:lead", "wf_knn_curved_dirt:311:40@317:lead",
 )  # fmt: skip
-#: Fourth held-out list (session 24), fixed and committed BEFORE any v4 experiment was run, never used to choose
+#: Fourth held-out list, fixed and committed BEFORE any v4 experiment was run, never used to choose
 #: anything: the same held-out scenarios at new simulation seeds (411) and augmentation seeds (411-417). The v2 and
 #: v3 lists' figures are known (v3 was measured on them), so for a v4 model both are validation, not held out.
 AUGMENT_TEST_RUNS_V4 = (

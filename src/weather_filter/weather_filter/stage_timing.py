@@ -1,4 +1,4 @@
-"""Stage times of the learned filter on one frame (issue 6 budget: <= 20 ms per ~131k-point frame).
+"""Stage times of the learned filter on one frame (budget: <= 20 ms per ~131k-point frame).
 
     python -m weather_filter.stage_timing [--spec wf_heldout_mixed:102:6:os1_128_2048] [--repeats 40]
 

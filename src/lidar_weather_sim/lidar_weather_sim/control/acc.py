@@ -20,7 +20,7 @@ obstacle as standing still (conservative): the deceleration needed to stop
 that when a >= ``min_brake_m_s2`` (capped at ``max_brake_m_s2``), otherwise
 it returns to ``cruise_speed_m_s`` at ``accel_m_s2``.
 
-Braking (fixed before any run, issue 8): the commanded deceleration exceeds
+Braking (fixed before any run): the commanded deceleration exceeds
 2 m/s^2 for at least 0.3 s (:func:`braking_events` on the commanded speed trace).
 """
 

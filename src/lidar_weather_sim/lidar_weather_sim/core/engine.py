@@ -9,7 +9,7 @@ data, the atmosphere fit, the gap search's screening) hand their tasks to an :cl
   thread each, the simulator single-threaded in them (``LWS_SIM_THREADS=1``; numba and
   OpenMP likewise), no dashboard; ``N=None``: one worker per CPU this process may use;
 - ``Engine(scheduler="tcp://host:8786")``: an existing cluster. Its workers must run the
-  same code and see the same files (see README "Sweeps");
+  same code and see the same files (see docs/sweep.md);
   :class:`~lidar_weather_sim.core.engine_plugin.SingleThreadedSimulator` sets the thread
   variables in each of them before its first task.
 

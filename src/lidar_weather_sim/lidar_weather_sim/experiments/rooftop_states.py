@@ -1,4 +1,4 @@
-"""Scene and sensor states of the physical-atmosphere rooftop runs (paper 2, issue 22 item 3).
+"""Scene and sensor states of the physical-atmosphere rooftop runs (paper 2).
 
 Paper 2 reports weather classes, not the weather: no visual range, no rain or snow rate, no state
 of the window or of the street. With the physical atmosphere (drop-size distributions, Mie, the

@@ -1,8 +1,7 @@
 """Default frame budgets of the gap search (``lidar-weather-sim gap``; a module of its own so the CLI reads
 them without importing the search).
 
-They are what test/test_gap.py checks, so that a user who sets none gets tested budgets (until session 14
-the command used 24 calibration and 4 screening frames, fewer than the tests' 30 and 6)."""
+They are what test/test_gap.py checks, so that a user who sets none gets tested budgets."""
 
 FIT_FRAMES = 30  # calibration frames used for fitting
 HELDOUT_FRAMES = 30  # held-out frames used for every decision

@@ -1,4 +1,4 @@
-"""The seeded case draw of the gap-generalisation benchmark (issue 22) from ``config/gap_cases.yaml``.
+"""The seeded case draw of the gap-generalisation benchmark from ``config/gap_cases.yaml``.
 
 Each case is a generator (``fast``: the project's effects put on a clear base recording by
 ``make-measured --on``; ``reference``: ``make-measured --reference``; ``hahner``: ``make-measured --generator

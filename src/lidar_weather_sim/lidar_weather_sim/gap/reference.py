@@ -1,4 +1,4 @@
-"""An independent atmosphere reference (issue 22): fog, rain and snow simulated drop by drop, apart from the
+"""An independent atmosphere reference: fog, rain and snow simulated drop by drop, apart from the
 fast atmosphere region (it imports nothing of ``regions.atmosphere`` or ``regions.near_field``).
 
 Slow and simple on purpose. A clear frame of the simulator gives the scene: for every beam its returns'
@@ -73,7 +73,7 @@ from lidar_weather_sim.sensor.scan import ScanPattern
 NEAR_M = 5.0  # drops of every size one by one out to here (m)
 INDIVIDUAL_FRACTION = 0.05  # beyond NEAR_M: drops reaching this share of the threshold on their own
 SMALL_PROFILE_BEAMS = 4096  # profiles with at most this many beams per frame: every beam is sampled
-DEFAULT_BEAMS_PER_FRAME = 1024  # sampled beams per frame of larger profiles (>= 200, issue 22)
+DEFAULT_BEAMS_PER_FRAME = 1024  # sampled beams per frame of larger profiles (>= 200)
 DIRECT_PER_CELL = 50.0  # fog droplets per grid cell below which they are placed one by one
 PULSE_REACH = 5.0  # a pulse is summed out to this many sigmas
 CHUNK_BEAMS = 256  # sampled beams per waveform block (memory: 256 x cells x 8 B per array)
@@ -113,8 +113,8 @@ def scene_pulses(points: np.ndarray, threshold: float, sigma_m: float, dark: flo
     from the EPW as an isolated pulse's (``T exp((EPW / 2s)^2 / 2)``) where the byte is saturated. The sigma
     gives the point's EPW at the threshold ``T``: the profile's ``sigma_m`` for an isolated echo, wider for
     one the simulator summed from sub-rays at slightly different ranges (a vehicle's side). Taking the peak
-    from the EPW alone (until session 26) made such echoes brighter whenever the reference re-drew them: a
-    vehicle's returns at intensity 90 came out at 132 in fog, the largest term of every reference case's gap."""
+    from the EPW alone would make such echoes brighter whenever the reference re-drew them: a
+    vehicle's returns at intensity 90 would come out at 132 in fog, the largest term of every reference case's gap."""
     amplitude = dark * np.exp(points["intensity"].astype(np.float64) / 255.0 * log_span)
     width = np.full(len(points), sigma_m)
     if "epw" not in (points.dtype.names or ()):

@@ -1,4 +1,4 @@
-"""Region plugin ``faults``: sensor faults to test a perception stack against (issue 23).
+"""Region plugin ``faults``: sensor faults to test a perception stack against.
 
 Faults act on the light that leaves and reaches the sensor, as the one-way ``transmission`` of the
 region protocol (the echo stage squares it), so a faulted beam returns nothing from the scene or from

@@ -1,4 +1,4 @@
-"""The atmosphere as physics per beam (issue 22, item 1): the scatterers of region ``atmosphere`` with
+"""The atmosphere as physics per beam: the scatterers of region ``atmosphere`` with
 ``model: physical``.
 
 The media are fog (its visual range) and one precipitation (rain or snow, mm/h) from
