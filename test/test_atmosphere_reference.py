@@ -250,6 +250,7 @@ def test_pulse_sigma_is_the_profiles(scala4):
                                                      ("atmosphere.fog:visual_range=30", "scala4:cone:0", 4),
                                                      ("atmosphere.rain:intensity=10", "scala4:cone:0", 4),
                                                      ("atmosphere.snow:intensity=5", "scala4:cone:0", 4)])
+@pytest.mark.validation
 def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, tmp_path):
     """The atmosphere region's ``model: physical`` against the reference, written apart from it, on the same clear
     frames and seed: detections in 0-5 m within 10 %, all detections within 12 %, the 0-5 m range histogram (5 cm
@@ -290,6 +291,7 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, 
     assert np.corrcoef(*hist)[0, 1] >= 0.85, np.corrcoef(*hist)[0, 1]
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("generator, visual_range_m", [("reference", 60.0), ("hahner", 90.0)])
 def test_gap_with_the_physical_model_names_the_generators_fog_and_fits_its_visual_range(generator, visual_range_m,
                                                                                        tmp_path):  # fmt: skip

@@ -63,6 +63,7 @@ def test_box_scenario_puts_a_box_in_the_ego_lane(tmp_path):
     assert box.s_m == pytest.approx(ego.s_m + ego.speed_m_s * BOX_AT_S + 50.0)
 
 
+@pytest.mark.slow
 def test_closed_loop_brakes_for_the_box_and_not_for_filtered_weather(tmp_path):
     run = lambda v, s: run_variant(v, SCENARIO, s, tmp_path, box_at_s=BOX_AT_S)  # noqa: E731
     filtered = run(Variant("filter", True, False), 3.0)

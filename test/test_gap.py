@@ -42,6 +42,7 @@ def hidden_names(hidden: list[str]) -> set[str]:
     return {h.split(":")[0] for h in hidden}
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("hidden", CASES, ids=["+".join(h.split(":")[0] for h in c) for c in CASES])
 def test_gap_names_exactly_the_hidden_effects_and_recovers_them(highway, hidden, tmp_path):
     result, effects = _diagnose(highway, hidden, tmp_path)
@@ -66,6 +67,7 @@ def test_gap_names_exactly_the_hidden_effects_and_recovers_them(highway, hidden,
         assert (tmp_path / "gap" / name).stat().st_size > 0
 
 
+@pytest.mark.validation
 def test_gap_frees_an_accepted_effect_that_absorbed_the_missing_one(highway, tmp_path):
     """Sun 400 W/m^2 behind a dirt of 0.62: both dim the returns, and alone the dirt fits at 0.36; next to that
     dirt no sun helps (fitted at its 10 W/m^2 floor). The round with the accepted dirt free finds the pair."""
@@ -79,6 +81,7 @@ def test_gap_frees_an_accepted_effect_that_absorbed_the_missing_one(highway, tmp
     assert result["gap_after"] <= 0.1 * result["gap_before"], result
 
 
+@pytest.mark.validation
 def test_clear_measurement_accepts_no_effect(highway, tmp_path):
     result, _ = _diagnose(highway, [], tmp_path)
     assert result["effects"] == []
@@ -176,6 +179,7 @@ def test_compare_writes_metrics_report_and_plots(highway, tmp_path, cli):
     assert json.loads((tmp_path / "same" / "metrics.json").read_text())["gap"] == 0.0
 
 
+@pytest.mark.validation
 def test_gap_search_on_two_dask_workers_is_the_serial_diagnosis(highway, tmp_path):
     hidden = ["atmosphere.fog:visual_range=80"]
     scenario = case_scenario(highway, hidden)
@@ -189,6 +193,7 @@ def test_gap_search_on_two_dask_workers_is_the_serial_diagnosis(highway, tmp_pat
 
 @pytest.mark.parametrize("hidden", ["sensor.intensity_gamma:gamma=0.55", "sensor.range_bias:bias=-0.05",
                                     "sensor.range_noise:sigma=0.08", "sensor.ray_drop:probability=0.4"])
+@pytest.mark.validation
 def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hidden, tmp_path):
     effect = parse_effect(hidden)
     make_measured(highway, [effect], tmp_path / "measured", frames=24)
@@ -205,6 +210,7 @@ def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hi
     assert patched.sensor.response != highway.sensor.response
 
 
+@pytest.mark.validation
 def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
     """Spray gives beams several echoes: a driver set to ``last`` (the profile: ``all``) is named - read off the
     points' return_type codes (gap.return_modes) - and the re-simulation with it closes the gap."""
@@ -219,6 +225,7 @@ def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
     assert "| sensor.return_mode | mode=last |" in (tmp_path / "gap" / "report.md").read_text()
 
 
+@pytest.mark.validation
 def test_gap_reads_dead_channels_off_the_recording(highway, tmp_path):
     """Two VLP-16 channels that return on the road and report nothing are named as the one set the recording shows; a clear
     recording of the same sensor names none (the same search, nothing hidden)."""
@@ -238,6 +245,7 @@ def test_gap_reads_dead_channels_off_the_recording(highway, tmp_path):
     assert "sensor.near_field_ghost" not in {e["name"] for e in clear["effects"]}, clear
 
 
+@pytest.mark.validation
 def test_gap_fits_the_near_field_ghosts_of_a_unit(highway, tmp_path):
     """A VLP-16 whose clean window gives 0.1 ghosts per beam and frame (about 4 % of them beyond its 0.3 m
     minimum range): ``sensor.near_field_ghost`` is named and its rate comes back within 15 % (measured: 0.1026),
@@ -254,6 +262,7 @@ def test_gap_fits_the_near_field_ghosts_of_a_unit(highway, tmp_path):
     assert patched.region_params["cover"]["near_field_ghost_per_beam"] == named["sensor.near_field_ghost"]["rate"]
 
 
+@pytest.mark.validation
 def test_gap_reads_weak_channels_and_elevation_offsets_off_the_recording(highway, tmp_path):
     """A VLP-16 whose channel 5 has a third of its gain and whose channels 3 and 9 point 0.4 deg up and 0.3 deg
     down: both are read off the recording and named first (gain within 5 %: intensity bytes are ~3.6 % apart;
