@@ -129,3 +129,13 @@ def thesis_tables() -> dict:
 
     path = Path(os.environ.get("LWS_THESIS_TABLES", ROOT.parent / "shared" / "data" / "thesis_tables.yaml"))
     return yaml.safe_load(path.read_text())
+
+
+INTEGRATION_FIXTURES = {"processes", "ros", "cli"}  # child processes, DDS in the test process, the CLI
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that start processes or use DDS are ``integration`` (besides any explicit marker)."""
+    for item in items:
+        if INTEGRATION_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.integration)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.control.acc import AccConfig, AccState, ObstacleTrack, braking_events, obstacle_distance, step
-from lidar_weather_sim.experiments.closed_loop import Variant, box_scenario, run_variant, write_report
+from lidar_weather_sim.experiments.closed_loop import VARIANTS, Trace, Variant, box_scenario, run_variant, unexpected, write_report
 from lidar_weather_sim.scenario.schema import load_scenario
 
 BOX_AT_S = 1.0
@@ -61,6 +61,25 @@ def test_box_scenario_puts_a_box_in_the_ego_lane(tmp_path):
     box = sc.actors[-1]
     assert (box.type, box.label, box.lane, box.appear_s) == ("box", "obstacle", ego.lane, BOX_AT_S)
     assert box.s_m == pytest.approx(ego.s_m + ego.speed_m_s * BOX_AT_S + 50.0)
+
+
+def test_the_table_is_checked_against_the_expected_braking():
+    t = np.arange(0, 2.0, 0.04)
+    braking, cruising = 24.72 - 3.0 * t, np.full_like(t, 24.72)
+    trace = lambda v, speed, status=0: Trace(v, t, np.full_like(t, np.nan), speed, np.full_like(t, np.nan), status)  # noqa: E731
+    right = [trace(v, braking if v.should_brake else cruising) for v in VARIANTS]
+    assert [v.should_brake for v in VARIANTS] == [True, False, True, True] and unexpected(right) == []
+    wrong = [trace(VARIANTS[0], cruising), trace(VARIANTS[1], braking), trace(VARIANTS[2], braking, status=1)]
+    assert unexpected(wrong) == ["no filter: does not brake, expected braking", "filter: brakes, expected no braking",
+                                 "no filter + box: the graph exited with status 1 after 50 commands (its log: log_*.txt "
+                                 "in the report directory)"]  # fmt: skip
+
+
+@pytest.mark.integration
+def test_one_synchronous_variant_answers_every_cloud(tmp_path):
+    """The closed-loop graph over DDS, small: 1 s without the filter, a command for every cloud, in order."""
+    tr = run_variant(Variant("no filter", False, False), SCENARIO, 1.0, tmp_path)
+    assert tr.exit_status == 0 and len(tr.stamp_s) == 25 and np.allclose(np.diff(tr.stamp_s), 0.04), tr.stamp_s
 
 
 @pytest.mark.slow
