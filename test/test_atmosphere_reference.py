@@ -99,6 +99,7 @@ def test_dense_fog_hides_a_far_target_and_adds_near_echoes(scala4):
     assert np.all(out["label"] == Label.FOG) and np.all(out["distance"] < 30.0)
 
 
+@pytest.mark.validation
 def test_weather_behind_a_near_target_is_hidden(scala4):
     """A wall 4 m ahead in fog of 100 m (whose volume echo alone is 16 m long) and in snow of 5 mm/h: nothing
     of the beam's echoes lies behind the wall (its own pulse aside): fog and flakes there cannot be seen."""
@@ -204,6 +205,7 @@ def test_hahner_on_a_sensor_reporting_every_echo_adds_the_soft_echo_before_the_h
     assert list(by_beam[4]["label"]) == [Label.FOG] and by_beam[4]["return_type"][0] == ReturnType.IDENTICAL
 
 
+@pytest.mark.slow
 def test_make_measured_reference_writes_a_readable_bag_with_weather_labels(tmp_path):
     out = tmp_path / "ref"
     subprocess.run(["lidar-weather-sim", "make-measured", "highway_clear", "--reference", "--hide",

@@ -3,6 +3,7 @@
 import subprocess
 
 import numpy as np
+import pytest
 import yaml
 
 from lidar_weather_sim.core.paths import config_dir
@@ -41,6 +42,7 @@ def test_run_with_a_bad_scenario_fails_with_one_line(tmp_path, cli):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_same_seed_gives_a_bit_identical_bag(tmp_path, cli):
     """Rain, near field, spray particles, noise: every random process is seeded. Same seed, same bytes."""
     bags = []
@@ -82,6 +84,7 @@ def test_counts_and_rates_below_their_range_are_refused_naming_the_option(tmp_pa
         assert not out.exists()
 
 
+@pytest.mark.slow
 def test_make_measured_on_a_recording_refuses_options_it_cannot_honour(tmp_path, cli):
     """--on uses every frame of its recording at the scenario's seed: --frames/--seed were silently ignored."""
     out = tmp_path / "o"
@@ -113,6 +116,7 @@ def test_recover_says_when_a_bag_is_intact(tmp_path, cli):
     assert {f.name: f.read_bytes() for f in out.iterdir()} == before
 
 
+@pytest.mark.slow
 def test_the_return_mode_flag_is_honoured_and_an_unknown_mode_refused(tmp_path, cli):
     out = tmp_path / "strongest"
     result = subprocess.run([*cli, "run", "highway_clear", "--frames", "2", "--return-mode", "strongest", "--out",

@@ -18,6 +18,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from lidar_weather_sim.testing.foxglove_wire import decode_point_cloud, message_data, protobuf_fields
 
@@ -173,6 +174,7 @@ def test_up_sim_foxglove_serves_the_cloud_tf_static_and_actor_boxes(processes, c
     assert "[up] foxglove_bridge_node exited with status 0" in processes.output(up)
 
 
+@pytest.mark.slow
 def test_play_foxglove_serves_the_bags_clouds_and_skips_malformed_ones(processes, cli, ros, tmp_path):
     """The player waits (--wait-for) until the client is subscribed and malformed clouds were refused, then plays."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy

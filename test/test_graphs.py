@@ -259,6 +259,7 @@ run_node("stuck_node", lambda: rclpy.create_node("stuck_node"), stuck_where_no_p
 """
 
 
+@pytest.mark.slow
 def test_up_prints_the_stacks_of_a_node_deaf_to_sigint_and_sigterm_before_killing_it(tmp_path, monkeypatch):
     """A node stuck where no Python signal handler runs still answers SIGUSR1 with its threads' stacks (node_main)."""
     from lidar_weather_sim.ros.graph import NodePlan, run

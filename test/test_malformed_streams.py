@@ -56,6 +56,7 @@ def _feed(ros, pub, good_msgs, rng, received, proc, processes):
 
 
 @pytest.mark.parametrize("method", ["echo", "learned"])
+@pytest.mark.slow
 def test_weather_filter_node_keeps_filtering_good_clouds(processes, ros, method):
     """Echo: each good cloud's output is the library's. Learned (stateful: its frame-difference feature
     depends on the clouds filtered before, the accepted malformed ones included): every good cloud is
@@ -81,6 +82,7 @@ def test_weather_filter_node_keeps_filtering_good_clouds(processes, ros, method)
     assert "Traceback" not in out
 
 
+@pytest.mark.slow
 def test_ego_controller_node_keeps_commanding_on_good_clouds(processes, ros, tmp_path):
     trace = tmp_path / "trace.csv"
     proc = processes.start(sys.executable, "-m", "lidar_weather_sim.ros.ego_controller_node", "--ros-args",
@@ -105,6 +107,7 @@ def test_ego_controller_node_keeps_commanding_on_good_clouds(processes, ros, tmp
     assert "Traceback" not in processes.output(proc)
 
 
+@pytest.mark.slow
 def test_lidar_sim_node_casts_the_good_odometry_and_skips_the_rest(processes, ros):
     from nav_msgs.msg import Odometry
 

@@ -6,9 +6,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "recorder_reliability.py"
 
 
+@pytest.mark.slow
 def test_recorder_keeps_every_cloud_for_60_s(tmp_path):
     run = subprocess.run([sys.executable, str(SCRIPT), "--duration-s", "60", "--out", str(tmp_path)],
                          capture_output=True, text=True, timeout=600)  # fmt: skip
@@ -49,6 +52,7 @@ def test_recorder_stops_on_sigint_while_recording(processes, cli, tmp_path):
     assert pattern.poll() is None
 
 
+@pytest.mark.slow
 def test_a_recorder_started_first_gets_the_whole_bag_with_play_wait_for(processes, cli, tmp_path):
     """`play` used to start as soon as /tf_static was acknowledged, before a recorder had seen the topics' types
     and subscribed: 16-17 of 20 clouds recorded. `play --wait-for` holds the start until each topic is read."""

@@ -114,6 +114,7 @@ def _epw_amplitude(epw, fwhm=0.6, threshold=4.0):
     return threshold * np.exp((epw / (2 * sigma)) ** 2 / 2)
 
 
+@pytest.mark.slow
 def test_installed_template_is_a_working_region(workspace):
     done = _in_workspace(workspace, CHECK)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -131,6 +132,7 @@ def test_installed_template_is_a_working_region(workspace):
     assert hazy["centre_distance"] == pytest.approx(clear["centre_distance"], abs=1e-4)
 
 
+@pytest.mark.slow
 def test_template_tests_pass_in_both_copies(workspace):
     """The tests shipped in the template run against the installed packages (as ``colcon test`` would)."""
     tests = [str(workspace / "src" / name / "test") for name in ("region_template", "my_region")]

@@ -12,12 +12,14 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from lidar_weather_sim.io.bags import bag_info, read_clouds, read_messages
 
 FRAMES = 12
 
 
+@pytest.mark.slow
 def test_replayed_poses_give_the_recorded_clouds_again(processes, cli, tmp_path):
     source, out = tmp_path / "source", tmp_path / "replayed"
     run = processes.start(*cli, "run", "highway_clear", "--frames", str(FRAMES), "--out", str(source))

@@ -168,6 +168,7 @@ def test_tf_mode_publishes_one_cloud_per_completed_sweep(processes, ros, world):
     assert proc.poll() is None
 
 
+@pytest.mark.slow
 def test_tf_mode_actors_and_their_spray_follow_their_tf_frames(processes, ros):
     """actors_from_tf: vehicle 100 on /tf 15 m ahead of base_link in the ego's lane (the scenario has it
     17.5 m ahead in the left lane): its body and the spray its wheels throw are cast there."""
@@ -319,6 +320,7 @@ def test_a_bad_start_parameter_exits_2_with_one_line(module, params, reason):
 
 
 # -- (d) malformed input -----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_malformed_tf_is_logged_once_and_skipped(processes, ros, world):
     proc = node_process(processes, pose_source="tf", use_sim_time=True)
     lock = Lockstep(ros, world, proc, processes)
@@ -336,6 +338,7 @@ def test_malformed_tf_is_logged_once_and_skipped(processes, ros, world):
     assert proc.poll() is None
 
 
+@pytest.mark.slow
 def test_a_silent_region_input_topic_is_logged_once_and_the_clouds_keep_coming(processes):
     """The spray region reads /spray/particles but no spray_node runs: one warning, every cloud published."""
     proc = node_process(processes, scenario="highway_spray", region_params='"spray: {source: topic}"', max_frames=40,
@@ -346,6 +349,7 @@ def test_a_silent_region_input_topic_is_logged_once_and_the_clouds_keep_coming(p
     assert out.count("/spray/particles: nothing received in the 25 clouds since it was subscribed") == 1, out
 
 
+@pytest.mark.slow
 def test_a_topic_no_region_reads_any_more_is_unsubscribed(processes, ros):
     """The spray region reads /spray/particles; after a parameter set to other regions the node drops the
     subscription at the frame boundary where they take over (and never warns that it is silent)."""
@@ -362,6 +366,7 @@ def test_a_topic_no_region_reads_any_more_is_unsubscribed(processes, ros):
     assert "/spray/particles: no region reads it any more, unsubscribed" in out and "nothing received" not in out, out
 
 
+@pytest.mark.slow
 def test_a_region_input_switched_on_at_runtime_is_given_its_own_25_clouds(processes, ros):
     """The silent-input warning counted every cloud since start-up: right after a switch to a region that reads
     /spray/particles it warned at once. It waits 25 clouds from the subscription."""
@@ -386,6 +391,7 @@ def _bad(ns, t=(0.0, 0.0, 0.0), q=(0.0, 0.0, 0.0, 1.0), parent="map", child="bas
 
 
 # -- odometry mode ----------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_odometry_mode_with_the_parameter_mount(processes, ros, world):
     from nav_msgs.msg import Odometry
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -574,6 +580,7 @@ def test_session_validation_names_the_problem(world):
             parse_region_params(bad)
 
 
+@pytest.mark.slow
 def test_scenario_mode_stops_when_the_ego_reaches_the_end_of_its_road(processes, tmp_path):
     """As `run` does: was, clouds of an empty world published without a word after the ego left the map."""
     from lidar_weather_sim.scenario.schema import load_scenario

@@ -103,6 +103,7 @@ def worker_state(bag, run):
 """
 
 
+@pytest.mark.slow
 def test_cluster_by_address_survives_a_killed_worker_and_matches_serial(cli, tmp_path, processes, monkeypatch):
     (tmp_path / "probe.py").write_text(WORKER_STATE)
     monkeypatch.setenv("PYTHONPATH", f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")

@@ -70,6 +70,7 @@ def test_single_frame_twin_resimulates_the_held_out_sectors(highway_bag, single_
     assert heldout["simulated_points"] >= 0.5 * heldout["measured_points"]  # 0.66
 
 
+@pytest.mark.slow
 def test_frame_split_twin_resimulates_the_held_out_frames(highway_bag, tmp_path):
     """4 frames: even frames build the twin, the odd ones are cast again from their recorded poses."""
     out = tmp_path / "twin"
@@ -107,6 +108,7 @@ def test_profile_matching_and_derivation(highway_bag):
         choose_profile(points, "vlp16")
 
 
+@pytest.mark.slow
 def test_a_derived_profile_is_written_and_used(highway_bag, tmp_path):
     half = [f.points[f.points["channel"] % 2 == 0].copy() for f in Recording.load(highway_bag).frames[:1]]
     for p in half:
@@ -128,6 +130,7 @@ def _street_cache():
         pytest.skip("the Ouster street mesh is not imported (make setup, step 3c)")
 
 
+@pytest.mark.slow
 def test_kiss_icp_poses_of_a_bag_without_poses(tmp_path):
     """10 OS1 frames driving 8 m down the real street's mesh (/tf: the truth); the clouds alone, without /tf,
     give KISS-ICP poses within 0.15 m and 0.3 deg of the true ones (relative to the first frame)."""

@@ -149,6 +149,7 @@ def test_reproduce_rooftop_writes_a_valid_json(tmp_path, cli):
     assert (out / "rooftop.md").exists() and (out / "rooftop_atmosphere.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_reproduce_rooftop_takes_another_sensor_profile_and_fit_file(tmp_path, cli):
     from lidar_weather_sim.core.paths import config_dir
 
@@ -187,6 +188,7 @@ MATCHED_AT_10_FRAMES = 64
 PHYSICAL_MATCHED_AT_10_FRAMES = 51
 
 
+@pytest.mark.slow
 def test_reproduce_rooftop_runs_the_physical_atmosphere_without_the_fitted_near_field(tmp_path, cli):
     """``--atmosphere-model physical``: the states' fog from its drop-size distribution; the class's fitted
     near-field rate no longer acts (it does on the fitted model). States that miss a class, or states given to the

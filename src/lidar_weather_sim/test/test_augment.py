@@ -43,6 +43,7 @@ def test_effect_adds_its_returns_and_removes_what_it_extinguishes():
     assert sorted(np.round(out["distance"], 1).tolist()) == [2.0, 3.0, 20.0, 30.0]  # 40 m lost, two fog returns
 
 
+@pytest.mark.slow
 def test_make_measured_on_the_real_recording(tmp_path):
     bag = cache_dir() / "ouster_real" / "os1_128_street"
     if not bag.exists():
@@ -80,6 +81,7 @@ def test_actors_are_put_on_the_frame_and_hide_what_lies_behind_them():
     assert sorted(np.round(without["distance"], 1).tolist()) == [5.0, 11.0, 20.0, 30.0, 40.0]
 
 
+@pytest.mark.slow
 def test_spray_and_the_car_throwing_it_on_the_real_recording(tmp_path):
     """ouster_street_spray: a car overtakes the recording's sensor with its spray (the spray region's warm-up has it
     out at the first scan); `make-measured --on --with-actors` puts both on the real frames."""

@@ -51,6 +51,7 @@ def imported(sdist, tmp_path_factory):
     return out / "bag", out / "street.ply", stdout.getvalue()
 
 
+@pytest.mark.slow
 def test_every_complete_scan_becomes_one_frame(recording, imported):
     # 192 lidar packets of 16 columns in the pcap: exactly three 1024-column scans
     assert [s.frame_id for s in recording.scans] == [1795, 1796, 1797]

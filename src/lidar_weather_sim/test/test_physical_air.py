@@ -101,6 +101,7 @@ def test_the_grid_interpolation_is_numpys_bit_for_bit():
 
 
 @pytest.mark.parametrize("name", ["os1_128_2048", "vlp16", "hdl64e", "scala4"])
+@pytest.mark.validation
 def test_drops_see_the_overlap_function_itself_nearer_and_exactly_one_beyond_full_overlap(name):
     air = PhysicalAir(load_profile(name), None, ("rain", 10.0))
     r = np.random.default_rng(3).uniform(0.0, 60.0, 200_000)

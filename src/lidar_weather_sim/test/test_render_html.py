@@ -100,6 +100,7 @@ def _near(area: np.ndarray, colors: np.ndarray, tolerance: int = 30) -> int:
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium binary (scripts/setup.sh installs Debian's chromium)")
+@pytest.mark.slow
 def test_headless_chromium_draws_the_points(tmp_path):
     dense = write_cloud_bag(tmp_path / "dense", [_block(20_000)])
     empty = write_cloud_bag(tmp_path / "empty", [_block(0)])

@@ -3,6 +3,7 @@
 import sys
 
 import numpy as np
+import pytest
 
 from spray_particles.particle_cloud import PARTICLE_DTYPE, TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.ros.node import marker_array
@@ -71,6 +72,7 @@ def test_sim_node_sees_the_particles_spray_node_publishes(ros, processes, tmp_pa
     assert np.median(sprayed["x"]) < np.median(vehicle["x"]) + 1.0 and np.median(sprayed["y"]) > 1.5
 
 
+@pytest.mark.slow
 def test_actors_from_tf_move_the_emitters(ros, processes):
     """actors_from_tf: vehicle 100 on /tf (map -> actor_100, 25 m/s along +x at y = 0; the scenario puts it
     in the left lane, y ~ 3.6 m) throws its spray there, stamped with the /tf time; nothing before its frame."""

@@ -13,6 +13,7 @@ from lidar_weather_sim.io.bags import BagWriter, read_clouds, read_raw
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.sim.offline import run_scenario
 from weather_filter.apply import apply_bag
+from weather_filter.cli import main
 from weather_filter.filters import make_filter_with_fallback
 
 WEATHER = [int(Label.RAIN), int(Label.SPRAY)]
@@ -58,7 +59,7 @@ def test_a_cloud_it_cannot_decode_is_skipped_and_named(tmp_path, spray_bag):
     assert len(list(read_clouds(tmp_path / "out"))) == 9
 
 
-def test_the_cli_names_what_is_wrong_in_one_line(spray_bag, tmp_path):
+def test_the_cli_names_what_is_wrong_in_one_line(spray_bag, tmp_path, capsys):
     cli = [sys.executable, "-m", "weather_filter.cli", "apply"]
     two = tmp_path / "two_topics"
     with BagWriter(two) as writer:
@@ -68,9 +69,10 @@ def test_the_cli_names_what_is_wrong_in_one_line(spray_bag, tmp_path):
     cases = [([str(two), "--out", str(tmp_path / "a")], "has 2 sensor_msgs/msg/PointCloud2 topics"),
              ([str(spray_bag), "--out", str(spray_bag)], "is the input bag"),
              ([str(spray_bag), "--out", str(tmp_path / "b"), "--topic", "/tf"], "has no sensor_msgs/msg/PointCloud2 topic /tf")]  # fmt: skip
-    for args, reason in cases:
-        run = subprocess.run([*cli, *args], capture_output=True, text=True)
-        assert run.returncode == 2 and reason in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    for args, reason in cases:  # in this process (main() as the console script calls it): one line, status 2
+        assert main(["apply", *args]) == 2
+        err = capsys.readouterr().err
+        assert reason in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     run = subprocess.run([*cli, str(two), "--topic", "/lidar/front", "--out", str(tmp_path / "c")], capture_output=True, text=True)
     assert run.returncode == 0 and "/lidar/front: 10 clouds filtered (learned 10)" in run.stdout, run.stderr

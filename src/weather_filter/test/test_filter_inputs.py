@@ -176,6 +176,7 @@ def test_fuzz_corrupted_fields_filter_or_are_refused_naming_the_field(small_fram
         assert result.remove.shape == (len(pts),) and result.remove.dtype == bool, method
 
 
+@pytest.mark.slow
 def test_eval_refuses_a_bag_with_an_unusable_field_in_one_line(tmp_path, frame):
     """``weather-filter eval`` on a bag whose second cloud has a negative INT32 channel: exit 2, one line
     naming the bag, the frame and the field, no result written."""

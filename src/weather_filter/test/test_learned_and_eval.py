@@ -144,6 +144,7 @@ def test_a_file_that_is_not_a_model_is_named(tmp_path):
         LearnedFilter.load(not_a_model)
 
 
+@pytest.mark.slow
 def test_training_refuses_to_overwrite_the_packaged_model_and_impossible_settings(tmp_path):
     import subprocess
 

@@ -196,6 +196,7 @@ def test_train_with_validation_threshold_is_reproducible(tmp_path):
     assert tuple(bundle["feature_names"]) == V2_FEATURES and bundle["hidden"] == [4]
 
 
+@pytest.mark.slow
 def test_trees_train_reproducibly_and_predict_at_their_threshold(tmp_path):
     runs, val = ("highway_spray:9:3@9:lead", "wf_train_snow:9:3@10"), ("highway_spray:8:3@8:lead",)
     bags = {r: augmented_bag(r, tmp_path) for r in runs + val}

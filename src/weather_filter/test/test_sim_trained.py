@@ -26,6 +26,8 @@ from weather_filter.features import (
 from weather_filter.filters import make_filter
 from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, frames_of, simulate
 
+pytestmark = pytest.mark.validation  # the shipped filters' figures on held-out simulated runs
+
 # Floors a little below the figures measured on these runs with the shipped model (src/weather_filter/README.md):
 # spec -> (weather_f1, object_recall, object_recall_roi); measured with v4 (simulator of ce35beb, spray drop packets)
 # wf_heldout_mixed:202:12 0.976 / 0.979 / 0.998 (v3 on the simulator before them: 0.932 / 0.954 / 1.0),

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from weather_filter.simdata import frames_of, simulate_all
 
 SPECS = ["highway_spray:7:3", "wf_train_fog:7:2:vlp16", "wf_train_snow:7:2"]
 
 
+@pytest.mark.slow
 def test_two_workers_make_the_serial_bags_and_reuse_the_cache(tmp_path):
     done = []
     parallel = simulate_all(SPECS, tmp_path / "parallel", workers=2, progress=lambda spec, bag: done.append(str(spec)))
