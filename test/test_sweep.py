@@ -75,7 +75,7 @@ def test_serial_sweep_rows_resume_and_a_failing_run(cli, tmp_path):
     ({"grid": {"weather.fog.visibility": [60]}}, [], "weather.fog.visibility"),
     ({"grid": {}}, [], "'grid' is empty"),
     ({"frame": 3}, [], "frame"),
-    ({}, ["--scheduler", "tcp://127.0.0.1:{port}"], "unreachable"),
+    pytest.param({}, ["--scheduler", "tcp://127.0.0.1:{port}"], "unreachable", marks=pytest.mark.slow),  # ~12 s
 ])
 def test_bad_input_one_line_exit_2_nothing_written(cli, tmp_path, keys, args, reason):
     with socket.socket() as s:  # a port nobody listens on
