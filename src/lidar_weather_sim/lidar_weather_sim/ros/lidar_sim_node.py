@@ -209,7 +209,7 @@ class LidarSimNode(Node):
             f"regions {list(regions)}, backend {self.session.sim.caster.backend}"
             + (f"; regions read {', '.join(self.topic_inputs.topics)}" if self.topic_inputs.topics else "")
             + (f"; starts once {TOPIC_POINTS} has a subscriber" if wait else "")
-            + (f"; starts once {', '.join(self._ready.pending)} are ready" if self._ready.pending else "")
+            + (f"; starts once these are ready: {', '.join(self._ready.pending)}" if self._ready.pending else "")
             + (f"; synchronous on {', '.join(sync_topics)}" if synchronous else "")
         )
 
