@@ -43,6 +43,8 @@ class FrameSync:
 
     def _subscribe(self) -> None:
         """Subscribe to every sync topic that shows in the graph and is not subscribed yet."""
+        if len(self._subscriptions) == len(self.topics):
+            return
         types = dict(self._node.get_topic_names_and_types())
         for topic in self.topics:
             if topic in self._subscriptions or topic not in types:
