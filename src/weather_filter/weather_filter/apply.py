@@ -1,7 +1,7 @@
 """Filter a recording offline (``weather-filter apply BAG --out BAG2``), as weather_filter_node would live.
 
 Every message of BAG is copied to BAG2 as it was stored (same topic, type, log time, bytes), except the
-clouds of the cloud topic (the bag's only PointCloud2 topic unless given): each is decoded, filtered with
+clouds of the cloud topic (unless given: /lidar/points, else the bag's only PointCloud2 topic): each is decoded, filtered with
 ``method`` (default: the node's, the learned filter, with the geometry-only ``fallback`` for clouds lacking
 its fields) and written in its place with the same header stamp, frame and log time; with ``removed_topic``
 the removed points are written there too. A cloud that cannot be decoded or filtered is left out of BAG2,
@@ -17,8 +17,9 @@ from pathlib import Path
 
 from rosbags.serde import SerdeError
 
-from lidar_weather_sim.io.bags import BagError, BagWriter, cloud_topic, read_raw, typestore
+from lidar_weather_sim.io.bags import BagError, BagWriter, read_raw, typestore
 from lidar_weather_sim.io.cloud_codec import CloudFormatError, decode_message
+from lidar_weather_sim.io.recording import cloud_topic
 from weather_filter.cloud_check import CloudFieldError
 from weather_filter.filters import DEFAULT_METHOD, MissingFieldsError, make_filter_with_fallback
 

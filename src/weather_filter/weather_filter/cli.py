@@ -299,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap = commands.add_parser("apply", help="filter a recording offline as weather_filter_node would; every other topic is kept")
     ap.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
     ap.add_argument("--out", required=True, metavar="BAG2", help="output rosbag2 directory (MCAP)")
-    ap.add_argument("--topic", help="PointCloud2 topic to filter (default: the bag's only one)")
+    ap.add_argument("--topic", help="PointCloud2 topic to filter (default: /lidar/points, else the bag's only one)")
     ap.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS, metavar="METHOD",
                     help="filter (default %(default)s, the node's): " + ", ".join(METHODS))  # fmt: skip
     ap.add_argument("--fallback", default="dror", choices=GEOMETRY_METHODS,

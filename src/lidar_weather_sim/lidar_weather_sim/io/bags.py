@@ -259,21 +259,6 @@ def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[
     return _raw(_open_bag(path), topics)
 
 
-def cloud_topic(path: str | Path, topic: str | None = None) -> str:
-    """``topic`` if the bag has it as a PointCloud2 topic; without ``topic``, the bag's only PointCloud2 topic."""
-    info = bag_info(path)
-    clouds = [t.name for t in info.topics if t.msgtype == POINTCLOUD2]
-    if topic is not None:
-        if topic not in clouds:
-            raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}; its cloud topics: "
-                           f"{', '.join(clouds) or 'none'}")  # fmt: skip
-        return topic
-    if len(clouds) != 1:
-        raise BagError(f"bag {info.path} has {len(clouds)} {POINTCLOUD2} topics ({', '.join(clouds) or 'none'}): "
-                       "name one with --topic")  # fmt: skip
-    return clouds[0]
-
-
 def read_clouds(path: str | Path, topic: str = TOPIC_POINTS, nan_policy: NanPolicy = "drop") -> Iterator[CloudFrame]:
     """Decoded PointCloud2 frames of ``topic``; non-finite points handled per ``nan_policy``."""
     info = bag_info(path)
