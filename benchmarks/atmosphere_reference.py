@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from lidar_weather_sim.gap.effects import parse_effect
-from lidar_weather_sim.gap.measured import Nuisance, make_measured
+from lidar_weather_sim.scenario.effects import parse_effect
+from lidar_weather_sim.references.measured import Nuisance, make_measured
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.sensor.profile import load_profile

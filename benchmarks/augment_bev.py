@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lidar_weather_sim.core.points import Label  # noqa: E402
-from lidar_weather_sim.gap.obstacle_boxes import Roi, augmentation_table  # noqa: E402
+from lidar_weather_sim.augment.boxes import Roi, augmentation_table  # noqa: E402
 from lidar_weather_sim.io.bags import read_clouds  # noqa: E402
 
 

@@ -3,7 +3,7 @@
     python benchmarks/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
         [--atmosphere-model fitted|physical] [--fast-via-sim] [--reuse-bags] [--json F]
 
-Cases come from lidar_weather_sim.gap.cases.draw_cases (ranges and seed committed before anything ran on
+Cases come from lidar_weather_sim.references.cases.draw_cases (ranges and seed committed before anything ran on
 them). Per case a "measured" scala4 highway_clear bag of `measurement.frames` frames is made by its
 generator: fast = make-measured --on a clear base bag (make-measured with nothing hidden, made once;
 the effects at the scenario's seed), reference = make-measured --reference, hahner = make-measured
@@ -22,11 +22,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from lidar_weather_sim.gap.augment import augment_recording
-from lidar_weather_sim.gap.cases import Case, draw_cases
+from lidar_weather_sim.augment.weather import augment_recording
+from lidar_weather_sim.references.cases import Case, draw_cases
 from lidar_weather_sim.gap.command import run_gap
-from lidar_weather_sim.gap.effects import EFFECTS
-from lidar_weather_sim.gap.measured import make_measured
+from lidar_weather_sim.scenario.effects import EFFECTS
+from lidar_weather_sim.references.measured import make_measured
 from lidar_weather_sim.scenario.schema import load_scenario
 
 

@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 
 from lidar_weather_sim.gap.command import run_gap
-from lidar_weather_sim.gap.effects import parse_effect
-from lidar_weather_sim.gap.measured import RECOVERY_CASES, case_scenario, make_measured
+from lidar_weather_sim.scenario.effects import parse_effect
+from lidar_weather_sim.references.measured import RECOVERY_CASES, case_scenario, make_measured
 from lidar_weather_sim.scenario.schema import load_scenario
 
 

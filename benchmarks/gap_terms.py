@@ -20,7 +20,7 @@ import sys
 
 import numpy as np
 
-from lidar_weather_sim.gap.effects import parse_effect
+from lidar_weather_sim.scenario.effects import parse_effect
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature
 from lidar_weather_sim.gap.search import split_frames
 from lidar_weather_sim.gap.signatures import ZONES, gap_terms, gap_value, zone_of

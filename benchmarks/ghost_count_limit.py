@@ -27,7 +27,7 @@ CALIBRATION = [0, 2]  # the search's fit frames of the 3-scan recording (even fr
 
 def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
-    from lidar_weather_sim.gap.effects import Effect
+    from lidar_weather_sim.scenario.effects import Effect
     from lidar_weather_sim.gap.ghost import cover_returns as cover_count
     from lidar_weather_sim.gap.resim import Resimulator
     from lidar_weather_sim.io.recording import Recording

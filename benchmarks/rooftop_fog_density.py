@@ -21,7 +21,7 @@ import numpy as np
 
 from lidar_weather_sim.experiments.reproduce import load_tables, simulate
 from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states
-from lidar_weather_sim.gap.features import summarize
+from lidar_weather_sim.core.frame_parameters import summarize
 
 ATMOSPHERE = ("n_total", "n_peak", "x_sigma", "epw_mean")
 PAPER = {"n_total": "n_total", "n_peak": "n_peak", "x_sigma": "x_sigma_cm", "epw_mean": "epw_m"}

@@ -62,7 +62,7 @@ def draw_cases(spec: dict) -> list[tuple[str, str | None, float | str | None]]:
 
 def draw_channel_cases(spec: dict) -> list[tuple[str, str | None, str | None]]:
     """The per-channel draws (``channel_effects``): channels uniformly from the profile's, values as the entry says."""
-    from lidar_weather_sim.gap.effects import format_channel_values
+    from lidar_weather_sim.scenario.effects import format_channel_values
     from lidar_weather_sim.sensor.profile import load_profile
 
     rng = np.random.default_rng(spec["seed"])
@@ -90,7 +90,7 @@ def draw_channel_cases(spec: dict) -> list[tuple[str, str | None, str | None]]:
 
 def channel_error(name: str, hidden: str, named: str, success: dict) -> tuple[float, bool]:
     """(largest relative error, right) of a per-channel effect named as ``named`` against ``hidden``."""
-    from lidar_weather_sim.gap.effects import parse_channel_values
+    from lidar_weather_sim.scenario.effects import parse_channel_values
 
     if name == "sensor.dead_channels":
         return 0.0, set(hidden.split("+")) == set(named.split("+"))
@@ -145,7 +145,7 @@ def print_step(message: str, casts: int) -> None:
 def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
     from lidar_weather_sim.gap.command import run_gap
-    from lidar_weather_sim.gap.effects import EFFECTS, Effect
+    from lidar_weather_sim.scenario.effects import EFFECTS, Effect
     from lidar_weather_sim.gap.report import format_params
     from lidar_weather_sim.scenario.schema import load_scenario
 

@@ -85,8 +85,8 @@ def bench_train_data(args: argparse.Namespace) -> None:
 
 def bench_gap(args: argparse.Namespace) -> None:
     from lidar_weather_sim.gap.command import run_gap
-    from lidar_weather_sim.gap.effects import parse_effect
-    from lidar_weather_sim.gap.measured import case_scenario, make_measured
+    from lidar_weather_sim.scenario.effects import parse_effect
+    from lidar_weather_sim.references.measured import case_scenario, make_measured
     from lidar_weather_sim.scenario.schema import load_scenario
 
     hidden = ["atmosphere.fog:visual_range=80"]

@@ -20,7 +20,8 @@ def test_import_contracts_hold():
     assert lint, "lint-imports (import-linter, requirements.txt) is not installed"
     result = subprocess.run([lint, "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
-    assert "Contracts: 3 kept, 0 broken." in result.stdout
+    contracts = (ROOT / ".importlinter").read_text().count("[importlinter:contract:")
+    assert f"Contracts: {contracts} kept, 0 broken." in result.stdout
 
 
 def test_the_top_level_stays_small():

@@ -1,4 +1,4 @@
-"""The independent atmosphere reference (gap/reference.py) and the simplified Hahner et al. fog (gap/hahner.py):
+"""The independent atmosphere reference (references/droplets.py) and the simplified Hahner et al. fog (references/hahner.py):
 drop counts, a lone hard target's echo, Beer-Lambert on every return, make-measured --reference bags, seeds."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import pytest
 import yaml
 
 from lidar_weather_sim.core.points import Label, ReturnType, empty_points
-from lidar_weather_sim.gap.effects import parse_effect
-from lidar_weather_sim.gap.hahner import KOSCHMIEDER, HahnerFog
-from lidar_weather_sim.gap.measured import make_measured
-from lidar_weather_sim.gap.reference import Atmosphere, ReferenceAtmosphere, epw_of, intensity_bytes, scene_pulses
+from lidar_weather_sim.scenario.effects import parse_effect
+from lidar_weather_sim.references.hahner import KOSCHMIEDER, HahnerFog
+from lidar_weather_sim.references.measured import make_measured
+from lidar_weather_sim.references.droplets import Atmosphere, ReferenceAtmosphere, epw_of, intensity_bytes, scene_pulses
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.physics.coefficients import medium
 from lidar_weather_sim.physics.overlap import biaxial_overlap
@@ -268,7 +268,7 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, 
     (``detection.ac_coupling_tau_m`` 0.1 m), which the fast model applies to its volume slabs and clips at 0, the
     reference to its grid cells with the undershoot kept. ``scala4:cone:0``: its optics as the cone model, DC-coupled
     (``PROFILE:OVERLAP:TAU``)."""
-    from lidar_weather_sim.gap.measured import Nuisance
+    from lidar_weather_sim.references.measured import Nuisance
 
     base = load_scenario("highway_clear")
     fast_scenario = base.model_copy(update={"regions": [*base.regions, "atmosphere"],

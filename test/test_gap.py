@@ -15,8 +15,8 @@ import yaml
 
 from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.gap.command import run_gap
-from lidar_weather_sim.gap.effects import EFFECTS, apply_effects, parse_effect, search_grid
-from lidar_weather_sim.gap.measured import RECOVERY_CASES, Nuisance, case_scenario, make_measured
+from lidar_weather_sim.scenario.effects import EFFECTS, apply_effects, parse_effect, search_grid
+from lidar_weather_sim.references.measured import RECOVERY_CASES, Nuisance, case_scenario, make_measured
 from lidar_weather_sim.io.bags import bag_info
 from lidar_weather_sim.scenario.schema import Scenario, load_scenario
 

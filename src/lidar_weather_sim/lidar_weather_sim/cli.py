@@ -203,8 +203,8 @@ def _cmd_closed_loop(args: argparse.Namespace) -> int:
 
 
 def _cmd_make_measured(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.gap.effects import parse_effect
-    from lidar_weather_sim.gap.measured import make_measured
+    from lidar_weather_sim.scenario.effects import parse_effect
+    from lidar_weather_sim.references.measured import make_measured
     from lidar_weather_sim.scenario.schema import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
@@ -217,7 +217,7 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     if args.with_actors and not args.on:
         raise ValueError("--with-actors puts the scenario's actors on a recording: it needs --on BAG")
     if args.on:
-        from lidar_weather_sim.gap.augment import augment_recording
+        from lidar_weather_sim.augment.weather import augment_recording
 
         if args.frames is not None or args.seed is not None:
             raise ValueError("--on puts the effects on every frame of its recording, at the scenario's seed: "
@@ -245,8 +245,8 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
 
 
 def _cmd_augment(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.gap.augment_obstacles import augment_bag, check_profile, profile_for_cloud
-    from lidar_weather_sim.gap.obstacle_kinds import parse_kinds
+    from lidar_weather_sim.augment.obstacles import augment_bag, check_profile, profile_for_cloud
+    from lidar_weather_sim.augment.kinds import parse_kinds
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.sensor.profile import load_profile
 
@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "removed), e.g. the car that throws spray on a real street")  # fmt: skip
     measured.add_argument("--generator", choices=("fast", "reference", "hahner"), default="fast",
                           help="who makes fog, rain and snow: the simulator (fast, default), the independent drop-by-drop "
-                               "reference (gap/reference.py) or the simplified Hahner et al. 2021 fog (gap/hahner.py)")
+                               "reference (references/droplets.py) or the simplified Hahner et al. 2021 fog (references/hahner.py)")
     measured.add_argument("--reference", dest="generator", action="store_const", const="reference",
                           help="same as --generator reference")
     measured.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, help="the simulator's atmosphere model "

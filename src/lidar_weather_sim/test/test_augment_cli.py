@@ -7,7 +7,7 @@ import pytest
 
 from lidar_weather_sim.cli import main
 from lidar_weather_sim.core.points import Label
-from lidar_weather_sim.gap.augment_obstacles import OBJECT_ID_BASE
+from lidar_weather_sim.augment.obstacles import OBJECT_ID_BASE
 from lidar_weather_sim.io.bags import bag_info, read_clouds
 
 
@@ -19,8 +19,8 @@ def spray_bag(tmp_path_factory):
 
 
 def test_the_car_ahead_comes_from_the_bag_and_no_box_overlaps_it(spray_bag):
-    from lidar_weather_sim.gap.augment_obstacles import ObstacleAugmenter, car_ahead
-    from lidar_weather_sim.gap.obstacle_boxes import footprints_overlap
+    from lidar_weather_sim.augment.obstacles import ObstacleAugmenter, car_ahead
+    from lidar_weather_sim.augment.boxes import footprints_overlap
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.sensor.profile import load_profile
 
@@ -91,7 +91,7 @@ def _inserted_epw(path):
 
 def test_epw_of_inserted_points_matched_to_the_car_ahead_rear(spray_bag, tmp_path, capsys):
     """Fig. A4: the inserted points' EPW mean and sd become those of the recorded car rear."""
-    from lidar_weather_sim.gap.augment_obstacles import lead_rear_epw
+    from lidar_weather_sim.augment.obstacles import lead_rear_epw
     from lidar_weather_sim.gap.resim import road_level
     from lidar_weather_sim.io.recording import Recording
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.core.points import Label, ReturnType, empty_points
-from lidar_weather_sim.gap.augment_obstacles import OBJECT_ID_BASE, ObstacleAugmenter, added_noise_sigma
-from lidar_weather_sim.gap.obstacle_boxes import (
+from lidar_weather_sim.augment.obstacles import OBJECT_ID_BASE, ObstacleAugmenter, added_noise_sigma
+from lidar_weather_sim.augment.boxes import (
     Box,
     BoxRanges,
     Footprint,
@@ -20,8 +20,8 @@ from lidar_weather_sim.gap.obstacle_boxes import (
     draw_box,
     footprints_overlap,
 )
-from lidar_weather_sim.gap.obstacle_cast import ObstacleCaster
-from lidar_weather_sim.gap.obstacle_occlusion import beam_key, merge_obstacles
+from lidar_weather_sim.augment.cast import ObstacleCaster
+from lidar_weather_sim.augment.occlusion import beam_key, merge_obstacles
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.sensor.scan import ScanPattern
 

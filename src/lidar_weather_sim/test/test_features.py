@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lidar_weather_sim.gap.features import FEATURES, frame_features, summarize
+from lidar_weather_sim.core.frame_parameters import FEATURES, frame_features, summarize
 
 
 def test_features_of_a_known_frame():

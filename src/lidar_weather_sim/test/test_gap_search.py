@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.gap import search as search_module
-from lidar_weather_sim.gap.effects import parse_effect
+from lidar_weather_sim.scenario.effects import parse_effect
 from lidar_weather_sim.gap.search import MIN_ABS_GAIN, MIN_GAIN, Candidate, Diagnosis, GapSearch, refined_ranks
 from lidar_weather_sim.scenario.schema import load_scenario
 
@@ -141,7 +141,7 @@ def test_dead_channels_are_the_silent_ones_the_model_sees():
 
 
 def test_dead_channels_effect_parses_and_patches_the_faults_region():
-    from lidar_weather_sim.gap.effects import apply_effects
+    from lidar_weather_sim.scenario.effects import apply_effects
     from lidar_weather_sim.scenario.schema import load_scenario
 
     effect = parse_effect("sensor.dead_channels:channels=17+3+3")
@@ -253,7 +253,7 @@ def test_elevation_offsets_are_the_median_departure_of_each_channel_from_the_tab
 
 
 def test_channel_value_effects_parse_patch_and_refuse_bad_pairs():
-    from lidar_weather_sim.gap.effects import apply_effects
+    from lidar_weather_sim.scenario.effects import apply_effects
     from lidar_weather_sim.scenario.schema import load_scenario
 
     weak = parse_effect("sensor.weak_channels:gains=17:0.25+3:0.5")
@@ -435,7 +435,7 @@ def test_an_intensity_gamma_is_not_read_as_weak_channels_where_channels_see_diff
 def test_the_ghost_rate_is_read_where_the_model_counts_what_the_scans_recorded():
     """Secant steps land on the rate of a count that saturates (ghosts of one beam merge at high rates); a count
     within 3 sigma of the model's without ghosts proposes nothing; the rate stays inside the effect's bounds."""
-    from lidar_weather_sim.gap.effects import EFFECTS
+    from lidar_weather_sim.scenario.effects import EFFECTS
     from lidar_weather_sim.gap.ghost import ghost_rate
 
     bounds = EFFECTS["sensor.near_field_ghost"].bounds

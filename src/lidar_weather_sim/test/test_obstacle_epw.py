@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.core.points import Label, empty_points
-from lidar_weather_sim.gap.obstacle_boxes import Footprint
-from lidar_weather_sim.gap.obstacle_epw import (
+from lidar_weather_sim.augment.boxes import Footprint
+from lidar_weather_sim.augment.epw import (
     MIN_REAR_POINTS,
     EpwStats,
     lead_car,

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.core.points import Label, empty_points
-from lidar_weather_sim.gap.augment_obstacles import OBJECT_ID_BASE, ObstacleAugmenter
-from lidar_weather_sim.gap.obstacle_boxes import Box, Footprint, ObstacleError, Roi, footprints_overlap
-from lidar_weather_sim.gap.obstacle_cast import ObstacleCaster
-from lidar_weather_sim.gap.obstacle_kinds import KINDS, kind_ranges, parse_kinds, tyre_reflectivity
-from lidar_weather_sim.gap.obstacle_meshes import obstacle_mesh
+from lidar_weather_sim.augment.obstacles import OBJECT_ID_BASE, ObstacleAugmenter
+from lidar_weather_sim.augment.boxes import Box, Footprint, ObstacleError, Roi, footprints_overlap
+from lidar_weather_sim.augment.cast import ObstacleCaster
+from lidar_weather_sim.augment.kinds import KINDS, kind_ranges, parse_kinds, tyre_reflectivity
+from lidar_weather_sim.augment.meshes import obstacle_mesh
 from lidar_weather_sim.sensor.profile import load_profile
 
 ROAD_Z = -1.8  # a roof-mounted OS1-128 1.8 m above the road

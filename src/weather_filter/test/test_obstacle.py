@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidar_weather_sim.cli import main as sim_main
-from lidar_weather_sim.gap.obstacle_boxes import augmentation_table
+from lidar_weather_sim.augment.boxes import augmentation_table
 from weather_filter.cli import main as wf_main
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 from weather_filter.obstacle import (

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lidar_weather_sim.gap.features import FEATURES
+from lidar_weather_sim.core.frame_parameters import FEATURES
 from weather_filter.weather_class import RegionFeatures, log_counts
 
 N_TOTAL = FEATURES.index("n_total")

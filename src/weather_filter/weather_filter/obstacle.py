@@ -39,7 +39,7 @@ from typing import Iterable
 import numpy as np
 
 from lidar_weather_sim.core.points import Label
-from lidar_weather_sim.gap.obstacle_boxes import augmentation_table
+from lidar_weather_sim.augment.boxes import augmentation_table
 from weather_filter.features import FEATURE_NAMES, PointFeatures
 from weather_filter.obstacle_clusters import CLUSTER_FEATURES, cluster_extents
 from weather_filter.obstacle_history import HISTORY_FEATURES, CellHistory

@@ -13,7 +13,7 @@ from weather_filter.simdata import SimSpec, default_cache_dir, simulate
 def augmented_bag(run: str, cache_dir: str | Path | None = None) -> Path:
     """The bag of ``run`` (``SPEC@AUGMENT_SEED[:EPW_MATCH[:KINDS]]``), augmented now unless already in the cache
     (``SPEC@SEED`` alone keeps its v1 cache name ``<bag>_a<SEED>``; other options add ``_<epw>`` / ``_<kinds>``)."""
-    from lidar_weather_sim.gap.augment_obstacles import augment_bag
+    from lidar_weather_sim.augment.obstacles import augment_bag
     from lidar_weather_sim.sensor.profile import load_profile
 
     text, seed, epw_match, kinds = parse_run_options(run)
@@ -46,7 +46,7 @@ def simulated_box_spec(index: int, seed: int = 500):
     the ego's speed; the simulation seed is ``seed + index``. Returns (scenario, seed)."""
     import numpy as np
 
-    from lidar_weather_sim.gap.obstacle_boxes import BoxRanges, Roi
+    from lidar_weather_sim.augment.boxes import BoxRanges, Roi
     from lidar_weather_sim.scenario.schema import Actor, load_scenario
 
     base = load_scenario(SIM_BOX_BASE)

@@ -1,7 +1,7 @@
 """Per-frame weather classification (clear / rain / fog / snow) with KNN, as in paper 2.
 
 The 12 per-frame features of paper 2 (Fig. 4) come from the shared extractor
-``lidar_weather_sim.gap.features.frame_features``, applied to the detections of the
+``lidar_weather_sim.core.frame_parameters.frame_features``, applied to the detections of the
 atmosphere region (horizontal distance x along the sensor's axis within
 [0, 5) m, as the paper's region), and again to the region's isotropic part
 (:class:`RegionFeatures`): 24 values per frame. Empty-region NaNs become fixed
@@ -65,7 +65,7 @@ COUNT_FEATURES = ("n_peak", "n_total", "n_dd", "n_e1", "n_e2", "n_e3")
 
 def _count_columns(width: int) -> list[int]:
     """Columns of the count features in feature vectors of ``width`` (12 or 24 values, FEATURES order)."""
-    from lidar_weather_sim.gap.features import FEATURES
+    from lidar_weather_sim.core.frame_parameters import FEATURES
 
     return [FEATURES.index(name) + offset for offset in range(0, width, len(FEATURES)) for name in COUNT_FEATURES]
 
@@ -85,7 +85,7 @@ def frame_feature_extractor() -> Callable[[np.ndarray], np.ndarray]:
 
 
 class RegionFeatures:
-    """points -> 24 values, NaN-free: the 12 paper-2 parameters (``lidar_weather_sim.gap.features.FEATURES`` order)
+    """points -> 24 values, NaN-free: the 12 paper-2 parameters (``lidar_weather_sim.core.frame_parameters.FEATURES`` order)
     of the detections with lo_m <= x < hi_m (x: horizontal distance along the sensor axis, sensor frame), then
     the same 12 of the region's isotropic part.
 
@@ -121,7 +121,7 @@ class RegionFeatures:
         return region[kept[sector]], self.sectors / int(kept.sum())
 
     def _parameters(self, points: np.ndarray, index: np.ndarray) -> np.ndarray:
-        from lidar_weather_sim.gap.features import FEATURES, frame_features
+        from lidar_weather_sim.core.frame_parameters import FEATURES, frame_features
 
         values = frame_features(points["x"][index], points["echo"][index], points["epw"][index], self.lo_m, self.hi_m)
         fill = {"x_max": self.hi_m, "x_mean": self.hi_m, "x_sigma": 0.0, "x_90": self.hi_m, "n_dd": 0.0,

@@ -2,7 +2,7 @@
 
 Simulates clear, rain, fog and snow, each with and without sun, on the rooftop
 scene (:mod:`lidar_weather_sim.experiments.rooftop`, scenario ``config/scenarios/rooftop_static.yaml``),
-computes the 12 per-frame parameters (:mod:`lidar_weather_sim.gap.features`) in the
+computes the 12 per-frame parameters (:mod:`lidar_weather_sim.core.frame_parameters`) in the
 atmosphere (0-5 m) and street (33-37 m) regions and for both together, and
 compares them with the paper's Tables 2-4 (read from thesis_tables.yaml).
 
@@ -26,7 +26,7 @@ import yaml
 from lidar_weather_sim.core.config import load_yaml
 from lidar_weather_sim.experiments.rooftop import ATMOSPHERE_REGION_M, STREET_REGION_X_M, RooftopPose, bounded_lot_scene
 from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states
-from lidar_weather_sim.gap.features import FEATURES, UNITS, frame_features, summarize
+from lidar_weather_sim.core.frame_parameters import FEATURES, UNITS, frame_features, summarize
 from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, FitFile, fit_path
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
 from lidar_weather_sim.regions.weather import Weather

@@ -1,1 +1,1 @@
-"""The reality gap: signatures, compare, effects, re-simulation, the gap search and its report, make-measured."""
+"""The reality gap: compare a recording with its re-simulation (signatures, compare, report) and search the effects that close the gap."""

@@ -10,7 +10,7 @@ import yaml
 
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.compare import bev_metrics
-from lidar_weather_sim.gap.effects import apply_effects
+from lidar_weather_sim.scenario.effects import apply_effects
 from lidar_weather_sim.gap.parallel import SearchSource
 from lidar_weather_sim.gap.report import write_gap
 from lidar_weather_sim.gap.resim import Resimulator, measured_signature

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import wasserstein_distance
 
-from lidar_weather_sim.gap.features import FEATURES
+from lidar_weather_sim.core.frame_parameters import FEATURES
 from lidar_weather_sim.gap.resim import channel_count, frame_contexts
 from lidar_weather_sim.gap.signatures import (
     ECHOES,

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidar_weather_sim.gap.effects import Effect
+from lidar_weather_sim.scenario.effects import Effect
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 The scene is built once from the scenario (roads, static meshes, actor bodies); each
 call to :meth:`Resimulator.signature` patches the scenario with a list of effects
-(:mod:`lidar_weather_sim.gap.effects`), rebuilds only the regions and the noise floor
+(:mod:`lidar_weather_sim.scenario.effects`), rebuilds only the regions and the noise floor
 (:meth:`LidarSimulator.restart`) and casts the frames in time order with the recorded
 poses (rolling shutter: the pose of each column's firing time), in batches of the columns
 fired in 10 ms as ``lidar-weather-sim run`` casts them (moving particles are placed per
@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from lidar_weather_sim.gap.effects import Effect, apply_effects
+from lidar_weather_sim.scenario.effects import Effect, apply_effects
 from lidar_weather_sim.gap.signatures import ActorBox, FrameContext, Signature
 from lidar_weather_sim.io.bags import BagError
 from lidar_weather_sim.io.recording import Recording

@@ -16,7 +16,7 @@
    channels are evident (:meth:`GapSearch.worth`): accepted and kept unless they make the gap worse. So is
    the return mode the points' ``return_type`` codes name (:mod:`lidar_weather_sim.gap.return_modes`): a
    recording that says its mode is not searched for one (two modes can give the same points).
-   Each round, every candidate effect the model knows (:data:`lidar_weather_sim.gap.effects.EFFECTS`;
+   Each round, every candidate effect the model knows (:data:`lidar_weather_sim.scenario.effects.EFFECTS`;
    spray once per vehicle of the scenario) that does not conflict with those already
    accepted is screened: its main parameter is tried on a grid of ``grid`` values (5; 7 with
    the sensor family: :data:`SENSOR_GRID`) over its
@@ -67,7 +67,7 @@ from scipy.optimize import minimize_scalar
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
 from lidar_weather_sim.gap.channels import MIN_ORIGIN_M, beam_origin, dead_channels, elevation_offsets, weak_channels
-from lidar_weather_sim.gap.effects import (
+from lidar_weather_sim.scenario.effects import (
     EFFECTS,
     FAMILIES,
     Effect,
@@ -181,7 +181,7 @@ class GapSearch:
                  progress: Callable[[str], None] | None = None, engine: Engine | None = None,
                  source: SearchSource | None = None, families: tuple[str, ...] = ("weather",),
                  split: DataSplit | None = None) -> None:  # fmt: skip
-        """``families``: the effect families searched (:data:`~lidar_weather_sim.gap.effects.FAMILIES`;
+        """``families``: the effect families searched (:data:`~lidar_weather_sim.scenario.effects.FAMILIES`;
         ``sensor`` adds the unit's own departures, for recordings of real sensors). ``split``: a twin's
         calibration / held-out split (else even / odd frames). ``engine`` with ``source`` (how a worker
         builds this same search): each round's evaluations run on the engine's workers

@@ -23,7 +23,7 @@ channel and range) and the later echoes' counts (echo 2 and 3+ x range class): a
 of their own, so that a recording without second echoes (a single-return mode) differs from
 one with them by more than the few per cent of points they are among all returns. Per
 frame it keeps the detections per zone and the 12 per-frame parameters of paper 2 over the
-near field (:mod:`lidar_weather_sim.gap.features`).
+near field (:mod:`lidar_weather_sim.core.frame_parameters`).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lidar_weather_sim.gap.features import FEATURES, frame_features
+from lidar_weather_sim.core.frame_parameters import FEATURES, frame_features
 
 ZONES = ("cover", "near", "body", "wake", "road", "far")
 COVER_M, NEAR_M = 0.5, 5.0

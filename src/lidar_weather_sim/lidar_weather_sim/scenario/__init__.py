@@ -1,1 +1,1 @@
-"""Scenario files, the player that moves the ego and actors over time, and the World that makes a scenario runnable."""
+"""Scenario files, the player that moves the ego and actors over time, the World that makes a scenario runnable, and the effects (knobs of a scenario) that make-measured hides and the gap search finds."""

@@ -61,7 +61,7 @@ class Optics(ConfigModel):
     subrays_v: int = Field(1, ge=1, le=16, description="Sub-rays across the vertical divergence")
     overlap_start_m: float = Field(0.0, ge=0, description="Biaxial optics: sender/receiver FOVs start to overlap (m)")
     overlap_full_m: float = Field(0.0, ge=0, description="Biaxial optics: full overlap from here on (m)")
-    # Physical optics, read by the atmosphere reference (lidar_weather_sim.gap.reference) and
+    # Physical optics, read by the atmosphere reference (lidar_weather_sim.references.droplets) and
     # lidar_weather_sim.physics; optional: profiles without them have no wavelength-resolved atmosphere.
     wavelength_nm: float | None = Field(None, gt=300, lt=2000, description="Laser wavelength (nm)")
     lens_separation_m: float | None = Field(

@@ -1,7 +1,7 @@
 """How a real unit's output departs from the sensor model after detection (the sensor-side effects).
 
 A recording's sensor differs from the model in ways no weather explains; ``sensor.response`` in a
-scenario states them, and the gap search fits them (:mod:`lidar_weather_sim.gap.effects`,
+scenario states them, and the gap search fits them (:mod:`lidar_weather_sim.scenario.effects`,
 ``sensor.*``):
 
 - **intensity response**: the reported 0-255 intensity I becomes

@@ -1,6 +1,6 @@
 """The sensor profile of a recording: given, matched among the shipped ones, or derived from the cloud.
 
-Matching (:func:`lidar_weather_sim.gap.augment_obstacles.profile_for_cloud`): a shipped profile
+Matching (:func:`lidar_weather_sim.augment.obstacles.profile_for_cloud`): a shipped profile
 (``config/sensors``) fits when the cloud's channels exist in it and the points' elevations lie within
 0.5 deg (median) of their channels'; of several, the one whose column count is nearest the cloud's.
 When none fits, :func:`derive_profile` writes one from the cloud: channels (highest channel + 1),
@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 
-from lidar_weather_sim.gap.augment_obstacles import check_profile, profile_for_cloud
-from lidar_weather_sim.gap.obstacle_boxes import ObstacleError
+from lidar_weather_sim.augment.obstacles import check_profile, profile_for_cloud
+from lidar_weather_sim.augment.boxes import ObstacleError
 from lidar_weather_sim.sensor.profile import SensorProfile, load_profile, profiles_dir
 
 DEFAULT_FRAME_RATE_HZ = 10.0

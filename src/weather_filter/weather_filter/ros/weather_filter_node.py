@@ -135,7 +135,7 @@ class WeatherFilterNode(Node):
     def _weather_status(self, points: np.ndarray) -> list[KeyValue]:
         if self._weather is None:
             self._once("noweather", "per-frame weather classification unavailable (no trained KNN / "
-                       "lidar_weather_sim.gap.features): not published", "info")  # fmt: skip
+                       "lidar_weather_sim.core.frame_parameters): not published", "info")  # fmt: skip
             return []
         if not {"x", "echo", "epw"} <= set(points.dtype.names or ()):
             self._once("noweatherfields", "cloud lacks x, echo or epw: no per-frame weather class", "info")

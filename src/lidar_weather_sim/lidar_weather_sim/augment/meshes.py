@@ -1,4 +1,4 @@
-"""Procedural meshes of the obstacle kinds (:mod:`~lidar_weather_sim.gap.obstacle_kinds`), no files.
+"""Procedural meshes of the obstacle kinds (:mod:`~lidar_weather_sim.augment.kinds`), no files.
 
 Body frame (REP-103, m): x along the obstacle's length (a car's or a pedestrian's front), y to its
 left, z up; origin at the centre of the footprint on the ground (z = 0 is the road), as the scene's
@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from lidar_weather_sim.core.points import Label
-from lidar_weather_sim.gap.obstacle_boxes import Box
+from lidar_weather_sim.augment.boxes import Box
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import Material, TriangleMesh, box_mesh
 from lidar_weather_sim.scene.scene import VehicleShape

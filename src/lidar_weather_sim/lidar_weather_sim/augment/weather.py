@@ -29,7 +29,7 @@ import numpy as np
 
 from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
-from lidar_weather_sim.gap.effects import Effect, apply_effects
+from lidar_weather_sim.scenario.effects import Effect, apply_effects
 from lidar_weather_sim.gap.resim import Resimulator
 from lidar_weather_sim.gap.signatures import beam_keys, nearest_returns
 from lidar_weather_sim.io.bags import BagWriter, read_messages

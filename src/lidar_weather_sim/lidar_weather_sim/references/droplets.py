@@ -63,7 +63,7 @@ import numpy as np
 from scipy.signal import fftconvolve, lfilter
 
 from lidar_weather_sim.core.points import Label, ReturnType, empty_points
-from lidar_weather_sim.gap.effects import Effect
+from lidar_weather_sim.scenario.effects import Effect
 from lidar_weather_sim.physics.coefficients import Medium, medium
 from lidar_weather_sim.physics.overlap import OVERLAP_MODELS, point_share
 from lidar_weather_sim.sensor.profile import SensorProfile

@@ -1,7 +1,7 @@
 """Obstacle kinds of ``augment --kinds``: the paper's box, and a car, a pedestrian and tyre debris.
 
 Paper 4 only inserted boxes and said "the type of synthetic object can be easily changed"
-(thesis line 2823). Each kind is drawn like the boxes (:func:`~lidar_weather_sim.gap.obstacle_boxes.draw_box`:
+(thesis line 2823). Each kind is drawn like the boxes (:func:`~lidar_weather_sim.augment.boxes.draw_box`:
 the same draws in the same order, the whole footprint inside the cone ROI, drawn again on the car
 ahead, durations from ``thesis_tables.yaml``) from the ranges below (uniform):
 
@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from lidar_weather_sim.gap.obstacle_boxes import BoxRanges, ObstacleError, Roi, augmentation_table
+from lidar_weather_sim.augment.boxes import BoxRanges, ObstacleError, Roi, augmentation_table
 
 KINDS = ("box", "vehicle", "pedestrian", "debris")
 #: Diffuse NIR albedo of car paint at 905 nm, black to white (estimate: carbon-black paints absorb the
@@ -93,8 +93,8 @@ def kind_ranges(kind: str, size_m: tuple[float, float] | None = None) -> BoxRang
 
 def check_kind_fits(ranges: BoxRanges | KindRanges, roi: Roi) -> None:
     """:class:`ObstacleError` when the kind's largest footprint cannot fit the ROI at every yaw (its
-    diagonal longer than the ROI's depth); boxes: :func:`~lidar_weather_sim.gap.obstacle_boxes.check_fits`."""
-    from lidar_weather_sim.gap.obstacle_boxes import check_fits
+    diagonal longer than the ROI's depth); boxes: :func:`~lidar_weather_sim.augment.boxes.check_fits`."""
+    from lidar_weather_sim.augment.boxes import check_fits
 
     if isinstance(ranges, BoxRanges):
         check_fits(ranges, roi)

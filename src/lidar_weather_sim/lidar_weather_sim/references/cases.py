@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from lidar_weather_sim.gap.effects import EFFECTS, Effect, conflicts, parse_effect
+from lidar_weather_sim.scenario.effects import EFFECTS, Effect, conflicts, parse_effect
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """``lidar-weather-sim make-measured``: "measured" data with effects hidden in it, for testing ``gap``.
 
-The scenario is run with the hidden effects (:mod:`lidar_weather_sim.gap.effects`) plus
+The scenario is run with the hidden effects (:mod:`lidar_weather_sim.scenario.effects`) plus
 nuisance that no effect of the model explains, so that a perfect diagnosis still leaves a
 residual gap:
 
@@ -16,12 +16,12 @@ topic only, and points without ``label`` and ``object_id`` (the 40-byte layout; 
 
 ``generator`` says who makes the weather:
 
-- ``fast`` (default): the project's own effects (:mod:`lidar_weather_sim.gap.effects`) in the simulator;
+- ``fast`` (default): the project's own effects (:mod:`lidar_weather_sim.scenario.effects`) in the simulator;
 - ``reference``: fog, rain and snow by the independent drop-by-drop reference
-  (:mod:`lidar_weather_sim.gap.reference`) on the simulator's clear frames; the other effects (sun, cover,
+  (:mod:`lidar_weather_sim.references.droplets`) on the simulator's clear frames; the other effects (sun, cover,
   spray, road) by the simulator, and the weather's own returns through the cover's transmission
   (:func:`cover_two_way`);
-- ``hahner``: fog by the simplified extinction-plus-soft-echo generator (:mod:`lidar_weather_sim.gap.hahner`,
+- ``hahner``: fog by the simplified extinction-plus-soft-echo generator (:mod:`lidar_weather_sim.references.hahner`,
   after Hahner et al., ICCV 2021) on the clear frames; other effects by the simulator (no rain or snow).
 """
 
@@ -34,7 +34,7 @@ from typing import Callable
 import numpy as np
 
 from lidar_weather_sim.core.points import add_range_noise, strip_ground_truth
-from lidar_weather_sim.gap.effects import Effect, apply_effects
+from lidar_weather_sim.scenario.effects import Effect, apply_effects
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.sim.offline import RunReport, run_scenario
 from lidar_weather_sim.sim.simulator import Frame
@@ -79,7 +79,7 @@ def weather_transform(scenario: Scenario, effects: list[Effect], generator: str,
         return apply_effects(scenario, effects, atmosphere_model), None
     if generator not in GENERATORS:
         raise ValueError(f"generator {generator!r}: one of {', '.join(GENERATORS)}")
-    from lidar_weather_sim.gap.reference import Atmosphere
+    from lidar_weather_sim.references.droplets import Atmosphere
     from lidar_weather_sim.sensor.profile import load_profile
 
     atmosphere, rest = Atmosphere.split(effects)
@@ -90,7 +90,7 @@ def weather_transform(scenario: Scenario, effects: list[Effect], generator: str,
     sun = float(hidden.weather.sun.irradiance_w_m2)
     rng = np.random.default_rng([seed & 0xFFFFFFFF, 0x726566])  # "ref": the generator's own stream
     if generator == "reference":
-        from lidar_weather_sim.gap.reference import ReferenceAtmosphere
+        from lidar_weather_sim.references.droplets import ReferenceAtmosphere
 
         if prof.detection.return_mode != "all":
             raise ValueError(f"the atmosphere reference reports every echo (return mode all), not "
@@ -98,7 +98,7 @@ def weather_transform(scenario: Scenario, effects: list[Effect], generator: str,
         ref = ReferenceAtmosphere(prof, atmosphere, sun_irradiance_w_m2=sun, beams_per_frame=beams_per_frame,
                                   cover_two_way=cover_two_way(hidden, prof))  # fmt: skip
         return hidden, lambda frame: ref.apply(frame.points, frame.index, rng)
-    from lidar_weather_sim.gap.hahner import HahnerFog
+    from lidar_weather_sim.references.hahner import HahnerFog
 
     if atmosphere.precipitation is not None:
         raise ValueError("the hahner generator makes fog only (Hahner et al. 2021): no atmosphere.rain or .snow")

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_weather_sim.core.points import WEATHER_LABELS
-from lidar_weather_sim.gap.obstacle_boxes import Footprint
+from lidar_weather_sim.augment.boxes import Footprint
 
 _log = logging.getLogger(__name__)
 _log.addHandler(logging.NullHandler())  # a library: the application shows it (the CLI: a note on stderr)

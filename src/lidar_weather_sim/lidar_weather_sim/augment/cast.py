@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_weather_sim.core.points import empty_points
-from lidar_weather_sim.gap.obstacle_boxes import Box
-from lidar_weather_sim.gap.obstacle_meshes import obstacle_mesh
+from lidar_weather_sim.augment.boxes import Box
+from lidar_weather_sim.augment.meshes import obstacle_mesh
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh
 from lidar_weather_sim.scene.scene import Scene
@@ -40,7 +40,7 @@ class SensorAtOrigin:
 
 
 def box_scene(boxes: list[Box]) -> Scene:
-    """The obstacles (any kind, :func:`~lidar_weather_sim.gap.obstacle_meshes.obstacle_mesh`) as one
+    """The obstacles (any kind, :func:`~lidar_weather_sim.augment.meshes.obstacle_mesh`) as one
     static mesh in the sensor frame; their materials one after the other (boxes alone: material i = box i)."""
     materials, meshes = [], []
     for b in boxes:

@@ -1,16 +1,16 @@
 """Recorded frames augmented with synthetic obstacles (paper 4's data augmentation, thesis lines 2618-2819).
 
-Per frame, ``objects`` slots each hold one box (:mod:`~lidar_weather_sim.gap.obstacle_boxes`) for its
+Per frame, ``objects`` slots each hold one box (:mod:`~lidar_weather_sim.augment.boxes`) for its
 duration (1, 2 or 3 frames in equal shares), then draw a new one inside the cone ROI, again if it
 overlaps the car ahead; with ``kinds`` other than the box alone, each new obstacle's kind is drawn first
-(equal shares; :mod:`~lidar_weather_sim.gap.obstacle_kinds`, meshes in
-:mod:`~lidar_weather_sim.gap.obstacle_meshes`). The obstacles are raycast with the recording's scan pattern by the simulator
-(:mod:`~lidar_weather_sim.gap.obstacle_cast`) and merged into the recorded frame with occlusion per
-beam and the paper's range noise (:mod:`~lidar_weather_sim.gap.obstacle_occlusion`). Obstacle points
+(equal shares; :mod:`~lidar_weather_sim.augment.kinds`, meshes in
+:mod:`~lidar_weather_sim.augment.meshes`). The obstacles are raycast with the recording's scan pattern by the simulator
+(:mod:`~lidar_weather_sim.augment.cast`) and merged into the recorded frame with occlusion per
+beam and the paper's range noise (:mod:`~lidar_weather_sim.augment.occlusion`). Obstacle points
 carry label 3 (``OBSTACLE``) and their box's object id (from :data:`OBJECT_ID_BASE`); a recording
 without ground truth gets ``label`` 0 and ``object_id`` 0 on its own points (44-byte layout). With
 ``epw_match="lead"`` (the paper's step, the default) the inserted points' EPW is matched to the car
-ahead's rear over the whole recording (:mod:`~lidar_weather_sim.gap.obstacle_epw`).
+ahead's rear over the whole recording (:mod:`~lidar_weather_sim.augment.epw`).
 
 Frames: everything in the sensor frame (REP-103); m, rad. Seeded: the same recording, settings and
 seed give the same output.
@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from lidar_weather_sim.core.points import POINT_DTYPE, Label
-from lidar_weather_sim.gap.obstacle_boxes import (
+from lidar_weather_sim.augment.boxes import (
     Box,
     BoxRanges,
     Footprint,
@@ -36,10 +36,10 @@ from lidar_weather_sim.gap.obstacle_boxes import (
     check_fits,
     draw_box,
 )
-from lidar_weather_sim.gap.obstacle_cast import ObstacleCaster
-from lidar_weather_sim.gap.obstacle_epw import EPW_MATCH, lead_car, match_to_lead, rear_mask
-from lidar_weather_sim.gap.obstacle_kinds import check_kind_fits, kind_ranges, parse_kinds
-from lidar_weather_sim.gap.obstacle_occlusion import merge_obstacles
+from lidar_weather_sim.augment.cast import ObstacleCaster
+from lidar_weather_sim.augment.epw import EPW_MATCH, lead_car, match_to_lead, rear_mask
+from lidar_weather_sim.augment.kinds import check_kind_fits, kind_ranges, parse_kinds
+from lidar_weather_sim.augment.occlusion import merge_obstacles
 from lidar_weather_sim.gap.resim import road_level
 from lidar_weather_sim.gap.signatures import ActorBox
 from lidar_weather_sim.io.bags import BagWriter, read_messages
@@ -198,7 +198,7 @@ class AugmentSummary(NamedTuple):
 
 def lead_rear_epw(recording: Recording, road_z_m: float) -> tuple[np.ndarray | None, str]:
     """EPWs (m) of the recorded points on the car ahead's rear over every frame
-    (:func:`~lidar_weather_sim.gap.obstacle_epw.rear_mask`), or None and why not."""
+    (:func:`~lidar_weather_sim.augment.epw.rear_mask`), or None and why not."""
     if "epw" not in recording.frames[0].points.dtype.names:
         return None, "the cloud has no EPW field"
     if not recording.actor_ids():

@@ -1,5 +1,5 @@
 """A second, simplified fog generator, written apart from the fast atmosphere region and from the reference
-(:mod:`lidar_weather_sim.gap.reference`): the method of Hahner, Sakaridis, Dai & Van Gool, "Fog Simulation
+(:mod:`lidar_weather_sim.references.droplets`): the method of Hahner, Sakaridis, Dai & Van Gool, "Fog Simulation
 on Real LiDAR Point Clouds for 3D Object Detection in Adverse Weather", ICCV 2021, on the points of a clear
 cloud (it needs no scene, only the points):
 
@@ -7,7 +7,7 @@ cloud (it needs no scene, only the points):
   the hard target term keeps its form with the two-way Beer-Lambert loss), ``alpha = 3.912 / V``
   (Koschmieder; wavelength-independent as in the paper). On this project's receiver the power is the
   peak amplitude ``A``, recovered from each point's intensity with its pulse width from its EPW
-  (:func:`~lidar_weather_sim.gap.reference.scene_pulses`);
+  (:func:`~lidar_weather_sim.references.droplets.scene_pulses`);
   the attenuated return's intensity and EPW follow from ``A exp(-2 alpha R)`` on the profile's scales,
   so the intensity byte drops by ``255 * 2 alpha R / ln(intensity_dynamic_range)``; returns below the
   threshold are removed.
@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_weather_sim.core.points import Label, ReturnType
-from lidar_weather_sim.gap.reference import epw_of, intensity_bytes, scene_pulses
+from lidar_weather_sim.references.droplets import epw_of, intensity_bytes, scene_pulses
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold, dark_level
 

@@ -134,7 +134,7 @@ class Box:
     """One synthetic obstacle in the sensor frame of the frame it first appears in: footprint centre
     (x, y) m, bottom z_bottom m, sides (length along yaw, width, height) m, yaw rad, reflectivity,
     ``duration`` frames, ``object_id``; ``kind``: the paper's box or a mesh of
-    :mod:`~lidar_weather_sim.gap.obstacle_meshes` whose bounding box these sides are."""
+    :mod:`~lidar_weather_sim.augment.meshes` whose bounding box these sides are."""
 
     x: float
     y: float
@@ -173,7 +173,7 @@ def draw_box(rng: np.random.Generator, ranges: BoxRanges, roi: Roi, road_z_m: fl
     """One box: sides, yaw, reflectivity uniform in ``ranges``, duration one of ``ranges.durations``,
     centre uniform in the ROI's bounding box, drawn again until its footprint is inside the ROI and
     clear of every footprint in ``avoid`` (the car ahead). Bottom on the road (``road_z_m``, sensor frame).
-    ``ranges`` may be any kind's (:class:`~lidar_weather_sim.gap.obstacle_kinds.KindRanges`: its
+    ``ranges`` may be any kind's (:class:`~lidar_weather_sim.augment.kinds.KindRanges`: its
     ``kind``, ``dims_m``, ``yaw_rad``, ``reflectivity``, ``durations``); the draws are the same in number
     and order for every kind, so boxes alone give what they always gave."""
     if ranges.kind == "box":
