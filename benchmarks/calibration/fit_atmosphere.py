@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from provenance import written_by
 from scipy.optimize import minimize
 
 from lidar_weather_sim.core.engine import Engine
@@ -190,7 +191,7 @@ def main() -> None:
             data["source"] = ("fitted by benchmarks/calibration/fit_atmosphere.py to paper 2 Tables 3 and 4 (thesis_tables.yaml "
                               "atmosphere_region, street_region); one set per weather class for both sun conditions")
             staged = Path(f"{args.out}.partial")  # replaced in one step: the other classes' runs read the file
-            staged.write_text("# Written by benchmarks/calibration/fit_atmosphere.py; do not edit by hand.\n"
+            staged.write_text(written_by(__file__) + "# Do not edit by hand.\n"
                               + yaml.safe_dump(data, sort_keys=False))
             staged.replace(args.out)
             print(f"{weather}: {data['classes'][weather]}\n  z atmosphere {z_near.round(2)}  z street "

@@ -28,6 +28,7 @@ import argparse
 from pathlib import Path
 
 import yaml
+from provenance import written_by
 
 ROOT = Path(__file__).resolve().parents[2]
 EXPECTED_RANGE_SIGMAS_72 = 4.8  # E[max - min] of 72 standard normal draws
@@ -74,7 +75,7 @@ def main() -> None:
     parser.add_argument("--out", default=str(ROOT / "config" / "cover" / "samples.yaml"))
     args = parser.parse_args()
     data = derive(yaml.safe_load(Path(args.tables).read_text()))
-    header = "# Cover texture database (lidar_weather_sim.regions.cover_textures). " + data["source"] + "\n"
+    header = f"{written_by(__file__)}# Cover texture database (lidar_weather_sim.regions.cover_textures). {data['source']}\n"
     Path(args.out).write_text(header + yaml.safe_dump(data, sort_keys=False))
     print(f"wrote {len(data['samples'])} textures to {args.out}")
 

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from provenance import written_by
 from scipy.optimize import minimize, minimize_scalar
 
 from lidar_weather_sim.experiments.reproduce import load_tables, rows_of, simulate
@@ -153,7 +154,7 @@ def main() -> None:
               f"({time.perf_counter() - start:.0f} s)", flush=True)  # fmt: skip
     data["source"] = (f"fitted by benchmarks/calibration/fit_physical_rooftop.py --columns {args.columns} to paper 2 "
                       f"(thesis_tables.yaml), {args.frames} frames per condition, seed {SEED}")  # fmt: skip
-    Path(args.out).write_text("# Written by benchmarks/calibration/fit_physical_rooftop.py; do not edit by hand. Fields: "
+    Path(args.out).write_text(written_by(__file__) + "# Do not edit by hand. Fields: "
                               "lidar_weather_sim.experiments.rooftop_states.\n" + yaml.safe_dump(data, sort_keys=False))
     print(f"wrote {args.out}")
 
