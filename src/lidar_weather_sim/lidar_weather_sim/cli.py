@@ -435,13 +435,13 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--out", default="rooftop_reproduction", help="output directory")
     reproduce.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data beside the workspace)")
     reproduce.add_argument("--profile", help="sensor profile (name in config/sensors or YAML path) instead of scala4")
-    reproduce.add_argument("--fit-file", help="atmosphere parameters, e.g. from benchmarks/fit_atmosphere.py --out "
+    reproduce.add_argument("--fit-file", help="atmosphere parameters, e.g. from benchmarks/calibration/fit_atmosphere.py --out "
                                               "(default config/atmosphere_fit.yaml)")
     reproduce.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, default="fitted",
                            help="the atmosphere region's model (physical: fog, rain and snow of --states from "
                                 "their drop-size distributions; default fitted)")
     reproduce.add_argument("--states", help="physical model: the weather, street and window states per class, e.g. "
-                                            "from benchmarks/fit_physical_rooftop.py --out (default "
+                                            "from benchmarks/calibration/fit_physical_rooftop.py --out (default "
                                             "config/rooftop_physical.yaml)")
     reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.experiments.reproduce", fromlist=["main"]).main(a))
 

@@ -247,7 +247,7 @@ def test_physical_rooftop_takes_the_weather_and_the_window_from_its_states():
 
 def test_physical_rooftop_reproduction_matches_at_least_the_recorded_number_of_paper_means(tmp_path):
     """``reproduce rooftop --atmosphere-model physical`` with config/rooftop_physical.yaml
-    (benchmarks/fit_physical_rooftop.py --columns all) on a seed the fit did not use."""
+    (benchmarks/calibration/fit_physical_rooftop.py --columns all) on a seed the fit did not use."""
     from lidar_weather_sim.experiments.reproduce import reproduce_rooftop, within_sigma
 
     rows = reproduce_rooftop(tmp_path, frames=10, seed=0, plots=False, atmosphere_model="physical")

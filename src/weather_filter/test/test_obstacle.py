@@ -118,7 +118,7 @@ def test_first_model_stays_loadable_by_path():
 
 
 def test_simulated_box_seeds_are_apart():
-    bench = set(range(500, 550))  # benchmarks/obstacle_classifier.py: 50 boxes of seed 500 (run seeds 500 + i)
+    bench = set(range(500, 550))  # benchmarks/validation/obstacle_classifier.py: 50 boxes of seed 500 (run seeds 500 + i)
     train = set(range(SIM_BOXES_TRAIN_V2[0], sum(SIM_BOXES_TRAIN_V2)))
     val = set(range(SIM_BOXES_VALIDATION_V2[0], sum(SIM_BOXES_VALIDATION_V2)))
     assert not bench & train and not bench & val and not train & val

@@ -6,7 +6,7 @@ The shipped models match the simulator they were trained with (commit ce35beb, w
 packets of 857575c: fresh runs of the training specs reproduce the training bags). When the simulated weather changes (config/atmosphere_fit.yaml,
 the atmosphere or spray regions), these floors may fail: retrain with
 ``rm -rf .venv/cache/weather_filter && weather-filter train --preset shipped && weather-filter train-weather
---preset shipped`` and re-measure with benchmarks/weather_filter_eval.py."""
+--preset shipped`` and re-measure with benchmarks/validation/weather_filter_eval.py."""
 
 import numpy as np
 import pytest

@@ -441,7 +441,7 @@ FILTERS.register("echo", partial(_with_params, EchoAwareFilter, EchoParams))
 FILTERS.register("learned", _learned)
 METHODS = tuple(FILTERS.names())
 #: What a user who names no method gets: the best weather F1 at object recall >= 0.995 on the held-out runs
-#: of every shipped profile (src/weather_filter/README.md, `benchmarks/weather_filter_eval.py`).
+#: of every shipped profile (src/weather_filter/README.md, `benchmarks/validation/weather_filter_eval.py`).
 DEFAULT_METHOD = "learned"
 #: One line per method for ``--help`` and the node's parameter description.
 METHOD_HELP = {

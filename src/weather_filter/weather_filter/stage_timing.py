@@ -21,7 +21,7 @@ from weather_filter.azimuth import approx_azimuth
 from weather_filter.learned import LearnedFilter
 from weather_filter.simdata import frames_of, simulate
 
-#: benchmarks/weather_filter_eval.py's timing run (os1_128_2048, ~120k points per frame).
+#: benchmarks/validation/weather_filter_eval.py's timing run (os1_128_2048, ~120k points per frame).
 TIMING_SPEC = "wf_heldout_mixed:102:6:os1_128_2048"
 FIELDS = ("x", "y", "z", "echo", "channel", "epw", "intensity")
 

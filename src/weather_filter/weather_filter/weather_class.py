@@ -16,7 +16,7 @@ outweighs every other feature in the distance.
 Scenarios never trained on, share of frames named right: v1 (the 12 parameters,
 linear counts, three base scenarios) 0.58; v2 (log counts, heavy dirt and spray
 mist in the runs) 0.86; v3 (with the isotropic part) 0.93
-(``python benchmarks/weather_filter_eval.py --knn-only``).
+(``python benchmarks/validation/weather_filter_eval.py --knn-only``).
 
 The shipped model ``models/weather_knn_v<N>.joblib`` is trained on labelled
 simulation runs (:mod:`weather_filter.simdata`) whose class is the scenario's
@@ -51,7 +51,7 @@ KNN_BASES = ("wf_knn_highway", "wf_knn_curved_dirt", "wf_knn_highway_dirt", "wf_
              "wf_knn_spray_mist")  # fmt: skip
 KNN_TRAIN_SPECS = (*(f"{s}:{31 + i}:20::{w}" for s in KNN_BASES for i, w in enumerate(KNN_WEATHER_RUNS)),
                    "curved_clear:31:20", "proving_ground_48:31:20")  # fmt: skip
-#: Unseen seeds of the training scenarios, and scenarios never trained on (benchmarks/weather_filter_eval.py).
+#: Unseen seeds of the training scenarios, and scenarios never trained on (benchmarks/validation/weather_filter_eval.py).
 KNN_TEST_SEEDS_SPECS = (*(f"{s}:{61 + i}:10::{w}" for s in KNN_BASES for i, w in enumerate(KNN_WEATHER_RUNS)),
                         "curved_clear:61:10", "proving_ground_48:61:10")  # fmt: skip
 KNN_TEST_SCENARIO_SPECS = ("highway_spray:100:40", "proving_ground_60:100:40", "wf_heldout_mixed:100:40",

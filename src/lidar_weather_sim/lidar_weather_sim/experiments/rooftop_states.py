@@ -3,7 +3,7 @@
 Paper 2 reports weather classes, not the weather: no visual range, no rain or snow rate, no state
 of the window or of the street. With the physical atmosphere (drop-size distributions, Mie, the
 profile's optics) these states are the rooftop reproduction's free parameters, fitted by
-``benchmarks/fit_physical_rooftop.py`` into ``config/rooftop_physical.yaml``:
+``benchmarks/calibration/fit_physical_rooftop.py`` into ``config/rooftop_physical.yaml``:
 
 - per weather class, the scene: the fog's visual range (m); the rain or snow rate (mm/h, snow as
   water equivalent); the street's water film (mm) or snow cover (m);

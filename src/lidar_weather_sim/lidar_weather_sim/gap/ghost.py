@@ -4,7 +4,7 @@ A unit's ghosts (returns of its clean window and housing, thesis lines 329 and 4
 the cover zone (range < 0.5 m), and only the few beyond the profile's minimum range: a VLP-16 reports about
 5 % of them, two scans of a rate of 0.02 per beam some 40 points. The count is then all the scans hold about
 the rate, and fitting the rate on the gap (a sum over many histograms) reads it less well than the count
-itself (the ghost draws of ``config/ghost_effect_cases.yaml``, ``benchmarks/ghost_count_limit.py``).
+itself (the ghost draws of ``config/ghost_effect_cases.yaml``, ``git show f643197:benchmarks/ghost_count_limit.py``).
 
 :func:`ghost_rate` finds the rate at which the model's expected count, over the same scans, equals the
 recorded count: secant steps from no ghosts (the count grows about linearly with the rate, less at high

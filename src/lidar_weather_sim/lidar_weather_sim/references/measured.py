@@ -143,7 +143,7 @@ def make_measured(
 
 
 #: Reference diagnoses (each effect alone and two pairs) checked by test/test_gap.py and
-#: printed by benchmarks/gap_recovery.py, on highway_clear.
+#: printed by benchmarks/validation/gap_recovery.py, on highway_clear.
 RECOVERY_CASES = [
     ["atmosphere.fog:visual_range=80"],
     ["atmosphere.rain:intensity=10"],

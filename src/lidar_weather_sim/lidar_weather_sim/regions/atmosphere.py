@@ -3,7 +3,7 @@
 Inputs: the scenario's weather block (OpenSCENARIO names: ``fog.visual_range_m``,
 ``precipitation.type`` / ``intensity_mm_h``), overridable in the parameters, and
 one physical parameter set per weather class from ``config/atmosphere_fit.yaml``
-(written by ``benchmarks/fit_atmosphere.py``). Sunlight is not handled here: it
+(written by ``benchmarks/calibration/fit_atmosphere.py``). Sunlight is not handled here: it
 raises the receiver's noise floor in the simulator.
 
 Effects per batch (world frame rays, ranges in m along the ray):
@@ -66,7 +66,7 @@ PHYSICAL_FOG_LIMIT_M = 10000.0  # physical model: haze up to 10 km visual range 
 
 
 class ClassParams(ConfigModel):
-    """Physical parameters of one weather class (fitted; see benchmarks/fit_atmosphere.py)."""
+    """Physical parameters of one weather class (fitted; see benchmarks/calibration/fit_atmosphere.py)."""
 
     rate_per_beam: float = Field(ge=0, description="Near-field scatterers per beam and frame at the reference weather")
     cover_share: float = Field(ge=0, le=1, description="Share of near-field scatterers that are cover multipath")

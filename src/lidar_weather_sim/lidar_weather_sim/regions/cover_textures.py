@@ -6,7 +6,7 @@ azimuth from ``azimuth_min_deg`` to ``azimuth_max_deg`` of the profile (sensor
 frame, REP-103). The paper measured 4 x 18 points per cover; the grid is
 sampled bilinearly, so any finer sampling is an interpolation.
 
-Texture kinds (``config/cover/samples.yaml``, written by ``benchmarks/fit_cover.py``
+Texture kinds (``config/cover/samples.yaml``, written by ``benchmarks/calibration/fit_cover.py``
 from paper 1 Tables I and II):
 
 - ``clean``: transmission 1 everywhere;

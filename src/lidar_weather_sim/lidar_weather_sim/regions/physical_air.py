@@ -37,7 +37,7 @@ O(r) at full strength (``cone``: in the receiver's view or not), or, ``defocus``
 light the field stop takes at its place on the beam's disc (``bypass_overlap``: the echo stage does not apply
 its own). The threshold is the dark one (no sun). This is the
 model :mod:`lidar_weather_sim.references.droplets` computes slowly, drop by drop, with a geometric overlap and
-fog droplet statistics: the fast model is checked against it (``benchmarks/atmosphere_reference.py
+fog droplet statistics: the fast model is checked against it (``benchmarks/validation/atmosphere_reference.py
 --fast-model physical``). Not modelled: multiple scattering, the fog's fluctuation beyond the near field
 (the reference's quadrature there is smooth too).
 """

@@ -10,9 +10,9 @@ undershoot of the same area spread over ~tau behind it; a signal slow against ta
 changes (y ~ tau dx/dr). The simulator's pulse (``pulse.fwhm_m``) is fitted to measured hard-target EPWs, so it
 already is the filtered pulse's lobe; its undershoot stays below the threshold and is left out. What the fitted
 pulse cannot hold is the filter's answer to a return metres long: fog's volume, which a DC-coupled model turns
-into one echo 3-12 m wide in every beam (``benchmarks/receiver_highpass.py``). So the filter is applied to the
-volume's density before it meets the pulse: the volume return becomes the pulse convolved with the filtered
-density, ``HP(V) * p`` (= ``HP(V * p)``, the fitted pulse standing in for the unfiltered one).
+into one echo 3-12 m wide in every beam (``git show f643197:benchmarks/receiver_highpass.py``). So the filter is
+applied to the volume's density before it meets the pulse: the volume return becomes the pulse convolved with the
+filtered density, ``HP(V) * p`` (= ``HP(V * p)``, the fitted pulse standing in for the unfiltered one).
 
 The density arrives as slabs (:class:`lidar_weather_sim.regions.volume_return.VolumeReturn`): slab k, of
 amount A_k spread evenly over [a_k, b_k], loses to the filter the share of the tails of itself and of the

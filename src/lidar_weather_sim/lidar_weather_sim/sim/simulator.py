@@ -27,7 +27,7 @@ all cores. With regions, a large batch (``PARALLEL_MIN_RAYS``) applies its regio
 its candidates -> points in a background thread while the next batch is cast and its regions applied;
 a frame is returned once its last batch is detected (:meth:`LidarSimulator.flush`). Every stage draws
 from streams seeded per batch, so the clouds are bit for bit those of one thread. Speed:
-``benchmarks/sim_frame_time.py`` (clear), ``benchmarks/weather_frame_time.py`` (every region, per stage).
+``benchmarks/performance/sim_frame_time.py`` (clear), ``benchmarks/performance/weather_frame_time.py`` (every region, per stage).
 
 Why one module of ~550 lines: it is the frame pipeline, read top to bottom in one pass; the numba
 kernels it calls are already in kernels.py.

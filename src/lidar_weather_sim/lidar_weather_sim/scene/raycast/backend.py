@@ -5,7 +5,7 @@ in that mesh's frame. Every backend converts the float64 vertices to float32
 the same way (``np.float32`` rounding of the float64 values) and tests rays
 with ``tnear = 0`` and no far limit, so the backends return the same hits.
 
-Default order, fastest first (``benchmarks/raycast_backends.py``: 128x2048x3
+Default order, fastest first (``benchmarks/performance/raycast_backends.py``: 128x2048x3
 lidar rays, 2 cores): ``mitsuba`` (Mitsuba 3 LLVM variant, coherent Embree ray
 streams on all cores, 50-110 Mrays/s), ``open3d`` (RaycastingScene, Embree on
 all cores, 14-21 Mrays/s; the reference, always available), ``embree``

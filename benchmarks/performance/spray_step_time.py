@@ -9,9 +9,9 @@
 
 The spray region's share of a frame (region step and apply, and what its scatterers cost the
 echo stages) at 16, 32 and 64 drop packets per wheel per tick, next to the clear frame, is in
-``benchmarks/weather_frame_time.py`` (rows ``spray 16`` .. ``spray 64`` and ``target``).
+``benchmarks/performance/weather_frame_time.py`` (rows ``spray 16`` .. ``spray 64`` and ``target``).
 
-    python benchmarks/spray_step_time.py [--particles N] [--frames K]
+    python benchmarks/performance/spray_step_time.py [--particles N] [--frames K]
 """
 
 from __future__ import annotations

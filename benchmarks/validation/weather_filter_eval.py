@@ -1,6 +1,6 @@
 """The weather filters on labelled simulation never used in training, and the per-frame KNN.
 
-    python benchmarks/weather_filter_eval.py [--no-train] [--methods dror,dsor,lior,echo,learned]
+    python benchmarks/validation/weather_filter_eval.py [--no-train] [--methods dror,dsor,lior,echo,learned]
 
 1. Simulates (or reuses, under .venv/cache/weather_filter) the training runs
    (weather_filter.simdata.TRAIN_SPECS) and the held-out runs (HELDOUT_SPECS: other

@@ -11,7 +11,7 @@ label-14 points with x > 5 m in the sensor frame: mean, share of frames with 0-1
 the share of them beyond 10 m, and where the car ahead's nearest points lie (2nd percentile of x
 of object 100's vehicle points, m).
 
-    python benchmarks/highway_spray_histogram.py [--scenario NAME_OR_YAML] [--frames N] [--warmup S]
+    python benchmarks/validation/highway_spray_histogram.py [--scenario NAME_OR_YAML] [--frames N] [--warmup S]
         [--speeds-kmh 89,120] [--films-mm 0.3,0.7,1.1] [--seed 0]
 
 A case sets the ego's and every actor's speed and the spray region's ``water_film_mm``.

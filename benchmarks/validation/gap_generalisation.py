@@ -1,6 +1,6 @@
 """Gap-search generalisation baseline: `gap` on the seeded cases of config/gap_cases.yaml.
 
-    python benchmarks/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
+    python benchmarks/validation/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
         [--atmosphere-model fitted|physical] [--fast-via-sim] [--reuse-bags] [--json F]
 
 Cases come from lidar_weather_sim.references.cases.draw_cases (ranges and seed committed before anything ran on

@@ -4,7 +4,7 @@ red, the paper's cone ROI and feature region outlined (sensor frame, m). ``--bef
 that the same frame of BAG lacks (e.g. what ``make-measured --on BAG`` put on a real recording: spray and the
 car throwing it; real layouts carry no labels) blue.
 
-Usage: python benchmarks/augment_bev.py BAG --out PNG [--frame 0] [--topic /lidar/points] [--before BAG]
+Usage: python benchmarks/validation/augment_bev.py BAG --out PNG [--frame 0] [--topic /lidar/points] [--before BAG]
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ P --out F``, then ``lidar-weather-sim reproduce rooftop --profile P --fit-file F
 and its fit: within the +-2 by which refits from different starts differ, with the same misses
 (street n_e2 at night, the street EPW under sun). So this Table 2 calibration stays.
 
-Usage: python benchmarks/calibrate_sun.py [--profile scala4] [--frames 8]
+Usage: python benchmarks/calibration/calibrate_sun.py [--profile scala4] [--frames 8]
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ frame - cast (poses, rotation, culling, echoes, points); overhead = frame / cast
 points per frame. ``--threads`` sets the simulator's kernel threads
 (:mod:`lidar_weather_sim.core.workers`; 1 = single-threaded kernels).
 
-    python benchmarks/sim_frame_time.py [--frames N] [--backend B] [--profiles a,b] [--steps K] [--threads T]
+    python benchmarks/performance/sim_frame_time.py [--frames N] [--backend B] [--profiles a,b] [--steps K] [--threads T]
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def versions() -> str:
             found.append(f"{n} {importlib.metadata.version(n)}")
         except importlib.metadata.PackageNotFoundError:
             pass
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     try:
         rev = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                              check=True).stdout.strip()  # fmt: skip

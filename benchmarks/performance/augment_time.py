@@ -8,7 +8,7 @@ occlusion and noise; ``--objects`` per frame) and the obstacle classifier (featu
 the classifier: MLP or trees). Prints median and mean ms per frame (wall clock, this machine; the first frame, with JIT warm-up, is
 left out).
 
-Usage: python benchmarks/augment_time.py [--scenario highway_spray] [--profile P] [--frames 20] [--objects 1]
+Usage: python benchmarks/performance/augment_time.py [--scenario highway_spray] [--profile P] [--frames 20] [--objects 1]
        [--model PATH (default: the shipped obstacle model)]
 """
 

@@ -1,6 +1,6 @@
 """Reality-gap recovery: hide effects with make-measured, run gap, print what it found.
 
-    python benchmarks/gap_recovery.py [--frames 60] [--fit-frames 30] [--heldout-frames 30]
+    python benchmarks/validation/gap_recovery.py [--frames 60] [--fit-frames 30] [--heldout-frames 30]
 
 One row per case (each effect alone and two pairs, as test/test_gap.py): the hidden
 parameters, the effects gap names with their fitted main parameter and error, the held-out

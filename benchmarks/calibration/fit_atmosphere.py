@@ -31,7 +31,7 @@ The reference weather (rain 2 mm/h, snow 1 mm/h water equivalent, fog visual ran
 is an assumption: the paper reports the classes, not the intensities (rain mostly below
 5 mm/h, Fig. A2). Output: config/atmosphere_fit.yaml (with the fit's residuals).
 
-Usage: python benchmarks/fit_atmosphere.py [--frames 6] [--iters 60] [--classes clear,rain] [--stages street]
+Usage: python benchmarks/calibration/fit_atmosphere.py [--frames 6] [--iters 60] [--classes clear,rain] [--stages street]
        [--profile NAME|PATH] [--out FILE]
 (fit clear first, or together with the others: it sets street_gain for all classes). Check a fit
 with ``lidar-weather-sim reproduce rooftop --fit-file FILE [--profile NAME|PATH]``.
@@ -46,13 +46,14 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from provenance import written_by
 from scipy.optimize import minimize
 
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.experiments.reproduce import default_tables_path, rows_of, simulate
 from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, ClassParams
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "config" / "atmosphere_fit.yaml"
 NEAR = {"rate_per_beam": "log", "cover_share": "logit", "cover_scale_m": "log", "amplitude_median": "log",
         "amplitude_sigma_ln": "log", "cover_amp_scale_m": "log"}
@@ -187,10 +188,10 @@ def main() -> None:
             data["classes"][weather] = {k: round(float(v), 6) for k, v in c.items() if v is not None}
             data.setdefault("fit_report", {})[weather] = {"z_atmosphere": [round(float(v), 2) for v in z_near],
                                                           "z_street": [round(float(v), 2) for v in z_street]}
-            data["source"] = ("fitted by benchmarks/fit_atmosphere.py to paper 2 Tables 3 and 4 (thesis_tables.yaml "
+            data["source"] = ("fitted by benchmarks/calibration/fit_atmosphere.py to paper 2 Tables 3 and 4 (thesis_tables.yaml "
                               "atmosphere_region, street_region); one set per weather class for both sun conditions")
             staged = Path(f"{args.out}.partial")  # replaced in one step: the other classes' runs read the file
-            staged.write_text("# Written by benchmarks/fit_atmosphere.py; do not edit by hand.\n"
+            staged.write_text(written_by(__file__) + "# Do not edit by hand.\n"
                               + yaml.safe_dump(data, sort_keys=False))
             staged.replace(args.out)
             print(f"{weather}: {data['classes'][weather]}\n  z atmosphere {z_near.round(2)}  z street "

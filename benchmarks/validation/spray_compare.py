@@ -11,12 +11,12 @@ spray detections per frame (mean, std, and the overlap of the two normalised
 histograms). Cost per frame: the particle model's time in the region's step + apply,
 the reference's time in its step + scene cast + detection; ratio in %.
 
-    python benchmarks/spray_compare.py [--scenarios a,b] [--frames K] [--warmup S]
-    python benchmarks/spray_compare.py --fit     # airborne_fraction for config/spray.yaml
-    python benchmarks/spray_compare.py --scenarios proving_ground_39,proving_ground_55 --water-film-mm 3
-    python benchmarks/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --detector-on-packets
-    python benchmarks/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
-    python benchmarks/spray_compare.py --scenarios highway_spray --spray mist_packets_per_wheel_per_tick=32
+    python benchmarks/validation/spray_compare.py [--scenarios a,b] [--frames K] [--warmup S]
+    python benchmarks/validation/spray_compare.py --fit     # airborne_fraction for config/spray.yaml
+    python benchmarks/validation/spray_compare.py --scenarios proving_ground_39,proving_ground_55 --water-film-mm 3
+    python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --detector-on-packets
+    python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
+    python benchmarks/validation/spray_compare.py --scenarios highway_spray --spray mist_packets_per_wheel_per_tick=32
 
 ``--seeds`` runs each scenario once per spray seed (turbulence and emission) and pools the frames:
 a few seconds of proving-ground spray hold one or two turbulent episodes, so one seed's bird's-eye

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """The Dask engine against one-after-another loops of the same work, on this machine.
 
-    python benchmarks/sweep_engine.py sweep [--runs 40 --frames 10]   # lidar-weather-sim sweep: serial, 1, 2 workers
-    python benchmarks/sweep_engine.py train-data [--specs 8]          # weather-filter training runs: serial vs 2 workers
-    python benchmarks/sweep_engine.py gap [--frames 200]              # gap search on a 200-frame recording: serial vs 2
+    python benchmarks/performance/sweep_engine.py sweep [--runs 40 --frames 10]   # lidar-weather-sim sweep: serial, 1, 2 workers
+    python benchmarks/performance/sweep_engine.py train-data [--specs 8]          # weather-filter training runs: serial vs 2 workers
+    python benchmarks/performance/sweep_engine.py gap [--frames 200]              # gap search on a 200-frame recording: serial vs 2
 
 ``sweep`` runs the same runs (highway_spray, scala4, fog visual ranges x seeds, ``compute: [stats]``)
 three times into fresh directories: ``--workers 0`` (the serial loop in one process, the simulator on

@@ -12,7 +12,7 @@ on held-out data.
    highway_spray with one seeded box actor (label obstacle, the paper's sides, inside the ROI's x range, ego or
    right lane, driving with the ego; ``weather_filter.obstacle_data.simulated_box_spec``), 3 frames each.
 
-Usage: python benchmarks/obstacle_classifier.py [--model PATH] [--runs v1,v2,v3,v4] [--boxes 50] [--cache DIR]
+Usage: python benchmarks/validation/obstacle_classifier.py [--model PATH] [--runs v1,v2,v3,v4] [--boxes 50] [--cache DIR]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Does `gap --effects sensor` find a sensor-side effect hidden in a re-simulation of a real recording?
 
-    python benchmarks/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
+    python benchmarks/validation/sensor_effect_recovery.py [--cases FILE] [--scenario TWIN_DIR/scenario.yaml] [--limit K]
         [--profiles P,...] [--effects E,...] [--only K,...] [--workers N] [--progress]
 
 The cases are config/sensor_effect_cases.yaml's seeded draws (committed before any run): for each
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CASES = ROOT / "config" / "sensor_effect_cases.yaml"
 MEASURED_SEED = 1000  # case k is drawn with seed 1000 + k: never the search's own draws (the scenario's seed, + 7919)
 

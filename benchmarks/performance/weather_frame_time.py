@@ -17,7 +17,7 @@ by side and detects a batch behind the next one's cast (large batches, ``PARALLE
 their sum exceeds the frame and ``other`` comes out negative. Per profile, a least-squares line of each stage's ms over the scatterers per
 frame (all weather rows): how each grows with what is in the air.
 
-    python benchmarks/weather_frame_time.py [--profiles scala4,vlp16,hdl64e,os1_128_2048] [--frames N]
+    python benchmarks/performance/weather_frame_time.py [--profiles scala4,vlp16,hdl64e,os1_128_2048] [--frames N]
         [--backend B] [--rows clear,target,...] [--step-s S] [--warmup-s S] [--atmosphere-model fitted|physical]
 """
 

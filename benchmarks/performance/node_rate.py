@@ -17,7 +17,7 @@ shared-memory segment); with ``--dds-profile ''`` (Fast DDS defaults) an OS1-128
 does not reach the other process on this machine. No assertion: the CI test of the same path counts
 clouds in simulated time (``test/test_graphs.py``, regions on).
 
-    python benchmarks/node_rate.py [--seconds S] [--profile P] [--scenario S] [--rain MM_H] [--packets K]
+    python benchmarks/performance/node_rate.py [--seconds S] [--profile P] [--scenario S] [--rain MM_H] [--packets K]
 """
 
 from __future__ import annotations

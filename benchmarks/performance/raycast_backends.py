@@ -10,7 +10,7 @@ distance (within 1e-4 m) match the open3d reference. "Scene" columns time
 vehicles moving; the difference is the hand-instancing cost. On a shared 2-core
 machine the numbers vary by up to 2x between runs.
 
-    python benchmarks/raycast_backends.py [--repeats 5]
+    python benchmarks/performance/raycast_backends.py [--repeats 5]
 """
 
 from __future__ import annotations

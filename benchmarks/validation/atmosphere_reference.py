@@ -1,6 +1,6 @@
 """Fast atmosphere model vs the independent reference, per weather, on one profile.
 
-    python benchmarks/atmosphere_reference.py [--frames 10] [--profile scala4] [--weathers fog:30,rain:10]
+    python benchmarks/validation/atmosphere_reference.py [--frames 10] [--profile scala4] [--weathers fog:30,rain:10]
         [--fast-model fitted|physical] [--columns N]
 
 For each weather, highway_clear is recorded twice with the same seed and no measurement nuisance:

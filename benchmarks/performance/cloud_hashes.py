@@ -4,7 +4,7 @@ Each row of ``weather_frame_time.py`` (highway_clear with 10 vehicles) on ``--pr
 models, simulated for ``--frames`` frames at ``--seed`` on the Open3D backend: the row's point count and the
 first 16 hex digits of the SHA-256 of its clouds' bytes. Run it before and after a change and diff the output.
 
-    python benchmarks/cloud_hashes.py [--profile scala4] [--rows "clear,fog 50m,rain 10,snow 5,target"]
+    python benchmarks/performance/cloud_hashes.py [--profile scala4] [--rows "clear,fog 50m,rain 10,snow 5,target"]
         [--frames 4] [--seed 3]
 """
 

@@ -24,7 +24,7 @@ random numbers) with a robust form of fit_atmosphere.py's loss (below), on log p
 Check a fit on another seed with ``lidar-weather-sim reproduce rooftop --atmosphere-model physical
 --states FILE --frames 30``.
 
-Usage: python benchmarks/fit_physical_rooftop.py [--columns night|all] [--frames 10] [--iters 80]
+Usage: python benchmarks/calibration/fit_physical_rooftop.py [--columns night|all] [--frames 10] [--iters 80]
        [--classes clear,day,fog,rain,snow] [--start FILE] [--out FILE]
 """
 
@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from provenance import written_by
 from scipy.optimize import minimize, minimize_scalar
 
 from lidar_weather_sim.experiments.reproduce import load_tables, rows_of, simulate
@@ -151,9 +152,9 @@ def main() -> None:
         print(f"{weather}: {values}\n"
               f"  z {np.round(z, 2)}  within 1 sigma {int(np.sum(np.abs(z) <= 1))} of {len(z)} "
               f"({time.perf_counter() - start:.0f} s)", flush=True)  # fmt: skip
-    data["source"] = (f"fitted by benchmarks/fit_physical_rooftop.py --columns {args.columns} to paper 2 "
+    data["source"] = (f"fitted by benchmarks/calibration/fit_physical_rooftop.py --columns {args.columns} to paper 2 "
                       f"(thesis_tables.yaml), {args.frames} frames per condition, seed {SEED}")  # fmt: skip
-    Path(args.out).write_text("# Written by benchmarks/fit_physical_rooftop.py; do not edit by hand. Fields: "
+    Path(args.out).write_text(written_by(__file__) + "# Do not edit by hand. Fields: "
                               "lidar_weather_sim.experiments.rooftop_states.\n" + yaml.safe_dump(data, sort_keys=False))
     print(f"wrote {args.out}")
 

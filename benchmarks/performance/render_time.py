@@ -6,7 +6,7 @@ then renders it ``--repeats`` times (actor boxes from the scenario) and prints, 
 median over the repeats of: reading and decoding the frames alone, and the whole render (read,
 draw both pictures, write both PNGs, then the GIF), each in s per frame, with the points per frame.
 
-    python benchmarks/render_time.py [--frames 20] [--repeats 3] [--keep DIR]
+    python benchmarks/performance/render_time.py [--frames 20] [--repeats 3] [--keep DIR]
 """
 
 from __future__ import annotations

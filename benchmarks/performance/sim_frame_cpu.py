@@ -9,7 +9,7 @@ figure on a shared machine, medians need interleaved runs. "other" = frame - the
 inside the backend's mesh casts. Cases are ``profile:backend:actors``; compare two trees by
 running it alternately with each on PYTHONPATH (pin both to one core: ``taskset -c 1``).
 
-    python benchmarks/sim_frame_cpu.py [--frames N] [--sequence K] scala4:mitsuba:2 os1_128_2048:open3d:10 ...
+    python benchmarks/performance/sim_frame_cpu.py [--frames N] [--sequence K] scala4:mitsuba:2 os1_128_2048:open3d:10 ...
 """
 
 from __future__ import annotations

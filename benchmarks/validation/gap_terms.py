@@ -7,7 +7,7 @@ frames (odd frames, as `gap` splits them), and per zone the returns per frame wi
 intensity. Terms below 0.01 in every column are left out; ``gap``: the weighted mean the search compares
 (without the sensor family's paired terms).
 
-    python benchmarks/gap_terms.py BAG --scenario highway_clear [--profile scala4] [--atmosphere-model physical]
+    python benchmarks/validation/gap_terms.py BAG --scenario highway_clear [--profile scala4] [--atmosphere-model physical]
         --effects "atmosphere.fog:visual_range=62.5" --effects "atmosphere.fog:visual_range=1000" [--frames 10]
 
 A set is effects joined by ``,`` in make-measured's ``--hide`` syntax.
