@@ -2,7 +2,7 @@
 
 Organised clouds write (0, 0, 0) for beams without a return (here one after every return, the returns
 in their scan order); the filters set them aside
-(weather_filter.cloud_check) instead of searching neighbours among thousands of duplicates. The
+(weather_filter.points.cloud_check) instead of searching neighbours among thousands of duplicates. The
 frame is the first cloud of BAG (default: a fresh 1-frame OS1-128 x 2048 run of highway_clear);
 prints the fastest of ``--repeats`` runs of each and their ratio.
 
@@ -21,7 +21,7 @@ import numpy as np
 from lidar_weather_sim.io.bags import read_clouds
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.sim.offline import run_scenario
-from weather_filter.filters import make_filter
+from weather_filter.filter_methods import make_filter
 
 
 def main() -> None:
