@@ -81,15 +81,14 @@ class Source:
         return _attr(importlib.import_module(kind), rest), f"{kind}.{rest}"
 
 
-#: Parameter classes of the filter methods (weather_filter.filters), tried in order; the learned filter has
+#: Parameter classes of the filter methods (weather_filter.points), tried in order; the learned filter has
 #: no class of its own yet: its parameters are those of ``LearnedFilter.load``.
 FILTER_PARAMS = {
-    "dror": ["weather_filter.filters:DRORParams"],
-    "dsor": ["weather_filter.filters:DSORParams"],
-    "lior": ["weather_filter.filters:LIORParams"],
-    "echo": ["weather_filter.filters:EchoParams"],
-    "learned": ["weather_filter.learned:LearnedParams", "weather_filter.filters:LearnedParams",
-                "weather_filter.learned:LearnedFilter.load"],
+    "dror": ["weather_filter.points.dror:DRORParams"],
+    "dsor": ["weather_filter.points.dsor:DSORParams"],
+    "lior": ["weather_filter.points.lior:LIORParams"],
+    "echo": ["weather_filter.points.echo:EchoParams"],
+    "learned": ["weather_filter.learned.filter:LearnedParams", "weather_filter.learned.filter:LearnedFilter.load"],
 }
 
 

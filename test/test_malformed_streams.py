@@ -23,7 +23,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from lidar_weather_sim.control.acc import AccConfig, obstacle_distance
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.testing.malformed import malformed_cloud, malformed_odometry
-from weather_filter.filters import make_filter
+from weather_filter.filter_methods import make_filter
 from weather_filter.synthetic import highway_frame
 
 S = 1_000_000_000

@@ -154,10 +154,12 @@ def test_rows_of_a_dataclass_and_of_a_signature():
 
 def test_filter_pages_follow_the_filters_parameter_classes():
     """Whatever form the filters' parameter classes have (dataclass or pydantic), every field is a row with its default."""
-    from weather_filter import filters
+    from weather_filter.points.dror import DRORParams
+    from weather_filter.points.dsor import DSORParams
+    from weather_filter.points.echo import EchoParams
+    from weather_filter.points.lior import LIORParams
 
-    for method, cls in (("dror", filters.DRORParams), ("dsor", filters.DSORParams), ("lior", filters.LIORParams),
-                        ("echo", filters.EchoParams)):  # fmt: skip
+    for method, cls in (("dror", DRORParams), ("dsor", DSORParams), ("lior", LIORParams), ("echo", EchoParams)):
         text = (REPO / f"src/weather_filter/docs/filters/{method}.md").read_text()
         defaults = cls()
         names = list(cls.model_fields) if hasattr(cls, "model_fields") else [f.name for f in dataclasses.fields(cls)]

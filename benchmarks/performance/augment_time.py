@@ -27,7 +27,7 @@ from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.sim.offline import run_scenario
-from weather_filter.obstacle import ObstacleClassifier
+from weather_filter.obstacle.classifier import ObstacleClassifier
 
 
 def main() -> None:

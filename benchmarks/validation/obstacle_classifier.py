@@ -1,16 +1,16 @@
 #!/usr/bin/env python3
-"""Paper 4's obstacle classifier (default: the shipped model, ``weather_filter.obstacle.DEFAULT_OBSTACLE_MODEL``)
+"""Paper 4's obstacle classifier (default: the shipped model, ``weather_filter.obstacle.classifier.DEFAULT_OBSTACLE_MODEL``)
 on held-out data.
 
 1. Held-out augmented runs: box ("obstacle") and no-box F-score per run and over all (micro-averaged over the
    feature region's detections; targets: paper 4's 92.22 / 99.90 %). ``--runs`` (comma-separated, default v3):
-   ``v1`` ``weather_filter.obstacle.AUGMENT_TEST_RUNS`` (the v1 model's list; its figures known when the wide runs
+   ``v1`` ``weather_filter.obstacle.runs.AUGMENT_TEST_RUNS`` (the v1 model's list; its figures known when the wide runs
    were chosen), ``v2`` ``AUGMENT_TEST_RUNS_V2`` (fixed before the v2 retrain; its figures known when v3 was
    designed: validation for v3), ``v3`` ``AUGMENT_TEST_RUNS_V3`` (fixed before v3 was trained), ``v4``
    ``AUGMENT_TEST_RUNS_V4`` (fixed before any v4 experiment).
 2. Boxes raycast by the simulator itself into spray frames (not augmentation): ``--boxes`` scenarios of
    highway_spray with one seeded box actor (label obstacle, the paper's sides, inside the ROI's x range, ego or
-   right lane, driving with the ego; ``weather_filter.obstacle_data.simulated_box_spec``), 3 frames each.
+   right lane, driving with the ego; ``weather_filter.obstacle.data.simulated_box_spec``), 3 frames each.
 
 Usage: python benchmarks/validation/obstacle_classifier.py [--model PATH] [--runs v1,v2,v3,v4] [--boxes 50] [--cache DIR]
 """
@@ -21,17 +21,16 @@ import argparse
 
 import numpy as np
 
-from weather_filter.obstacle import (
+from weather_filter.obstacle.classifier import DEFAULT_OBSTACLE_MODEL, ObstacleClassifier
+from weather_filter.obstacle.data import augmented_bag, simulated_box_bag
+from weather_filter.obstacle.features import feature_region_mask
+from weather_filter.obstacle.runs import (
     AUGMENT_TEST_RUNS,
     AUGMENT_TEST_RUNS_V2,
     AUGMENT_TEST_RUNS_V3,
     AUGMENT_TEST_RUNS_V4,
-    DEFAULT_OBSTACLE_MODEL,
-    ObstacleClassifier,
-    feature_region_mask,
-    obstacle_scores,
 )
-from weather_filter.obstacle_data import augmented_bag, simulated_box_bag
+from weather_filter.obstacle.scores import obstacle_scores
 from weather_filter.simdata import frames_of
 
 

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from weather_filter.evaluate import Accumulator
-from weather_filter.filters import make_filter
-from weather_filter.learned import DEFAULT_MODEL
+from weather_filter.filter_methods import make_filter
+from weather_filter.learned.filter import DEFAULT_MODEL
 from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, default_cache_dir, frames_of, simulate
 
 TIMING_SPEC = "wf_heldout_mixed:102:6:os1_128_2048"

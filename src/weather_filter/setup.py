@@ -15,7 +15,7 @@ setup(
         # The CLI on PATH (colcon adds <prefix>/bin); the node lives in lib/<package> for ros2 run.
         ("bin", glob("bin/*")),
     ],
-    package_data={package_name: ["models/*.joblib", "scenarios/*.yaml"]},
+    package_data={package_name: ["models/*.joblib", "models/*.md", "models/*.yaml", "scenarios/*.yaml"]},
     include_package_data=True,
     install_requires=["setuptools"],
     zip_safe=False,

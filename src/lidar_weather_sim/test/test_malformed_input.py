@@ -46,7 +46,7 @@ def test_every_malformed_cloud_is_decoded_or_refused_with_a_reason():
         assert np.isfinite(out["x"]).all() and out["x"].ndim == 1, kind
         # only these kinds may decode: the DDS tests rely on every other kind being refused, every draw
         assert kind in {"nonfinite", *DECODABLE_KINDS}, (kind, msg.width, msg.height, msg.point_step, msg.row_step)
-    # NaN points are dropped; valid clouds with values no filter can use (weather_filter.cloud_check) decode
+    # NaN points are dropped; valid clouds with values no filter can use (weather_filter.points.cloud_check) decode
     assert set(seen) == set(CLOUD_KINDS) - {"nonfinite", *DECODABLE_KINDS}
     np.testing.assert_array_equal(decode_message(good).points, points)  # the good message was not touched
 

@@ -14,7 +14,7 @@ from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.sim.offline import run_scenario
 from weather_filter.apply import apply_bag
 from weather_filter.cli import main
-from weather_filter.filters import make_filter_with_fallback
+from weather_filter.filter_methods import make_filter_with_fallback
 
 WEATHER = [int(Label.RAIN), int(Label.SPRAY)]
 FRAMES = 6

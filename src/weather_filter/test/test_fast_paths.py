@@ -4,10 +4,10 @@ where in doubt) and the range image's dense first-echo plane."""
 import numpy as np
 import pytest
 
-import weather_filter.features as features
+import weather_filter.learned.features as features
 from lidar_weather_sim.core.points import empty_points
-from weather_filter.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
-from weather_filter.features import FEATURE_NAMES, PointFeatures
+from weather_filter.learned.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
+from weather_filter.learned.features import FEATURE_NAMES, PointFeatures
 
 
 def _scan(seed=0, n_channels=16, n_cols=900):
@@ -39,7 +39,7 @@ def test_log10_clamped_equals_the_compiled_log10_on_every_float32_it_sees():
     """Exhaustive over [1e-3, 1) (83.7M values, in chunks), plus values beyond both ends."""
     from numba import njit
 
-    from weather_filter.log10f import log10_clamped
+    from weather_filter.learned.log10f import log10_clamped
 
     @njit
     def compiled(v, out):
@@ -111,7 +111,7 @@ def test_range_image_features_with_crowded_cells_equal_a_direct_computation(wind
 
 
 def test_stage_timing_runs_each_stage():
-    from weather_filter.learned import LearnedFilter
+    from weather_filter.learned.filter import LearnedFilter
     from weather_filter.stage_timing import stages
 
     pts = _scan()

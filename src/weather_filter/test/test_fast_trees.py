@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from sklearn.ensemble import HistGradientBoostingClassifier
 
-from weather_filter.fast_trees import FastTrees
+from weather_filter.obstacle.fast_trees import FastTrees
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Bad input never crashes a filter or changes a result silently (weather_filter.cloud_check).
+"""Bad input never crashes a filter or changes a result silently (weather_filter.points.cloud_check).
 
 The reported cases one by one (a negative INT32 channel that made the learned filter write out of
 bounds, a channel of 2e7 that sized a 1.5 GB image, x = 1e300 that overflowed the KD-tree's
@@ -19,8 +19,9 @@ from hypothesis import strategies as st
 
 from lidar_weather_sim.io.bags import message_types
 from lidar_weather_sim.io.cloud_codec import CloudFormatError, build_message, decode_message
-from weather_filter.cloud_check import MAX_CHANNELS, CloudFieldError, usable_points
-from weather_filter.filters import METHODS, MissingFieldsError, make_filter
+from weather_filter.filter_methods import METHODS, make_filter
+from weather_filter.points.base import MissingFieldsError
+from weather_filter.points.cloud_check import MAX_CHANNELS, CloudFieldError, usable_points
 from weather_filter.synthetic import highway_frame
 
 #: Cases per property (CI: 60 each, ~30 s); FUZZ_CASES=N runs any number.

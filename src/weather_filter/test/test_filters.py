@@ -11,15 +11,12 @@ from lidar_weather_sim.core.points import (
     fill_polar,
     strip_ground_truth,
 )
-from weather_filter.filters import (
-    DRORFilter,
-    DSORFilter,
-    DSORParams,
-    EchoAwareFilter,
-    LIORFilter,
-    MissingFieldsError,
-    make_filter,
-)
+from weather_filter.filter_methods import make_filter
+from weather_filter.points.base import MissingFieldsError
+from weather_filter.points.dror import DRORFilter
+from weather_filter.points.dsor import DSORFilter, DSORParams
+from weather_filter.points.echo import EchoAwareFilter
+from weather_filter.points.lior import LIORFilter
 from weather_filter.synthetic import highway_frame
 
 

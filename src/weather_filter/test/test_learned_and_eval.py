@@ -8,9 +8,10 @@ import pytest
 
 from lidar_weather_sim.core.points import Label
 from weather_filter.evaluate import evaluate_frames
-from weather_filter.features import FEATURE_NAMES, PointFeatures
-from weather_filter.filters import PointFilter, make_filter
-from weather_filter.learned import DEFAULT_MODEL, LearnedFilter
+from weather_filter.filter_methods import make_filter
+from weather_filter.learned.features import FEATURE_NAMES, PointFeatures
+from weather_filter.learned.filter import DEFAULT_MODEL, LearnedFilter
+from weather_filter.points.base import PointFilter
 from weather_filter.synthetic import highway_frame
 
 
@@ -168,10 +169,11 @@ def test_loading_the_filter_compiles_every_kernel_of_a_frame():
 
     code = """
 from numba.core.registry import CPUDispatcher
-import weather_filter.azimuth, weather_filter.features, weather_filter.learned, weather_filter.log10f
-from weather_filter.learned import LearnedFilter
+import weather_filter.learned.azimuth, weather_filter.learned.fast_mlp, weather_filter.learned.features, weather_filter.learned.log10f
+from weather_filter.learned.filter import LearnedFilter
 LearnedFilter.load()
-mods = (weather_filter.azimuth, weather_filter.features, weather_filter.learned, weather_filter.log10f)
+mods = (weather_filter.learned.azimuth, weather_filter.learned.features, weather_filter.learned.fast_mlp,
+        weather_filter.learned.log10f)
 kernels = [(m.__name__, n, len(o.signatures)) for m in mods for n, o in vars(m).items()
            if isinstance(o, CPUDispatcher) and o.__module__ == m.__name__ and o.targetoptions.get("inline") != "always"]
 print(kernels)

@@ -10,8 +10,24 @@ import pytest
 from lidar_weather_sim.cli import main as sim_main
 from lidar_weather_sim.augment.boxes import augmentation_table
 from weather_filter.cli import main as wf_main
-from weather_filter.features import FEATURE_NAMES, PointFeatures
-from weather_filter.obstacle import (
+from weather_filter.learned.features import FEATURE_NAMES, PointFeatures
+from weather_filter.obstacle.classifier import (
+    DEFAULT_OBSTACLE_MODEL,
+    OBSTACLE_MODEL_V1,
+    OBSTACLE_MODEL_V2,
+    OBSTACLE_MODEL_V3,
+    ObstacleClassifier,
+)
+from weather_filter.obstacle.data import augmented_bag, simulated_box_bag, simulated_box_spec
+from weather_filter.obstacle.features import (
+    PAPER_FEATURES,
+    V2_FEATURES,
+    V3_FEATURES,
+    V4_FEATURES,
+    ObstacleFeatures,
+    feature_region_mask,
+)
+from weather_filter.obstacle.runs import (
     AUGMENT_TEST_RUNS,
     AUGMENT_TEST_RUNS_V2,
     AUGMENT_TEST_RUNS_V3,
@@ -24,30 +40,15 @@ from weather_filter.obstacle import (
     AUGMENT_VALIDATION_RUNS_V2,
     AUGMENT_VALIDATION_RUNS_V3,
     AUGMENT_VALIDATION_RUNS_V4,
-    DEFAULT_OBSTACLE_MODEL,
     HELDOUT_ONLY_SCENARIOS,
-    OBSTACLE_MODEL_V1,
-    OBSTACLE_MODEL_V2,
-    OBSTACLE_MODEL_V3,
-    PAPER_FEATURES,
     SIM_BOXES_TRAIN_V2,
     SIM_BOXES_VALIDATION_V2,
-    V2_FEATURES,
-    V2_HIDDEN,
-    V3_FEATURES,
-    V4_FEATURES,
-    V4_TREES,
-    ObstacleClassifier,
-    ObstacleFeatures,
-    best_threshold,
-    feature_region_mask,
-    obstacle_scores,
     parse_run,
     parse_run_options,
     sim_boxes_text,
-    train_obstacle,
 )
-from weather_filter.obstacle_data import augmented_bag, simulated_box_bag, simulated_box_spec
+from weather_filter.obstacle.scores import obstacle_scores
+from weather_filter.obstacle.training import V2_HIDDEN, V4_TREES, best_threshold, train_obstacle
 from weather_filter.simdata import frames_of
 
 
@@ -263,7 +264,7 @@ def test_eval_reports_obstacle_scores_only_with_label_3(tmp_path, capsys):
 def test_cluster_extents_measure_the_object_a_detection_belongs_to():
     """A 1.8 m wide, 1.4 m tall car rear at 14 m and a 0.4 m post at 8 m, on a road seen as rings: each detection
     above the road gets its own object's size and count; road detections (their cell's floor) get zeros."""
-    from weather_filter.obstacle_clusters import cluster_extents
+    from weather_filter.obstacle.clusters import cluster_extents
 
     ys = np.arange(-0.9, 0.91, 0.1)
     zs = np.linspace(-0.4, 1.0, 8)
@@ -288,7 +289,7 @@ def test_cluster_extents_measure_the_object_a_detection_belongs_to():
 def test_cell_history_tells_what_holds_its_place_from_what_is_new():
     """A car rear 14 m ahead holds its cells frame after frame; a box that appears at frame 5 has no history; road
     detections (at their cell's floor) never mark a cell; reset forgets."""
-    from weather_filter.obstacle_history import HISTORY_FEATURES, CellHistory
+    from weather_filter.obstacle.history import HISTORY_FEATURES, CellHistory
 
     history = CellHistory((0.0, 20.0), (-6.0, 6.0))
     rear = (np.full(5, 14.0), np.linspace(-0.8, 0.8, 5), np.full(5, 0.6))  # x, y, dz_min

@@ -9,13 +9,9 @@ import numpy as np
 import pytest
 
 from weather_filter.evaluate import evaluate_frames
-from weather_filter.filters import (
-    FallbackFilter,
-    GeometryFallbackWarning,
-    make_fallback_filter,
-    make_filter_with_fallback,  # fmt: skip
-)
-from weather_filter.scan_geometry import estimate_angular_steps
+from weather_filter.filter_methods import make_fallback_filter, make_filter_with_fallback
+from weather_filter.points.fallback import FallbackFilter, GeometryFallbackWarning
+from weather_filter.points.scan_geometry import estimate_angular_steps
 
 REAL_BAG = Path(__file__).resolve().parents[3] / ".venv" / "cache" / "ouster_real" / "os1_128_street"
 MAX_REMOVED = 0.005

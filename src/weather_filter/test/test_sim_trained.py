@@ -14,7 +14,8 @@ from scipy import ndimage
 
 from lidar_weather_sim.core.points import Label
 from weather_filter.evaluate import evaluate_frames
-from weather_filter.features import (
+from weather_filter.filter_methods import make_filter
+from weather_filter.learned.features import (
     CELL_SHAPES,
     CORNER,
     FEATURE_NAMES,
@@ -23,7 +24,6 @@ from weather_filter.features import (
     PointFeatures,
     radial_histogram,
 )
-from weather_filter.filters import make_filter
 from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, frames_of, simulate
 
 pytestmark = pytest.mark.validation  # the shipped filters' figures on held-out simulated runs
@@ -127,7 +127,7 @@ def _range_image_reference(points, step, columns=2, channels=2, n_echoes=4, clos
 def test_range_image_features_equal_a_direct_computation(spec):
     import tempfile
 
-    from weather_filter.scan_geometry import estimate_angular_steps
+    from weather_filter.points.scan_geometry import estimate_angular_steps
 
     with tempfile.TemporaryDirectory() as tmp:
         points = _frames(spec, tmp)[1]

@@ -20,8 +20,9 @@ from rosbags.serde import SerdeError
 from lidar_weather_sim.io.bags import BagError, BagWriter, read_raw, typestore
 from lidar_weather_sim.io.cloud_codec import CloudFormatError, decode_message
 from lidar_weather_sim.io.recording import cloud_topic
-from weather_filter.cloud_check import CloudFieldError
-from weather_filter.filters import DEFAULT_METHOD, MissingFieldsError, make_filter_with_fallback
+from weather_filter.filter_methods import DEFAULT_METHOD, make_filter_with_fallback
+from weather_filter.points.base import MissingFieldsError
+from weather_filter.points.cloud_check import CloudFieldError
 
 
 @dataclass

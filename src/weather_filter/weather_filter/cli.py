@@ -20,7 +20,7 @@ import sys
 
 from lidar_weather_sim.core.argtypes import number_in
 from lidar_weather_sim.core.names import TOPIC_POINTS
-from weather_filter.filters import DEFAULT_METHOD, GEOMETRY_METHODS, METHOD_HELP, METHODS
+from weather_filter.filter_methods import DEFAULT_METHOD, GEOMETRY_METHODS, METHODS, METHOD_HELP
 
 
 def _parse_params(items: list[str]) -> dict:
@@ -46,14 +46,14 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
     import warnings
 
-    from weather_filter.filters import GeometryFallbackWarning
+    from weather_filter.points.fallback import GeometryFallbackWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("always", GeometryFallbackWarning)
         warnings.showwarning = lambda message, *rest, **kw: print(f"weather-filter eval: warning: {message}", file=sys.stderr)
         result = evaluate_bag(args.bag, args.method, args.topic, args.fallback, **_parse_params(args.param))
     from lidar_weather_sim.io.bags import read_clouds
-    from weather_filter.obstacle import evaluate_obstacles
+    from weather_filter.obstacle.classifier import evaluate_obstacles
 
     obstacles = evaluate_obstacles((f.points for f in read_clouds(args.bag, args.topic)), args.obstacle_model)
     if obstacles is not None:  # the bag has label-3 points: paper 4's obstacle classifier too
@@ -70,7 +70,7 @@ def _cmd_apply(args: argparse.Namespace) -> int:
     import warnings
 
     from weather_filter.apply import apply_bag
-    from weather_filter.filters import GeometryFallbackWarning
+    from weather_filter.points.fallback import GeometryFallbackWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("always", GeometryFallbackWarning)
@@ -174,7 +174,15 @@ def _apply_preset(args: argparse.Namespace) -> None:
 
 def _cmd_train_obstacle(args: argparse.Namespace) -> int:
     """``train --preset augmentation[-v2|-v3|-v4|-wide]``: paper 4's obstacle classifier on fixed augmented runs."""
-    from weather_filter.obstacle import (
+    from weather_filter.obstacle.classifier import (
+        DEFAULT_OBSTACLE_MODEL,
+        OBSTACLE_MODEL_V1,
+        OBSTACLE_MODEL_V2,
+        OBSTACLE_MODEL_V3,
+    )
+    from weather_filter.obstacle.data import augmented_bag, simulated_box_bag
+    from weather_filter.obstacle.features import PAPER_FEATURES, V2_FEATURES, V3_FEATURES, V4_FEATURES
+    from weather_filter.obstacle.runs import (
         AUGMENT_TRAIN_RUNS,
         AUGMENT_TRAIN_RUNS_V2,
         AUGMENT_TRAIN_RUNS_V3,
@@ -183,25 +191,15 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
         AUGMENT_VALIDATION_RUNS_V2,
         AUGMENT_VALIDATION_RUNS_V3,
         AUGMENT_VALIDATION_RUNS_V4,
-        DEFAULT_OBSTACLE_MODEL,
-        OBSTACLE_MODEL_V1,
-        OBSTACLE_MODEL_V2,
-        OBSTACLE_MODEL_V3,
-        PAPER_FEATURES,
         SIM_BOXES_TRAIN_V2,
         SIM_BOXES_VALIDATION_V2,
-        V2_FEATURES,
-        V2_HIDDEN,
-        V3_FEATURES,
-        V4_FEATURES,
         sim_boxes_text,
-        train_obstacle,
     )
-    from weather_filter.obstacle_data import augmented_bag, simulated_box_bag
+    from weather_filter.obstacle.training import V2_HIDDEN, train_obstacle
     from weather_filter.simdata import frames_of
 
     if args.sim or args.bags or args.synthetic_frames:
-        raise ValueError(f"--preset {args.preset} trains on its own runs (weather_filter.obstacle.AUGMENT_TRAIN_RUNS*) "
+        raise ValueError(f"--preset {args.preset} trains on its own runs (weather_filter.obstacle.runs.AUGMENT_TRAIN_RUNS*) "
                          "only: no --sim, bags or --synthetic-frames")  # fmt: skip
     # augmentation: the v1 model (threshold 0.5); augmentation-v2 / -v3: the v2 and v3 MLPs (threshold chosen on
     # validation runs taken from training scenarios); augmentation-v4: the shipped trees (threshold chosen on those
@@ -249,7 +247,8 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from weather_filter.learned import DEFAULT_MODEL, train
+    from weather_filter.learned.filter import DEFAULT_MODEL
+    from weather_filter.learned.training import train
 
     if args.preset and args.preset.startswith("augmentation"):
         return _cmd_train_obstacle(args)
@@ -291,7 +290,7 @@ def _engine_options(parser: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from weather_filter.learned import TRAIN_OBJECT_RECALL
+    from weather_filter.learned.training import TRAIN_OBJECT_RECALL
 
     parser = argparse.ArgumentParser(prog="weather-filter", description="LiDAR weather filters: offline filtering, evaluation and training.")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -328,13 +327,13 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-v2", "augmentation-v3", "augmentation-v4",
                                                "augmentation-wide"],
                     help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation-v4: train paper 4's "
-                         "obstacle classifier on its augmented runs (obstacle.AUGMENT_TRAIN_RUNS_V4, threshold chosen on "
-                         "obstacle.AUGMENT_VALIDATION_RUNS_V4; default --out: the shipped models/obstacle_point_hgb_v4.joblib); "
+                         "obstacle classifier on its augmented runs (obstacle.runs.AUGMENT_TRAIN_RUNS_V4, threshold chosen on "
+                         "obstacle.runs.AUGMENT_VALIDATION_RUNS_V4; default --out: the shipped models/obstacle_point_hgb_v4.joblib); "
                          "augmentation-v3: the third model's (models/obstacle_point_mlp_v3.joblib); "
-                         "augmentation-v2: the second model's (obstacle.AUGMENT_TRAIN_RUNS_V2; models/obstacle_point_mlp_v2.joblib); "
-                         "augmentation: the first model's runs (obstacle.AUGMENT_TRAIN_RUNS, threshold 0.5; default --out: "
+                         "augmentation-v2: the second model's (obstacle.runs.AUGMENT_TRAIN_RUNS_V2; models/obstacle_point_mlp_v2.joblib); "
+                         "augmentation: the first model's runs (obstacle.runs.AUGMENT_TRAIN_RUNS, threshold 0.5; default --out: "
                          "models/obstacle_point_mlp_v1.joblib); augmentation-wide: an experiment on more runs "
-                         "(obstacle.AUGMENT_TRAIN_RUNS_WIDE)")  # fmt: skip
+                         "(obstacle.runs.AUGMENT_TRAIN_RUNS_WIDE)")  # fmt: skip
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
     tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
     tr.add_argument("--synthetic-frames", type=number_in(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")

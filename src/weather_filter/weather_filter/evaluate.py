@@ -20,8 +20,9 @@ from typing import Iterable
 import numpy as np
 
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS, Label
-from weather_filter.cloud_check import CloudFieldError, field_problem
-from weather_filter.filters import FallbackFilter, PointFilter
+from weather_filter.points.base import PointFilter
+from weather_filter.points.cloud_check import CloudFieldError, field_problem
+from weather_filter.points.fallback import FallbackFilter
 
 ROI_HALF_WIDTH_M = 1.75
 ROI_X_M = (5.0, 60.0)
@@ -131,7 +132,7 @@ def evaluate_bag(bag: str, method: str, topic: str, fallback: str = "dror", **fi
     """Clouds lacking the fields of ``method`` are filtered by the geometry-only ``fallback`` (warning, and a
     ``fallback`` entry in the result naming it and how many frames it filtered)."""
     from lidar_weather_sim.io.bags import read_clouds
-    from weather_filter.filters import make_filter_with_fallback
+    from weather_filter.filter_methods import make_filter_with_fallback
 
     filt = make_filter_with_fallback(method, fallback, **filter_params)
     try:

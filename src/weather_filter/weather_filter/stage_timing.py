@@ -5,7 +5,7 @@
 Runs the filter on the run's first frame (the frame-difference state), then times each stage on its second
 frame ``repeats`` times, the stages interleaved so that they share the machine's load: CPU time
 (``time.process_time``) and wall time, min and median, in ms. The stages are the calls
-:class:`~weather_filter.features.PointFeatures` makes, run on the same arrays.
+:class:`~weather_filter.learned.features.PointFeatures` makes, run on the same arrays.
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import time
 
 import numpy as np
 
-from weather_filter import features as F
-from weather_filter.azimuth import approx_azimuth
-from weather_filter.learned import LearnedFilter
+from weather_filter.learned import features as F
+from weather_filter.learned.azimuth import approx_azimuth
+from weather_filter.learned.filter import LearnedFilter
 from weather_filter.simdata import frames_of, simulate
 
 #: benchmarks/validation/weather_filter_eval.py's timing run (os1_128_2048, ~120k points per frame).
@@ -40,8 +40,8 @@ def stages(filt: LearnedFilter, points: np.ndarray) -> dict:
             out[:, k] = points[name]
 
     def point_features():
-        F._point_features(out, fe.extent_m, 1.0 / fe._cxs, 1.0 / fe._cys, fe._nxs, fe._nys, fe._n_radial,
-                          1.0 / fe.radial_bin_deg, previous, True, fe._taps, fe._tap_start, azimuth)  # fmt: skip
+        F._point_features(out, fe._grids, fe._n_radial, 1.0 / fe.radial_bin_deg, previous, True, fe._taps,
+                          fe._tap_start, azimuth)  # fmt: skip
 
     def range_image():
         F._range_image_features(out, azimuth, fe.last_step_rad, n_channels, F.RI_ECHOES, fe.ri_columns,

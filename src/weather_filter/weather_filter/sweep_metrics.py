@@ -13,7 +13,7 @@ from lidar_weather_sim.core.names import TOPIC_POINTS
 
 def evaluate(bag: Path, run) -> dict[str, float]:  # noqa: ARG001 (the sweep metric interface)
     from weather_filter.evaluate import evaluate_bag
-    from weather_filter.filters import DEFAULT_METHOD
+    from weather_filter.filter_methods import DEFAULT_METHOD
 
     result = evaluate_bag(str(bag), DEFAULT_METHOD, TOPIC_POINTS)
     out = {k: float(v) for k, v in result.items()

@@ -7,11 +7,11 @@ per label when the cloud has ``label``, filter time, method, and ``weather`` /
 ``weather_confidence`` from the shipped per-frame KNN when the cloud has x, echo and EPW, and the count of
 clouds skipped so far). A malformed cloud is skipped: logged once per cause, and reported every time on
 ``/diagnostics`` with level ERROR, its reason and the counts; so is a cloud with a field the filter
-cannot use (``weather_filter.cloud_check``: an array field, a float or out-of-range channel or echo).
+cannot use (``weather_filter.points.cloud_check``: an array field, a float or out-of-range channel or echo).
 Points no filter can use (non-finite or out-of-reach coordinates, (0, 0, 0) placeholders) are removed
 and counted (``points_set_aside``). A cloud lacking the fields of ``method`` (EPW, echo...) is
 filtered with ``fallback_method`` (geometry only, with
-``weather_filter.filters.FALLBACK_PARAMS``), with a warning once.
+``weather_filter.filter_methods.FALLBACK_PARAMS``), with a warning once.
 
 Parameters: ``method`` (dror|dsor|lior|echo|learned; default learned), ``fallback_method``
 (dror|dsor), ``model_path`` (learned filter; empty = packaged model).
@@ -30,16 +30,16 @@ from lidar_weather_sim.core.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TO
 from lidar_weather_sim.io.cloud_codec import CloudFormatError
 from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
-from weather_filter.cloud_check import CloudFieldError, usable_points
-from weather_filter.filters import (
+from weather_filter.filter_methods import (
     DEFAULT_METHOD,
     GEOMETRY_METHODS,
-    METHOD_HELP,
     METHODS,
-    fallback_message,
+    METHOD_HELP,
     make_fallback_filter,
     make_filter,
 )
+from weather_filter.points.cloud_check import CloudFieldError, usable_points
+from weather_filter.points.fallback import fallback_message
 
 DIAGNOSTIC_NAME = "weather_filter_node: filter"
 

@@ -33,6 +33,9 @@ import numpy as np
 MIN_STEP_RAD = 1e-4  # 0.006 deg: far below any scanning LiDAR's step (HDL-64E at 5 Hz: 0.08 deg)
 MIN_DIFFS = 50
 MODE_SPREAD = 1.5
+#: alpha when the cloud has no scan structure to estimate it from (no ``channel``, or not a scanning
+#: pattern, e.g. a hand-made test cloud): the project's reference sensor's step (scala4, 0.25 deg).
+DEFAULT_ANGULAR_RESOLUTION_DEG = 0.25
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from weather_filter.obstacle import RUN_DEFAULT_KINDS, parse_run_options
+from weather_filter.obstacle.runs import RUN_DEFAULT_KINDS, parse_run_options
 from weather_filter.simdata import SimSpec, default_cache_dir, simulate
 
 

@@ -16,6 +16,8 @@ Categorical splits are not supported (the obstacle models have none). Detections
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
@@ -23,6 +25,23 @@ from lidar_weather_sim.core import workers
 
 #: Detections per chunk when a batch is shared between threads.
 CHUNK_ROWS = 2048
+
+
+class TreeArrays(NamedTuple):
+    """Every tree's nodes, concatenated (tree t: nodes ``offset[t]:offset[t + 1]``; child indices relative to its
+    first node), and the score's baseline (logit) and bounds; the input of the :func:`_scores` kernel."""
+
+    offset: np.ndarray  # int64 (trees + 1,)
+    feature: np.ndarray  # int64: the feature a node compares
+    threshold: np.ndarray  # float64: go left if the feature <= threshold
+    missing_left: np.ndarray  # bool: where NaN goes
+    left: np.ndarray  # int64
+    right: np.ndarray  # int64
+    leaf: np.ndarray  # bool
+    value: np.ndarray  # float64: a leaf's value (logit)
+    baseline: float  # the score before the first tree (logit)
+    rest_max: np.ndarray  # float64 (trees + 1,): what the trees after tree t can add at most
+    rest_min: np.ndarray  # float64 (trees + 1,): ... at least
 
 
 class FastTrees:
@@ -36,20 +55,22 @@ class FastTrees:
         if any(n["is_categorical"].any() for n in nodes):
             raise ValueError("FastTrees: categorical splits are not supported")
         self.n_features = int(model.n_features_in_)
-        self._offset = np.cumsum([0] + [len(n) for n in nodes]).astype(np.int64)
         every = np.concatenate(nodes)
-        self._feature = every["feature_idx"].astype(np.int64)
-        self._threshold = every["num_threshold"].astype(np.float64)
-        self._missing_left = every["missing_go_to_left"].astype(np.bool_)
-        self._left = every["left"].astype(np.int64)
-        self._right = every["right"].astype(np.int64)
-        self._leaf = every["is_leaf"].astype(np.bool_)
-        self._value = every["value"].astype(np.float64)
-        self._baseline = float(np.asarray(model._baseline_prediction).ravel()[0])
         leaf_values = [n["value"][n["is_leaf"].astype(bool)] for n in nodes]
-        # what the trees after tree t can add at most / at least: suffix sums, one more entry (0) for "none left"
-        self._rest_max = np.concatenate([np.cumsum([v.max() for v in leaf_values][::-1])[::-1], [0.0]])
-        self._rest_min = np.concatenate([np.cumsum([v.min() for v in leaf_values][::-1])[::-1], [0.0]])
+        self._trees = TreeArrays(
+            offset=np.cumsum([0] + [len(n) for n in nodes]).astype(np.int64),
+            feature=every["feature_idx"].astype(np.int64),
+            threshold=every["num_threshold"].astype(np.float64),
+            missing_left=every["missing_go_to_left"].astype(np.bool_),
+            left=every["left"].astype(np.int64),
+            right=every["right"].astype(np.int64),
+            leaf=every["is_leaf"].astype(np.bool_),
+            value=every["value"].astype(np.float64),
+            baseline=float(np.asarray(model._baseline_prediction).ravel()[0]),
+            # suffix sums of the trees' largest / smallest leaf values, one more entry (0) for "none left"
+            rest_max=np.concatenate([np.cumsum([v.max() for v in leaf_values][::-1])[::-1], [0.0]]),
+            rest_min=np.concatenate([np.cumsum([v.min() for v in leaf_values][::-1])[::-1], [0.0]]),
+        )
 
     def decision_function(self, x: np.ndarray) -> np.ndarray:
         """(n,) float64 raw scores of features ``x`` (n, d), as ``model.decision_function(x)``."""
@@ -64,10 +85,7 @@ class FastTrees:
         if x.ndim != 2 or x.shape[1] != self.n_features:
             raise ValueError(f"FastTrees: features of shape {x.shape}, the model takes {self.n_features} per row")
         cuts = workers.bounds(len(x), CHUNK_ROWS)
-        workers.run_chunks(lambda c: _scores(x, int(cuts[c]), int(cuts[c + 1]), self._offset, self._feature,
-                                             self._threshold, self._missing_left, self._left, self._right, self._leaf,
-                                             self._value, self._baseline, self._rest_max, self._rest_min, level, out),
-                           len(cuts) - 1)  # fmt: skip
+        workers.run_chunks(lambda c: _scores(x, int(cuts[c]), int(cuts[c + 1]), self._trees, level, out), len(cuts) - 1)
         return out
 
 
@@ -76,9 +94,10 @@ DECISION_MARGIN = 1e-9
 
 
 @numba.njit(cache=True, nogil=True)
-def _scores(x, lo, hi, offset, feature, threshold, missing_left, left, right, leaf, value, baseline, rest_max, rest_min,
-            level, out):  # fmt: skip
-    """Rows lo..hi: the raw score into ``out`` (float64; ``level`` inf), or whether it is >= ``level`` (bool)."""
+def _scores(x, lo, hi, trees, level, out):
+    """Rows lo..hi of ``x`` through the :class:`TreeArrays` ``trees``: the raw score into ``out`` (float64;
+    ``level`` inf), or whether it is >= ``level`` (bool)."""
+    offset, feature, threshold, missing_left, left, right, leaf, value, baseline, rest_max, rest_min = trees
     decide = np.isfinite(level)
     for i in range(lo, hi):
         score = baseline

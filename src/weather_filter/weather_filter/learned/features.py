@@ -32,10 +32,10 @@ the counts of the border cell clipped to, and zero convolution responses.
 Computed by numba-compiled passes, each point's features bit-identical to the direct definitions above (CPU
 time min on a 120k-point os1_128_2048 frame, 2 shared cores; ``python -m weather_filter.stage_timing``): the
 point fields copied to the feature columns (0.7 ms); the azimuth, a vectorised polynomial
-(:mod:`weather_filter.azimuth`, 0.14 ms; ``np.arctan2`` per point took 2.4 ms); histograms, cell heights and
+(:mod:`weather_filter.learned.azimuth`, 0.14 ms; ``np.arctan2`` per point took 2.4 ms); histograms, cell heights and
 convolutions (once per occupied cell, in integers: 4.4 ms); the azimuth step (0.7 ms); the range image (~7 ms:
 a dense first-echo plane read without branches by a window of constant size, later echoes only where the
-window holds a crowded cell, the logarithms vectorised by :mod:`weather_filter.log10f`).
+window holds a crowded cell, the logarithms vectorised by :mod:`weather_filter.learned.log10f`).
 
 Why one module of ~410 lines: the per-point feature vector is one definition (column order, units,
 the trained model depends on it bit for bit); its stages share the cell tables.
@@ -43,11 +43,13 @@ the trained model depends on it bit for bit); its stages share the cell tables.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-from weather_filter.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
-from weather_filter.log10f import log10_clamped
+from weather_filter.learned.azimuth import AZIMUTH_ERROR_RAD, approx_azimuth
+from weather_filter.learned.log10f import log10_clamped
 
 IMPULSE = np.array([[-1, -1, -1], [-1, 4, -1], [-1, -1, -1]], dtype=np.float32)  # A1
 HORIZONTAL = np.array([[-1] * 10, [2] * 10, [-1] * 10], dtype=np.float32)  # A2
@@ -78,6 +80,17 @@ MAX_RI_CELLS = 1 << 22
 REQUIRED_FIELDS = frozenset({"x", "y", "z", "echo", "channel", "epw", "intensity"})
 
 
+class CellGrids(NamedTuple):
+    """The Cartesian bird's-eye histograms of :data:`CELL_SHAPES` over |x|, |y| <= ``extent`` (m, sensor frame):
+    inverse cell sizes (1/m) and cells along x and y, one entry per shape; input of :func:`_point_features`."""
+
+    extent: float
+    inv_cxs: np.ndarray  # float64
+    inv_cys: np.ndarray  # float64
+    nxs: np.ndarray  # int64
+    nys: np.ndarray  # int64
+
+
 def _grid_shape(cx: float, cy: float, extent_m: float) -> tuple[int, int]:
     return int(np.ceil(2 * extent_m / cx)), int(np.ceil(2 * extent_m / cy))
 
@@ -103,14 +116,15 @@ def _kernel_taps() -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _point_features(out, extent, inv_cxs, inv_cys, nxs, nys, n_radial, inv_bin_deg, previous, has_previous, taps,
-                    start, azimuth):  # fmt: skip
+def _point_features(out, grids, n_radial, inv_bin_deg, previous, has_previous, taps, start, azimuth):
     """Feature columns 7-17 and 25-26 (see :class:`PointFeatures`), from the point fields (m, sensor frame) in
-    columns 0-6 of ``out``; returns the radial histogram. ``azimuth`` holds :func:`approx_azimuth` on entry, and
-    where that leaves a point's radial bin in doubt, the exact ``np.arctan2`` (rad) on return. Convolutions follow
+    columns 0-6 of ``out`` and the histograms of ``grids`` (:class:`CellGrids`); returns the radial histogram.
+    ``azimuth`` holds :func:`approx_azimuth` on entry, and where that leaves a point's radial bin in doubt, the
+    exact ``np.arctan2`` (rad) on return. Convolutions follow
     ``ndimage.correlate`` (zero outside the grid, kernel centre at (rows//2, cols//2)), from the taps of
     :func:`_kernel_taps`, computed once per occupied cell. Writes ``dz_min`` / ``dz_max`` (m) in the 4th (50 cm)
     grid."""
+    extent, inv_cxs, inv_cys, nxs, nys = grids
     x, y, z = out[:, 0], out[:, 1], out[:, 2]
     n = len(x)
     n_shapes = N_SHAPES  # a constant: the loops over the shapes unroll
@@ -384,6 +398,7 @@ class PointFeatures:
         self._cys = np.array([cy for _, _, cy in CELL_SHAPES], np.float64)
         self._nxs = np.array([s[0] for s in shapes], np.int64)
         self._nys = np.array([s[1] for s in shapes], np.int64)
+        self._grids = CellGrids(self.extent_m, 1.0 / self._cxs, 1.0 / self._cys, self._nxs, self._nys)
         self._taps, self._tap_start = _kernel_taps()
         self._previous_radial: np.ndarray | None = None
 
@@ -401,10 +416,8 @@ class PointFeatures:
             out[:, k] = points[name]
         azimuth = np.empty(len(points), np.float64)
         approx_azimuth(out[:, 0], out[:, 1], azimuth)
-        self._previous_radial = _point_features(
-            out, self.extent_m, 1.0 / self._cxs, 1.0 / self._cys, self._nxs, self._nys, self._n_radial,
-            1.0 / self.radial_bin_deg, previous, has_previous, self._taps, self._tap_start, azimuth,
-        )  # fmt: skip
+        self._previous_radial = _point_features(out, self._grids, self._n_radial, 1.0 / self.radial_bin_deg, previous,
+                                                has_previous, self._taps, self._tap_start, azimuth)  # fmt: skip
         if len(points):
             channel = points["channel"]
             n_channels = int(channel.max()) + 1
