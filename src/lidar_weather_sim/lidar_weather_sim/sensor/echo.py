@@ -31,7 +31,7 @@ return is also the last return, then the second-strongest return is provided"), 
 one point. ``all`` reports every echo. Ouster's dual return differs: the two strongest echoes, strongest
 first (Ouster firmware "Return Order", default STRONGEST_TO_WEAKEST); it is not one of these modes.
 
-Why one module of ~410 lines: the waveform, the threshold crossing and the echo selection are one
+Why one module of ~560 lines: the waveform, the threshold crossing and the echo selection are one
 algorithm (thesis eq. 3-5) with its numba kernels beside it.
 """
 
@@ -407,8 +407,8 @@ def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=N
     n = len(beam)
     cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
     new = workers.allocator(scratch)
-    out = EchoBuffers(*(new(f"echo_{k}", cap, dtype) for k, dtype in
-                        enumerate((np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32))))  # fmt: skip
+    dtypes = (np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)
+    out = EchoBuffers(*(new(f"echo_{k}", cap, dtype) for k, dtype in enumerate(dtypes)))
     if segments is None:
         cuts = workers.bounds(n, CHUNK_CANDIDATES)
         if len(cuts) > 2:

@@ -26,7 +26,7 @@ the Mitsuba backend the rays of every backend call are padded to one of a few
 sizes per octave (far misses): Dr.Jit compiles one kernel per ray count (~12 ms
 each), and culled actor batches would otherwise have a new count on every cast.
 
-Why one module of ~510 lines: it is the one place that knows how actors are instanced, culled and
+Why one module of ~560 lines: it is the one place that knows how actors are instanced, culled and
 padded for every backend; the pieces share its instance tables and make sense only together.
 """
 
@@ -453,7 +453,8 @@ def _cull(o, d, axis, half_angle, spheres, cones, best, max_range, scratch):
     pairs = pairs[: _cull_blocks(axis, half_angle, cones, len(o) > nb * _BLOCK, pairs)]
     size = len(pairs) * _BLOCK  # each pair's rays are written from pair index x _BLOCK on
     out = CulledRays(scratch.get("cull_idx", size, np.int64), scratch.get("cull_shift", size, np.float64),
-                     scratch.get("cull_start", (size, 3), np.float64), scratch.get("cull_d64", (size, 3), np.float64))  # fmt: skip
+                     scratch.get("cull_start", (size, 3), np.float64),
+                     scratch.get("cull_d64", (size, 3), np.float64))  # fmt: skip
     counts = np.empty(len(pairs), np.int64)
     cuts = workers.bounds(len(pairs), CHUNK_RAYS // _BLOCK)
     workers.run_chunks(lambda c: _cull_run(o, d, pairs, spheres, _BLOCK, best, max_range, cuts[c], cuts[c + 1],
