@@ -31,13 +31,14 @@ return is also the last return, then the second-strongest return is provided"), 
 one point. ``all`` reports every echo. Ouster's dual return differs: the two strongest echoes, strongest
 first (Ouster firmware "Return Order", default STRONGEST_TO_WEAKEST); it is not one of these modes.
 
-Why one module of ~410 lines: the waveform, the threshold crossing and the echo selection are one
+Why one module of ~560 lines: the waveform, the threshold crossing and the echo selection are one
 algorithm (thesis eq. 3-5) with its numba kernels beside it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -61,6 +62,47 @@ class Echoes:
     label: np.ndarray  # (E,) uint8
     object_id: np.ndarray  # (E,) uint32
     runs: tuple[np.ndarray, np.ndarray]  # (starts, counts) int64
+
+
+class Candidates(NamedTuple):
+    """Candidate returns, one row per candidate (C): what :func:`detect_echoes` reads."""
+
+    beam: np.ndarray  # (C,) int64
+    range_m: np.ndarray  # (C,) float64
+    amplitude: np.ndarray  # (C,) float64, peak (noise units)
+    label: np.ndarray  # (C,) uint8
+    object_id: np.ndarray  # (C,) uint32
+
+
+class Detector(NamedTuple):
+    """The receiver's settings, as the detection kernels read them."""
+
+    threshold: float  # noise units
+    sigma: float  # m, the pulse's Gaussian width
+    resolution: float  # m, candidates closer than this are merged
+    max_echoes: int  # per beam
+
+
+class EchoBuffers(NamedTuple):
+    """Where the detection kernels write the echoes (the arrays of :class:`Echoes`)."""
+
+    beam: np.ndarray
+    echo: np.ndarray
+    range_m: np.ndarray
+    amplitude: np.ndarray
+    epw_m: np.ndarray
+    label: np.ndarray
+    object_id: np.ndarray
+
+
+class Pulses(NamedTuple):
+    """One beam's merged pulses (M), in range order, with each one's :func:`_reach` (m)."""
+
+    range_m: np.ndarray  # (M,) float64
+    amplitude: np.ndarray  # (M,) float64
+    reach: np.ndarray  # (M,) float64
+    label: np.ndarray  # (M,) uint8
+    object_id: np.ndarray  # (M,) uint32
 
 
 def detect_echoes(
@@ -89,19 +131,15 @@ def detect_echoes(
     if segments is None and not _ascending(beam):
         order = _beam_order(beam)
         beam, range_m, amplitude, label, object_id = (x[order] for x in (beam, range_m, amplitude, label, object_id))
-    out = _detect(
+    candidates = Candidates(
         beam,
         np.ascontiguousarray(range_m, np.float64),
         np.ascontiguousarray(amplitude, np.float64),
         np.ascontiguousarray(label, np.uint8),
         np.ascontiguousarray(object_id, np.uint32),
-        float(threshold.level),
-        float(fwhm_m) * FWHM_TO_SIGMA,
-        float(resolution_m),
-        int(max_echoes),
-        scratch,
-        segments,
     )
+    detector = Detector(float(threshold.level), float(fwhm_m) * FWHM_TO_SIGMA, float(resolution_m), int(max_echoes))
+    out = _detect(candidates, detector, scratch, segments)
     return Echoes(*out)
 
 
@@ -250,9 +288,11 @@ def _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf):
 
 
 @numba.njit(cache=True, inline="always")
-def _cluster_echoes(r, a, reach, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, out_l, out_o, out0, room, buf):
-    """Echoes of the overlapping pulses c0..c1 (two or more), written from out0 on; returns how
-    many (<= room). ``buf``: scratch for the samples (grown if too short).
+def _cluster_echoes(pulses, c0, c1, thr, s, out, out0, room, buf):
+    """Echoes of the overlapping ``pulses`` c0..c1 (two or more; threshold ``thr``, pulse width
+    ``s`` m), their range, amplitude, EPW, label and object id written into ``out``
+    (:class:`EchoBuffers`) from out0 on; returns how many (<= room). ``buf``: scratch for the
+    samples (grown if too short).
 
     The waveform is sampled every s / 8 m; an echo runs from the first sample above the
     threshold to the last (crossings interpolated linearly between samples); its peak amplitude is
@@ -263,6 +303,8 @@ def _cluster_echoes(r, a, reach, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, 
     (:func:`_sample`) is computed only where the estimate's error bound leaves the comparison
     with the threshold open, at the crossings and for the samples that may be the highest:
     the echoes are those of the exact samples, bit for bit."""
+    r, a, reach, lab, obj = pulses
+    out_r, out_a, out_w, out_l, out_o = out.range_m, out.amplitude, out.epw_m, out.label, out.object_id
     dx = s / 8.0
     lo = 1e300
     hi = -1e300
@@ -358,12 +400,15 @@ def _cluster_echoes(r, a, reach, lab, obj, c0, c1, thr, s, out_r, out_a, out_w, 
 CHUNK_CANDIDATES = 8192
 
 
-def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None, segments=None):
+def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=None):
+    """The arrays of :class:`Echoes` of ``candidates`` (grouped by beam; only the runs ``segments``
+    (starts, counts) if given), each chunk's written from its first candidate's index on."""
+    beam = candidates.beam
     n = len(beam)
     cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
     new = workers.allocator(scratch)
-    out = tuple(new(f"echo_{k}", cap, dtype) for k, dtype in
-                enumerate((np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)))  # fmt: skip
+    dtypes = (np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)
+    out = EchoBuffers(*(new(f"echo_{k}", cap, dtype) for k, dtype in enumerate(dtypes)))
     if segments is None:
         cuts = workers.bounds(n, CHUNK_CANDIDATES)
         if len(cuts) > 2:
@@ -372,7 +417,7 @@ def _detect(beam, r, a, lab, obj, thr, s, resolution, max_echoes, scratch=None, 
     else:
         starts, ends = segments[0], segments[0] + segments[1]
     counts = np.array(workers.run_chunks(
-        lambda c: _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, starts[c], ends[c], *out),
+        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out),
         len(starts),
     ), np.int64)  # fmt: skip
     return (*out, (starts, counts))
@@ -397,8 +442,12 @@ def _beam_starts(beam, cuts):
 
 
 @numba.njit(cache=True, nogil=True)
-def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb, ee, er, ea, ew, el, eo):
-    """Echoes of the beams of candidates lo..hi (whole beams), written from index lo on; returns how many."""
+def _detect_run(candidates, detector, lo, hi, out):
+    """Echoes of the beams of ``candidates`` lo..hi (whole beams), written into ``out``
+    (:class:`EchoBuffers`) from index lo on; returns how many."""
+    beam, r, a, lab, obj = candidates
+    thr, s, resolution, max_echoes = detector
+    eb, ee, er, ea, ew, el, eo = out
     size = hi - lo
     idx = np.empty(size, np.int64)
     mr = np.empty(size)
@@ -406,6 +455,7 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
     ml = np.empty(size, np.uint8)
     mo = np.empty(size, np.uint32)
     reach = np.empty(size)  # _reach of each merged pulse of the beam
+    pulses = Pulses(mr, ma, reach, ml, mo)
     buf = np.empty(ESTIMATE_SAMPLES)  # waveform samples of a cluster
     isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
     n_isolated = 0
@@ -426,8 +476,7 @@ def _detect_run(beam, r, a, lab, obj, thr, s, resolution, max_echoes, lo, hi, eb
             while c1 < m and mr[c1] - mr[c1 - 1] < reach[c1 - 1] + reach[c1]:
                 c1 += 1  # pulses that may overlap above the threshold form one cluster
             if c1 - c0 > 1:
-                got = _cluster_echoes(mr, ma, reach, ml, mo, c0, c1, thr, s, er, ea, ew, el, eo, count,
-                                      max_echoes - found, buf)
+                got = _cluster_echoes(pulses, c0, c1, thr, s, out, count, max_echoes - found, buf)
             else:
                 got = 0
                 if ma[c0] > thr:

@@ -13,19 +13,106 @@ so the pipeline itself reads without buffer bookkeeping.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.points import ReturnType
-from lidar_weather_sim.sensor.echo import beam_groups
+from lidar_weather_sim.scene.raycast import TriangleTables
+from lidar_weather_sim.sensor.echo import Candidates, beam_groups
 from lidar_weather_sim.sensor.radiometry import intensity_byte, overlap_at, peak_amplitude_at, surface_reflectance_at
 
 _LAST, _FIRST, _IDENTICAL, _SECOND = (int(r) for r in (ReturnType.LAST, ReturnType.FIRST, ReturnType.IDENTICAL,
                                                        ReturnType.SECOND))  # fmt: skip
 #: Rays per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.core.workers`).
 CHUNK_RAYS = 32768
+
+
+class SubrayHits(NamedTuple):
+    """The scene hit of every sub-ray (N), flat, beam-major, as candidates."""
+
+    range_m: np.ndarray  # (N,) float64 m, inf: a miss
+    amplitude: np.ndarray  # (N,) float64, 0: none
+    label: np.ndarray  # (N,) uint8
+    object_id: np.ndarray  # (N,) uint32
+
+
+class Scatterers(NamedTuple):
+    """Scatterers of the batch (K), each on one sub-ray of its beam (the beams apart)."""
+
+    subray: np.ndarray  # (K,) int64
+    range_m: np.ndarray  # (K,) float64 m
+    amplitude: np.ndarray  # (K,) float64
+    label: np.ndarray  # (K,) uint8
+    object_id: np.ndarray  # (K,) uint32
+    occlusion: np.ndarray  # (K,) float64, 0-1: the share of the sub-ray's light it takes
+
+
+class CastHits(NamedTuple):
+    """The caster's nearest hit per sub-ray (N, flat), map frame
+    (:class:`~lidar_weather_sim.scene.raycast.scene_caster.Hits`, cast with ``gather=False``)."""
+
+    distance: np.ndarray  # (N,) float32 m, inf: a miss
+    triangle: np.ndarray  # (N,) int64 static triangle, -1: an actor's hit or a miss
+    normal: np.ndarray  # (N, 3) float32, actor hits only
+    material: np.ndarray  # (N,) int32, actor hits only
+    actor: np.ndarray  # (N,) int32 actor id (a row of Surfaces.actor_label), actor hits only
+    object_id: np.ndarray  # (N,) uint32, actor hits only
+
+
+class Surfaces(NamedTuple):
+    """Per material (its last row: no material) and per actor, what a hit reflects and is labelled."""
+
+    reflectivity: np.ndarray  # (M + 1,) float64
+    retro: np.ndarray  # (M + 1,) float64
+    material_label: np.ndarray  # (M + 1,) uint8
+    actor_label: np.ndarray  # (max actor id + 1,) uint8
+
+
+class Receiver(NamedTuple):
+    """The LIDAR equation's sensor terms (:func:`~lidar_weather_sim.sensor.radiometry.peak_amplitude_at`)."""
+
+    subray_weight: np.ndarray  # (S,) float64, each sub-ray's share of the beam's power
+    power: float  # power constant C (noise units m^2): a full-beam hit's peak amplitude
+    overlap_start: float  # m, biaxial overlap starts
+    overlap_full: float  # m, full overlap
+
+
+class KeptEchoes(NamedTuple):
+    """The echoes of a batch (E) as :func:`fill_points` reads them, indexed by echo."""
+
+    range_m: np.ndarray  # (E,) float64 m, with range noise
+    beam: np.ndarray  # (E,) int64 beam of the batch (column-major: column x n_beams + beam)
+    echo: np.ndarray  # (E,) uint8, 1-based within the beam
+    epw_m: np.ndarray  # (E,) float64
+    reported: np.ndarray  # (E,) uint8 return type (see select_returns); empty: return mode all
+
+
+class ScanTables(NamedTuple):
+    """Where a batch's beams point and when they fire: its columns (C) and active channels (B),
+    and per (pattern column, channel) / channel / pattern column the scan pattern's tables."""
+
+    columns: np.ndarray  # (C,) int64 pattern column of each batch column
+    channels: np.ndarray  # (B,) channel of each beam of a column
+    n_beams: int  # B
+    cos_az: np.ndarray  # (columns, channels) float64
+    sin_az: np.ndarray  # (columns, channels) float64
+    azimuth: np.ndarray  # (columns, channels) float64 rad, wrapped
+    cos_el: np.ndarray  # (channels,) float64
+    sin_el: np.ndarray  # (channels,) float64
+    elevation: np.ndarray  # (channels,) float64 rad
+    stamp: np.ndarray  # (columns,) uint32 ns since the frame's start
+
+
+class RegionEffects(NamedTuple):
+    """The weather regions' effect per (beam, sub-ray) (N, S) of the batch, if ``active``."""
+
+    active: bool
+    reflectance_scale: np.ndarray  # (N, S) float64
+    range_offset: np.ndarray  # (N, S) float64 m
+    two_way: np.ndarray  # (N, S) float64 transmission
 
 
 def occluded_candidates(surface, scatterers, n_beams, n_sub, scratch=None):
@@ -43,21 +130,27 @@ def occluded_candidates(surface, scatterers, n_beams, n_sub, scratch=None):
     order, first = beam_groups(sc_beam, n_beams)
     size = n_beams * n_sub + len(sc_beam)
     new = workers.allocator(scratch)
-    out = (new("occ_beam", size, np.int64), new("occ_range", size, np.float64), new("occ_amp", size, np.float64),
-           new("occ_label", size, np.uint8), new("occ_obj", size, np.uint32))  # fmt: skip
-    sc = (np.ascontiguousarray(scatterers[1], np.int64), *(np.ascontiguousarray(x, t) for x, t in
-          zip(scatterers[2:], (np.float64, np.float64, np.uint8, np.uint32, np.float64))))  # fmt: skip
+    out = Candidates(new("occ_beam", size, np.int64), new("occ_range", size, np.float64),
+                     new("occ_amp", size, np.float64), new("occ_label", size, np.uint8),
+                     new("occ_obj", size, np.uint32))  # fmt: skip
+    surface = SubrayHits(*surface)
+    sc = Scatterers(np.ascontiguousarray(scatterers[1], np.int64), *(np.ascontiguousarray(x, t) for x, t in
+                    zip(scatterers[2:], (np.float64, np.float64, np.uint8, np.uint32, np.float64))))  # fmt: skip
     cuts = workers.bounds(n_beams, CHUNK_RAYS // max(n_sub, 1))
     counts = workers.run_chunks(
-        lambda c: _occluded_run(*surface, order, first, *sc, n_sub, cuts[c], cuts[c + 1], *out), len(cuts) - 1)
+        lambda c: _occluded_run(surface, sc, order, first, n_sub, cuts[c], cuts[c + 1], out), len(cuts) - 1)
     starts = cuts[:-1] * n_sub + first[cuts[:-1]]
     return *out, (starts, np.array(counts, np.int64))
 
 
 @numba.njit(cache=True, nogil=True)
-def _occluded_run(s_range, s_amp, s_label, s_obj, order, first, sc_sub, sc_range, sc_amp, sc_label, sc_obj, sc_occ,
-                  n_sub, b0, b1, out_beam, out_range, out_amp, out_label, out_obj):  # fmt: skip
-    """Beams b0..b1 of :func:`occluded_candidates`; returns how many candidates were written."""
+def _occluded_run(surface, scatterers, order, first, n_sub, b0, b1, out):
+    """Beams b0..b1 of :func:`occluded_candidates` (``surface``: :class:`SubrayHits`, ``scatterers``:
+    :class:`Scatterers` in the beam ``order`` with each beam's ``first``), into ``out``
+    (:class:`~lidar_weather_sim.sensor.echo.Candidates`); returns how many candidates were written."""
+    s_range, s_amp, s_label, s_obj = surface
+    sc_sub, sc_range, sc_amp, sc_label, sc_obj, sc_occ = scatterers
+    out_beam, out_range, out_amp, out_label, out_obj = out
     most = n_sub
     for b in range(b0, b1):
         most = max(most, n_sub + first[b + 1] - first[b])
@@ -169,14 +262,17 @@ def surface_returns(hits, static, directions, rotation, reflectivity, retro, mat
     m = n_cols * n_beams * n_sub
     size = m if compact else 0
     new = workers.allocator(scratch if compact else None)
-    out = (new("cand_beam", size, np.int64), new("cand_range", m, np.float64), new("cand_amp", m, np.float64),
-           new("cand_label", size, np.uint8), new("cand_obj", size, np.uint32))  # fmt: skip
+    out = Candidates(new("cand_beam", size, np.int64), new("cand_range", m, np.float64),
+                     new("cand_amp", m, np.float64), new("cand_label", size, np.uint8),
+                     new("cand_obj", size, np.uint32))  # fmt: skip
+    hits, static = CastHits(*hits), TriangleTables(*static)
+    surfaces = Surfaces(reflectivity, retro, material_label, actor_label)
+    receiver = Receiver(weights, power, overlap_start, overlap_full)
+    regions = RegionEffects(effects, scale, offset, two_way)
     cuts = workers.bounds(n_cols, CHUNK_RAYS // max(n_beams * n_sub, 1))
     counts = workers.run_chunks(
-        lambda c: _surface_returns_run(
-            *hits, *static, directions, rotation, reflectivity, retro, material_label, actor_label, weights, power,
-            overlap_start, overlap_full, effects, scale, offset, two_way, compact, cuts[c], cuts[c + 1], *out,
-        ),
+        lambda c: _surface_returns_run(hits, static, directions, rotation, surfaces, receiver, regions, compact,
+                                       cuts[c], cuts[c + 1], out),
         len(cuts) - 1,
     )  # fmt: skip
     if not compact:
@@ -205,12 +301,18 @@ def _compact_run(out, starts, counts):
 
 
 @numba.njit(cache=True, nogil=True)
-def _surface_returns_run(distance, triangle, normal, material, actor, object_id, static_normal, static_material,
-                         static_object_id, directions, rotation, reflectivity, retro, material_label, actor_label,
-                         weights, power, overlap_start, overlap_full, effects, scale, offset, two_way, compact, c0, c1,
-                         out_beam, out_rng, out_amp, out_label, out_obj):  # fmt: skip
-    """Columns c0..c1 of :func:`surface_returns`; compact candidates are written from the chunk's
-    first ray index on. Returns how many."""
+def _surface_returns_run(hits, static, directions, rotation, surfaces, receiver, regions, compact, c0, c1, out):
+    """Columns c0..c1 of :func:`surface_returns` (``hits``: :class:`CastHits`, ``static``:
+    :class:`~lidar_weather_sim.scene.raycast.scene_caster.TriangleTables`, ``surfaces``: :class:`Surfaces`,
+    ``receiver``: :class:`Receiver`, ``regions``: :class:`RegionEffects`) into ``out``
+    (:class:`~lidar_weather_sim.sensor.echo.Candidates`); compact candidates are written from the
+    chunk's first ray index on. Returns how many."""
+    distance, triangle, normal, material, actor, object_id = hits
+    static_normal, static_material, static_object_id = static
+    reflectivity, retro, material_label, actor_label = surfaces
+    weights, power, overlap_start, overlap_full = receiver
+    effects, scale, offset, two_way = regions
+    out_beam, out_rng, out_amp, out_label, out_obj = out
     n_beams, n_sub = directions.shape[1:3]
     no_material = len(reflectivity) - 1
     k = c0 * n_beams * n_sub
@@ -313,19 +415,22 @@ def padding_bytes(dtype: np.dtype) -> np.ndarray:
     return np.flatnonzero(~used)
 
 
-def fill_points(points, kept, *args):
-    """Points of the echoes ``kept`` (ascending) in the sensor frame at their firing time; every
+def fill_points(points, kept, echoes: KeptEchoes, log_ratio, span: float, scan: ScanTables, truth=None):
+    """Points of the ``echoes`` ``kept`` (ascending) in the sensor frame at their firing time; every
     byte of ``points`` is written (padding as zeros), so it may come from ``np.empty``. The return
     type is the echo's ``reported`` code (:func:`~lidar_weather_sim.sensor.echo.select_returns`), or
-    with an empty ``reported`` (return mode all) its position among the beam's kept echoes."""
+    with an empty ``reported`` (return mode all) its position among the beam's kept echoes. Intensity:
+    each kept echo's ``log_ratio`` (log of its amplitude over the dark threshold) over ``span``
+    (:func:`~lidar_weather_sim.sensor.radiometry.intensity_byte`). ``truth``: the echoes' (label,
+    object id) for a point layout with ground-truth fields (None: a layout without)."""
     raw = points.view(np.uint8).reshape(len(points), points.dtype.itemsize)
-    *args, label, object_id, ground_truth, padding = args
+    padding = padding_bytes(points.dtype)
     cuts = workers.bounds(len(kept), CHUNK_RAYS // 4)
 
     def run(c):
-        _fill_points_run(points, raw, kept, cuts[c], cuts[c + 1], *args, padding)
-        if ground_truth:  # a kernel of its own: numba types every branch, the other layout has no such fields
-            _fill_ground_truth_run(points, kept, cuts[c], cuts[c + 1], label, object_id)
+        _fill_points_run(points, raw, padding, kept, cuts[c], cuts[c + 1], echoes, log_ratio, span, scan)
+        if truth is not None:  # a kernel of its own: numba types every branch, the other layout has no such fields
+            _fill_ground_truth_run(points, kept, cuts[c], cuts[c + 1], *truth)
 
     workers.run_chunks(run, len(cuts) - 1)
 
@@ -339,9 +444,12 @@ def _fill_ground_truth_run(points, kept, j0, j1, label, object_id):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_points_run(points, raw, kept, j0, j1, ranges, beam, echo, epw, log_ratio, span, columns, channels, n_beams,
-                     cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp, reported, padding):  # fmt: skip
-    """Points j0..j1 of :func:`fill_points` (``raw``: the same memory as bytes, (N, itemsize))."""
+def _fill_points_run(points, raw, padding, kept, j0, j1, echoes, log_ratio, span, scan):
+    """Points j0..j1 of :func:`fill_points` (``raw``: the same memory as bytes, (N, itemsize);
+    ``padding``: its byte offsets written as zeros) from the ``kept`` :class:`KeptEchoes` with
+    their log amplitude ratios over ``span`` and the :class:`ScanTables` ``scan``."""
+    ranges, beam, echo, epw, reported = echoes
+    columns, channels, n_beams, cos_az, sin_az, azimuth, cos_el, sin_el, elevation, stamp = scan
     first = -n_beams  # first beam of the current column (none yet): divisions only where it changes
     col = 0
     for j in range(j0, j1):

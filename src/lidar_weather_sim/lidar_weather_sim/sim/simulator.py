@@ -53,11 +53,12 @@ from lidar_weather_sim.sensor.radiometry import Threshold, dark_level, overlap_f
 from lidar_weather_sim.sensor.response import SensorResponse, apply_response
 from lidar_weather_sim.sensor.scan import ScanPattern
 from lidar_weather_sim.sim.kernels import (
+    KeptEchoes,
+    ScanTables,
     compact_candidates,
     fill_points,
     kept_echoes,
     occluded_candidates,
-    padding_bytes,
     range_noise,
     surface_returns,
     world_rays,
@@ -516,9 +517,9 @@ class LidarSimulator:
         np.log(log_ratio, out=log_ratio)
         geo = self._point_tables()
         fill_points(
-            points, kept, ranges, echoes.beam, echoes.echo, echoes.epw_m, log_ratio, float(span),
-            np.ascontiguousarray(columns, np.int64), self.pattern.active_channels(acc.index), n_beams, *geo, reported,
-            echoes.label, echoes.object_id, self.ground_truth, padding_bytes(points.dtype),
+            points, kept, KeptEchoes(ranges, echoes.beam, echoes.echo, echoes.epw_m, reported), log_ratio, float(span),
+            ScanTables(np.ascontiguousarray(columns, np.int64), self.pattern.active_channels(acc.index), n_beams, *geo),
+            (echoes.label, echoes.object_id) if self.ground_truth else None,
         )  # fmt: skip
 
     def _point_tables(self) -> tuple[np.ndarray, ...]:

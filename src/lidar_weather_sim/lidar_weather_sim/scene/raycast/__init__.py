@@ -15,7 +15,7 @@ from .backend import (
     make_caster,
     unavailable_backends,
 )
-from .scene_caster import Hits, SceneCaster
+from .scene_caster import Hits, SceneCaster, TriangleTables
 
 __all__ = [
     "DEFAULT_ORDER",
@@ -23,6 +23,7 @@ __all__ = [
     "Hits",
     "MeshCaster",
     "SceneCaster",
+    "TriangleTables",
     "available_backends",
     "default_backend",
     "fastest_available",

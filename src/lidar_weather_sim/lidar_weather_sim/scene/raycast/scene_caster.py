@@ -26,7 +26,7 @@ the Mitsuba backend the rays of every backend call are padded to one of a few
 sizes per octave (far misses): Dr.Jit compiles one kernel per ray count (~12 ms
 each), and culled actor batches would otherwise have a new count on every cast.
 
-Why one module of ~510 lines: it is the one place that knows how actors are instanced, culled and
+Why one module of ~560 lines: it is the one place that knows how actors are instanced, culled and
 padded for every backend; the pieces share its instance tables and make sense only together.
 """
 
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -77,6 +78,44 @@ class Hits:
     def hit(self) -> np.ndarray:
         """(N,) bool: the ray hit something within range."""
         return np.isfinite(self.distance)
+
+
+class TriangleTables(NamedTuple):
+    """Per-triangle attributes of a mesh (T triangles), one extra last row for "no hit"."""
+
+    normal: np.ndarray  # (T + 1, 3) float32 unit face normal (mesh frame; zeros for no hit)
+    material: np.ndarray  # (T + 1,) int32 material index (-1 for no hit)
+    object_id: np.ndarray  # (T + 1,) uint32 (0 for no hit)
+
+
+class RayAttributes(NamedTuple):
+    """The gathered attributes of each ray's hit (N rays), as in :class:`Hits`."""
+
+    normal: np.ndarray  # (N, 3) float32, facing the ray
+    material: np.ndarray  # (N,) int32
+    object_id: np.ndarray  # (N,) uint32
+    hit_actor: np.ndarray  # (N,) int32
+
+
+class BlockCones(NamedTuple):
+    """What :func:`_static_run` computes for culling: the bounding cone of each full block of
+    ``size`` consecutive rays and the origins' box (only when ``wanted``)."""
+
+    wanted: bool
+    size: int  # rays per block
+    cos_margin: float  # subtracted from the block's min cos(angle to its axis)
+    axis: np.ndarray  # (B, 3) float64 unit, map frame
+    half_angle: np.ndarray  # (B,) float64 rad
+    box: np.ndarray  # (6,) float64 m: min (box[:3]) and max (box[3:]) of the chunk's origins
+
+
+class CulledRays(NamedTuple):
+    """The rays :func:`_cull` keeps for an actor's sphere (K rays), map frame."""
+
+    index: np.ndarray  # (K,) int64 ray index
+    shift: np.ndarray  # (K,) float64 m, where the ray may start without skipping the sphere
+    start: np.ndarray  # (K, 3) float64 m, origin + shift x direction
+    direction: np.ndarray  # (K, 3) float64 unit
 
 
 @dataclass(frozen=True)
@@ -128,9 +167,9 @@ class SceneCaster:
         return list(self._actors)
 
     @property
-    def static_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def static_tables(self) -> TriangleTables:
         """Float32 face normal, material and object id per static triangle, a last row for "no hit"."""
-        return self._static.normals, self._static.material, self._static.object_id
+        return TriangleTables(self._static.normals, self._static.material, self._static.object_id)
 
     def _cast_part(self, part: _Part, o: np.ndarray, d: np.ndarray, key: str) -> tuple[np.ndarray, np.ndarray]:
         """``part.caster.cast`` of the rays rounded to float32; for padding backends the batch is
@@ -320,22 +359,20 @@ def _static_pass(best, tri, max_range, o, d, part: _Part, blocks: bool, gather: 
     allocates them; the actor ids are -1; without ``gather`` only allocated), and with ``blocks``
     the origins' bounding box (centre, radius) and the cones of the blocks of rays (else None)."""
     n = len(best)
-    normal = new("normal", (n, 3), np.float32)
-    material = new("material", n, np.int32)
-    object_id = new("object_id", n, np.uint32)
-    hit_actor = new("hit_actor", n, np.int32)
+    attributes = RayAttributes(new("normal", (n, 3), np.float32), new("material", n, np.int32),
+                               new("object_id", n, np.uint32), new("hit_actor", n, np.int32))  # fmt: skip
+    tables = TriangleTables(part.normals, part.material, part.object_id)
     axis = np.empty((n // _BLOCK if blocks else 0, 3))
     half = np.empty(len(axis))
     cuts = workers.bounds(n, CHUNK_RAYS, align=_BLOCK)
     boxes = np.zeros((len(cuts) - 1, 6))
     workers.run_chunks(
-        lambda c: _static_run(best, tri, max_range, o, d, part.normals, part.material, part.object_id, cuts[c],
-                              cuts[c + 1], blocks, _BLOCK, _COS_MARGIN, gather, normal, material, object_id, hit_actor,
-                              axis, half, boxes[c]),  # fmt: skip
+        lambda c: _static_run(best, tri, max_range, o, d, tables, cuts[c], cuts[c + 1], gather, attributes,
+                              BlockCones(blocks, _BLOCK, _COS_MARGIN, axis, half, boxes[c])),  # fmt: skip
         len(cuts) - 1,
     )
     box = _bounding_sphere(boxes) if blocks else None
-    return normal, material, object_id, hit_actor, box, axis, half
+    return *attributes, box, axis, half
 
 
 @numba.njit(cache=True, nogil=True)
@@ -351,13 +388,16 @@ def _bounding_sphere(boxes):
 
 
 @numba.njit(cache=True, nogil=True)
-def _static_run(best, tri, max_range, o, d, normals, materials, object_ids, lo, hi, blocks, block, cos_margin,
-                gather, normal, material, object_id, hit_actor, axis, half, box):  # fmt: skip
-    """Rays lo..hi (lo a multiple of ``block``). In place: hits beyond ``max_range`` (float32)
-    become misses (triangle -1). With ``gather``, writes per ray the gathered normal (facing
-    the ray), material and object id (a miss gathers the tables' last row) and actor id -1;
-    with ``blocks`` also the bounding cone (unit axis, half-angle widened by ``cos_margin``) of
-    each full block of ``block`` consecutive rays and the origins' min (box[:3]) and max (box[3:])."""
+def _static_run(best, tri, max_range, o, d, tables, lo, hi, gather, attributes, cones):
+    """Rays lo..hi (lo a multiple of ``cones.size``). In place: hits beyond ``max_range`` (float32)
+    become misses (triangle -1). With ``gather``, writes into ``attributes`` (:class:`RayAttributes`)
+    per ray the normal of :class:`TriangleTables` ``tables`` (facing the ray), material and object
+    id (a miss gathers the tables' last row) and actor id -1; if ``cones.wanted``, also the
+    :class:`BlockCones` (unit axis, half-angle widened by ``cones.cos_margin``) of each full block
+    of ``cones.size`` consecutive rays and the origins' min (box[:3]) and max (box[3:])."""
+    normals, materials, object_ids = tables
+    normal, material, object_id, hit_actor = attributes
+    blocks, block, cos_margin, axis, half, box = cones
     miss = len(materials) - 1
     for i in range(lo, hi):
         if best[i] > max_range:
@@ -404,22 +444,21 @@ def _cull(o, d, axis, half_angle, spheres, cones, best, max_range, scratch):
     Candidates are the rays of the blocks whose cone comes within ``angle`` (rad) of the
     unit vector ``u`` (cones: (S, 5) u, angle and the pre-filter's min cos; all blocks if
     ``angle`` < 0) plus the rays after the last full block; each gets the exact float64
-    test (numpy's operation order). Returns the rays' indices (ascending per sphere), the
-    float64 distance (m, >= 0) at which each may start without skipping the sphere, the
-    float64 start points (origin + shift x direction) and unit directions, sphere after
-    sphere, as views of ``scratch`` buffers, and how many rays each sphere got (list). The
-    (sphere, block) pairs are shared between threads.
+    test (numpy's operation order). Returns the :class:`CulledRays` (indices ascending per
+    sphere), sphere after sphere, as views of ``scratch`` buffers, and how many rays each
+    sphere got (list). The (sphere, block) pairs are shared between threads.
     """
     nb = len(axis)
     pairs = scratch.get("cull_pairs", (len(spheres) * (nb + 1), 2), np.int64)
     pairs = pairs[: _cull_blocks(axis, half_angle, cones, len(o) > nb * _BLOCK, pairs)]
     size = len(pairs) * _BLOCK  # each pair's rays are written from pair index x _BLOCK on
-    out = (scratch.get("cull_idx", size, np.int64), scratch.get("cull_shift", size, np.float64),
-           scratch.get("cull_start", (size, 3), np.float64), scratch.get("cull_d64", (size, 3), np.float64))  # fmt: skip
+    out = CulledRays(scratch.get("cull_idx", size, np.int64), scratch.get("cull_shift", size, np.float64),
+                     scratch.get("cull_start", (size, 3), np.float64),
+                     scratch.get("cull_d64", (size, 3), np.float64))  # fmt: skip
     counts = np.empty(len(pairs), np.int64)
     cuts = workers.bounds(len(pairs), CHUNK_RAYS // _BLOCK)
     workers.run_chunks(lambda c: _cull_run(o, d, pairs, spheres, _BLOCK, best, max_range, cuts[c], cuts[c + 1],
-                                           *out, counts), len(cuts) - 1)  # fmt: skip
+                                           out, counts), len(cuts) - 1)  # fmt: skip
     per_sphere = _compact_cull(*out, counts, pairs[:, 0], _BLOCK, len(spheres))
     return out, per_sphere.tolist()
 
@@ -467,9 +506,10 @@ def _compact_cull(idx, shift, start, d64, counts, sphere, block, n_spheres):
 
 
 @numba.njit(cache=True, nogil=True)
-def _cull_run(o, d, pairs, spheres, block, best, max_range, q0, q1, idx, shift, start, d64, counts):
-    """Pairs q0..q1 of :func:`_cull`: each pair's rays written from its index x ``block`` on,
-    how many in ``counts``."""
+def _cull_run(o, d, pairs, spheres, block, best, max_range, q0, q1, out, counts):
+    """Pairs q0..q1 of :func:`_cull`: each pair's rays written into ``out`` (:class:`CulledRays`)
+    from its index x ``block`` on, how many in ``counts``."""
+    idx, shift, start, d64 = out
     n = len(o)
     far = np.float32(max_range)
     for q in range(q0, q1):
