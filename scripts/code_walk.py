@@ -16,13 +16,14 @@ own packages' source files (wherever they are imported from):
 from __future__ import annotations
 
 import sys
+from collections import Counter
 from pathlib import Path
 
 PACKAGES = ("lidar_weather_sim", "spray_particles", "weather_filter")
 
 
-def walk(argv: list[str]) -> tuple[int, int, int, int, int]:
-    """(exit status, places, files, jumps back, distinct jumps back) of ``lidar-weather-sim argv``."""
+def walk(argv: list[str]) -> tuple[int, set[tuple[str, str]], list[tuple[str, str]]]:
+    """Exit status, places (file, function) and jumps back (from file, to file) of ``lidar-weather-sim argv``."""
     from lidar_weather_sim.cli import main
 
     import importlib
@@ -52,13 +53,23 @@ def walk(argv: list[str]) -> tuple[int, int, int, int, int]:
         status = exit_.code
     finally:
         sys.setprofile(None)
-    return status, len(places), len({f for f, _ in places}), len(jumps), len(set(jumps))
+    return status, places, jumps
+
+
+def _short(path: str) -> str:
+    """``path`` from its package's folder on (``lidar_weather_sim/sim/offline.py``)."""
+    return path[max(path.rfind(f"/{name}/") for name in PACKAGES) + 1:]
 
 
 def main() -> int:
-    status, places, files, jumps, pairs = walk(sys.argv[1:])
-    print(f"lidar-weather-sim {' '.join(sys.argv[1:])}: exit {status}, {places} places in {files} files, "
-          f"{jumps} jumps back ({pairs} distinct file pairs)")  # fmt: skip
+    status, places, jumps = walk(sys.argv[1:])
+    files = Counter(f for f, _ in places)
+    pairs = set(jumps)
+    print(f"lidar-weather-sim {' '.join(sys.argv[1:])}: exit {status}, {len(places)} places in {len(files)} files, "
+          f"{len(jumps)} jumps back ({len(pairs)} distinct file pairs)")  # fmt: skip
+    back_into = Counter(to for _, to in pairs)
+    for path, count in sorted(files.items(), key=lambda kv: (-back_into[kv[0]], kv[0])):
+        print(f"  {count:4d} places, jumped back into from {back_into[path]:3d} files: {_short(path)}")
     return 0 if status in (0, None) else 1
 
 
