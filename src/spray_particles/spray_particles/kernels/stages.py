@@ -1,7 +1,7 @@
 """numba kernels of one particle tick: air velocity, integration, collisions (fused, parallel).
 
-They implement exactly the numpy reference of :mod:`spray_particles.forces`,
-:mod:`spray_particles.integrator` and :class:`spray_particles.system.SpraySystem`
+They implement exactly the numpy reference of :mod:`spray_particles.model.forces`,
+:mod:`spray_particles.model.integrator` and :class:`spray_particles.model.system.SpraySystem`
 (tests compare them); units and frames as there (world frame, m, s).
 """
 

@@ -1,6 +1,6 @@
 """One particle tick in two numba calls, and the wheel emission geometry (serial, cached on disk).
 
-They do what :class:`spray_particles.system.SpraySystem` did stage by stage with numpy
+They do what :class:`spray_particles.model.system.SpraySystem` did stage by stage with numpy
 (air velocity, integration, ageing, drop-packet deposition, collisions, death and the
 compaction of the survivors) in the same floating-point operations, so the particles
 are bit for bit the same: only IEEE-exact operations (+ - * / sqrt min max) and libm's
@@ -15,7 +15,7 @@ import math
 import numba
 import numpy as np
 
-from spray_particles.kernels import air_velocity, collisions, integrate_inplace
+from spray_particles.kernels.stages import air_velocity, collisions, integrate_inplace
 
 _air = air_velocity.serial
 _integrate = integrate_inplace.serial
@@ -29,7 +29,7 @@ def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, 
     """Air at tick time ``t`` (s; vehicle state ``rot``, ``org``, ``vcar`` of that tick), one step of
     ``dt`` and ageing; returns new (pos, vel, age), each particle's height (m) above its vehicle's
     ground plane at the next tick (``rot1``, ``org1``) and its vertical packet semi-axis (m, see
-    ``system._packet_axes``) at its new age and height. The inputs are not modified."""
+    ``model.system._packet_axes``) at its new age and height. The inputs are not modified."""
     air = _air(pos, vehicle, side, rot, org, vcar, length, width, height, v_lat, ambient, wind_over_speed,
                wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t)  # fmt: skip
     new_pos, new_vel = pos.copy(), vel.copy()
@@ -56,7 +56,7 @@ def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, whee
     radius ``vertical`` centred ``above`` m above the vehicle's ground plane)), then the survivors (younger than their
     lifetime, outside body and ground, packets above ``min_share``) compacted into new arrays with
     ``extra`` free rows at the end (for the particles emitted this tick), in the field order of
-    ``system.Particles``."""
+    ``model.system.Particles``."""
     n = pos.shape[0]
     dead = _collisions(pos, vehicle, rot, org, length, width, height, clearance, wheel_xz, wheel_y, n_wheels,
                        arch_r, arch_half_w)  # fmt: skip
@@ -144,7 +144,7 @@ def quantiles(pmf, u):
 @numba.njit(cache=True, nogil=True)
 def packet_radii(age, later, diffusivity, kappa, lam, population, above, r0, gravity, sphere_radius):
     """Horizontal and vertical semi-axes (m) of every particle ``later`` s after its ``age``, ``above`` m
-    above its vehicle's ground plane: those of ``system._packet_axes`` for drop packets (population 1),
+    above its vehicle's ground plane: those of ``model.system._packet_axes`` for drop packets (population 1),
     ``sphere_radius`` for the others."""
     n = age.shape[0]
     horizontal, vertical = np.empty(n), np.empty(n)

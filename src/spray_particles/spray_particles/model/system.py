@@ -10,20 +10,20 @@ with (seed, tick index): same seed, same particles.
 Two populations (``population``): 0 = inertial particles (4 mm, thesis Table
 II-IV), each standing for a concentration of drops that causes one detection
 (render sphere ``mesh_diameter_m``); 1 = drop packets: each carries an equal share
-of the wheel's airborne water (spray_particles.drops) in ``weight`` drops of one
+of the wheel's airborne water (spray_particles.model.drops) in ``weight`` drops of one
 size drawn from the drop-size distribution, with that size's drag, so the small
 ones follow the air and linger (the low-Stokes population the thesis names as
 missing); a packet spreads by turbulent mixing (``diffusivity``, config/spray.yaml
 ``mist``), loses the drops that reach the ground (``airborne``) and is seen by its
 optical depth (:meth:`SpraySystem.mist_radii`, the ``spray`` region).
 
-A tick of fewer than ``kernels.PARALLEL_FROM`` particles runs in two numba calls
-(spray_particles.fused) with the emission drawn first into the survivors' free rows;
+A tick of fewer than ``kernels.stages.PARALLEL_FROM`` particles runs in two numba calls
+(spray_particles.kernels.fused) with the emission drawn first into the survivors' free rows;
 bigger sets (the droplet reference) go stage by stage through the parallel kernels.
 Both give the same particles bit for bit (test_determinism.py).
 
 Why one module of ~500 lines: the particle system's state (the arrays of one population) and the
-stages that advance it are one thing; the stages' kernels already live in fused.py and kernels.
+stages that advance it are one thing; the stages' kernels live in kernels/fused.py and kernels/stages.py.
 """
 
 from __future__ import annotations
@@ -35,14 +35,14 @@ import numpy as np
 from pydantic import Field
 
 from lidar_weather_sim.core.config import ConfigModel
-from spray_particles import fused
-from spray_particles.constants import SprayConstants, load_constants
-from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
-from spray_particles.emitter import WheelEmitter
-from spray_particles.forces import CurlNoise, drag_rates, lateral_wind_speed
-from spray_particles.integrator import step as integrate_step
-from spray_particles.kernels import PARALLEL_FROM
-from spray_particles.seeds import TickGenerators
+from spray_particles.kernels import fused
+from spray_particles.model.constants import SprayConstants, load_constants
+from spray_particles.model.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
+from spray_particles.model.emitter import WheelEmitter
+from spray_particles.model.forces import CurlNoise, drag_rates, lateral_wind_speed
+from spray_particles.model.integrator import step as integrate_step
+from spray_particles.kernels.stages import PARALLEL_FROM
+from spray_particles.model.seeds import TickGenerators
 
 #: A mist packet with less than this share of its drops still airborne is dropped.
 MIN_MIST_SHARE = 0.01
@@ -220,7 +220,7 @@ class SpraySystem:
     def air_velocity(self, p: Particles, t: float, rot, org, vel) -> np.ndarray:
         """Air velocity (n, 3) m/s, world frame, at the particles (numba kernel of
         :meth:`air_velocity_reference`)."""
-        from spray_particles.kernels import air_velocity
+        from spray_particles.kernels.stages import air_velocity
 
         prm = self.params
         if not len(p) or not self.vehicles:
@@ -350,7 +350,7 @@ class SpraySystem:
     def _fused_step(self, p: "Particles", t: float, s0, s1, extra: int) -> "Particles":
         """The update of :meth:`_tick` (air at ``t`` with the vehicle state ``s0``, one step, ageing,
         deposition and death with the state ``s1`` of the next tick) in two numba calls
-        (spray_particles.fused); the survivors come back with ``extra`` empty rows at the end."""
+        (spray_particles.kernels.fused); the survivors come back with ``extra`` empty rows at the end."""
         prm, c = self.params, self.constants
         rot, org, vel = s0[:3]
         lat = c.lateral_wind
@@ -386,7 +386,7 @@ class SpraySystem:
     def _alive(self, p: Particles, rot, org) -> np.ndarray:
         """Particles still alive: younger than their lifetime, above the ground under their vehicle,
         outside its body (lower body box minus the wheel arches)."""
-        from spray_particles.kernels import collisions
+        from spray_particles.kernels.stages import collisions
 
         dead = collisions(p.pos, p.vehicle, rot, org, self._length, self._width, self._height, self._clearance,
                           self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w)  # fmt: skip
