@@ -94,7 +94,7 @@ def survive(p, above, vertical, vertical_cubed, later, bodies, min_share, extra)
 def ring_body(draws, counts, wheel_xy, tread_offsets, n_vertices, treads, speed, radius, dt):
     """Body-frame positions (n, 3) m, velocities (n, 3) m/s, side (n,) and wheel (n,) of ``counts[w]``
     particles per wheel w from the uniforms ``draws`` (max count, W, 2): vertex and tread of eq. 7-10
-    (see ``emitter.ring_emission``, thesis x mapped to body -x), particle-major like ``WheelEmitter.emit``."""
+    (see ``model.emitter.ring_emission``, thesis x mapped to body -x), particle-major like ``WheelEmitter.emit``."""
     n = 0
     for w in range(counts.shape[0]):
         n += counts[w]

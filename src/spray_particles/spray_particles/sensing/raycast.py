@@ -160,8 +160,8 @@ def _bin_rays(directions, n_az, n_z):
     """Counting sort of the rays by cell (pseudo-angle bin x z bin, row-major) over the azimuth bins they
     occupy, ``first``..``first + span - 1``: a :class:`RayTable` of the ray order (R,), the first position of
     each cell in it (span * n_z + 1,; cell ``(b - first) * n_z + z``), the rays' z (the sine of their
-    elevation) in that order, ``first``, ``span``, ``n_az`` and ``n_z``. A batch of columns spans a slice of the circle (OS1-128's 10 ms: 36 deg), so
-    its table is that slice's, not the circle's 262 144 cells."""
+    elevation) in that order, ``first``, ``span``, ``n_az`` and ``n_z``. A batch of columns spans a slice of
+    the circle (OS1-128's 10 ms: 36 deg), so its table is that slice's, not the circle's 262 144 cells."""
     n = directions.shape[0]
     ray_bin = np.empty(n, np.int64)
     first, last = n_az, -1
