@@ -21,12 +21,12 @@ import time
 
 import numpy as np
 
-from spray_particles.constants import load_constants
-from spray_particles.emitter import vehicle_emitter
-from spray_particles.forces import drag_rates
-from spray_particles.raycast import sphere_hits
-from spray_particles.system import EmittingVehicle, Particles, SprayParams, SpraySystem
-from spray_particles.water import tyre_dimensions
+from spray_particles.model.constants import load_constants
+from spray_particles.model.emitter import vehicle_emitter
+from spray_particles.model.forces import drag_rates
+from spray_particles.sensing.raycast import sphere_hits
+from spray_particles.model.system import EmittingVehicle, Particles, SprayParams, SpraySystem
+from spray_particles.model.water import tyre_dimensions
 
 
 def filled_system(n: int, seed: int = 0) -> SpraySystem:

@@ -1,7 +1,7 @@
 """Particle model vs droplet reference on the same frames (thesis paper 3 metrics).
 
 For each scenario the simulator runs with the ``spray`` region only (other regions off,
-so only spray is compared) and the droplet reference (spray_particles.reference) runs
+so only spray is compared) and the droplet reference (spray_particles.validation.reference) runs
 with the same vehicles, poses, seed and forces. After ``--warmup`` s, for ``--frames``
 frames: spray detections in the sensor frame of both; bird's-eye 2D histograms with
 0.5 m cells over x 0-40 m, y -10..10 m accumulated over the frames -> Pearson
@@ -45,10 +45,10 @@ from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sensor.radiometry import overlap_factor, peak_amplitude, surface_reflectance
 from lidar_weather_sim.sim.simulator import LidarSimulator
-from spray_particles.metrics import bev_histogram as bev
-from spray_particles.metrics import compare_histograms as metrics
-from spray_particles.metrics import per_frame_overlap
-from spray_particles.reference import DropletReference, detect_frame
+from spray_particles.validation.metrics import bev_histogram as bev
+from spray_particles.validation.metrics import compare_histograms as metrics
+from spray_particles.validation.metrics import per_frame_overlap
+from spray_particles.validation.reference import DropletReference, detect_frame
 from spray_particles.region import SprayRegion
 
 

@@ -21,7 +21,7 @@ time (the simulator calls it before each batch); the first step starts ``warmup_
 With ``source: topic`` the particles come from spray_node instead
 (``RegionContext.inputs``, a :class:`~lidar_weather_sim.regions.topic_inputs.TopicInputs` that
 lidar_sim_node fills from ``topic``): the newest message, as published, with the fields
-of :mod:`spray_particles.particle_cloud`; no particles until the first one arrives.
+of :mod:`spray_particles.sensing.particle_cloud`; no particles until the first one arrives.
 """
 
 from __future__ import annotations
@@ -36,13 +36,13 @@ from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect, Scatterers
 from lidar_weather_sim.regions.weather import Weather
-from spray_particles.constants import load_constants
-from spray_particles.emitter import vehicle_emitter
-from spray_particles.fused import packet_radii
-from spray_particles.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
-from spray_particles.raycast import candidates, group_bounds, sphere_hits
-from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem, SprayTunables
-from spray_particles.water import tyre_dimensions, water_film_mm
+from spray_particles.model.constants import load_constants
+from spray_particles.model.emitter import vehicle_emitter
+from spray_particles.kernels.fused import packet_radii
+from spray_particles.sensing.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
+from spray_particles.sensing.raycast import candidates, group_bounds, sphere_hits
+from spray_particles.model.system import EmittingVehicle, SprayParams, SpraySystem, SprayTunables
+from spray_particles.model.water import tyre_dimensions, water_film_mm
 
 
 class SprayRegion:
@@ -128,7 +128,7 @@ class SprayRegion:
 
     def particle_cloud(self, time_s: float) -> np.ndarray:
         """The particles of the in-process system at ``time_s`` as spray_node publishes them
-        (:data:`~spray_particles.particle_cloud.PARTICLE_DTYPE`, world frame)."""
+        (:data:`~spray_particles.sensing.particle_cloud.PARTICLE_DTYPE`, world frame)."""
         p = self.system.particles
         centres = self.system.positions_at(time_s)
         radii, vertical = self.radii(time_s, centres)

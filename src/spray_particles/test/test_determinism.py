@@ -1,18 +1,18 @@
 """The fast paths of the particle system give bit for bit what the stage-by-stage numpy code gave.
 
-Same seed, same particles: the fused numba tick (spray_particles.fused) against the numpy
+Same seed, same particles: the fused numba tick (spray_particles.kernels.fused) against the numpy
 stages kept for big particle sets, the emitter kernel against eq. 7-10 in numpy, the
 per-tick generators against ``np.random.default_rng``.
 """
 
 import numpy as np
 
-from spray_particles import system as system_module
-from spray_particles.constants import load_constants
-from spray_particles.emitter import ring_emission, vehicle_emitter
-from spray_particles.seeds import TickGenerators
-from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
-from spray_particles.water import tyre_dimensions
+from spray_particles.model import system as system_module
+from spray_particles.model.constants import load_constants
+from spray_particles.model.emitter import ring_emission, vehicle_emitter
+from spray_particles.model.seeds import TickGenerators
+from spray_particles.model.system import EmittingVehicle, SprayParams, SpraySystem
+from spray_particles.model.water import tyre_dimensions
 
 C = load_constants()
 

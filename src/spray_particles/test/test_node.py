@@ -5,7 +5,7 @@ import sys
 import numpy as np
 import pytest
 
-from spray_particles.particle_cloud import PARTICLE_DTYPE, TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
+from spray_particles.sensing.particle_cloud import PARTICLE_DTYPE, TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.ros.node import marker_array
 
 

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from spray_particles import calibration
-from spray_particles.constants import load_constants
-from spray_particles.emitter import ring_emission, vehicle_emitter
-from spray_particles.forces import CurlNoise, drag_rates, thesis_drag_constant, thesis_wind_constant
-from spray_particles.integrator import analytic_fall, integrate
-from spray_particles.system import EmittingVehicle, SprayParams, SpraySystem
-from spray_particles.water import (
+from spray_particles.model import calibration
+from spray_particles.model.constants import load_constants
+from spray_particles.model.emitter import ring_emission, vehicle_emitter
+from spray_particles.model.forces import CurlNoise, drag_rates, thesis_drag_constant, thesis_wind_constant
+from spray_particles.model.integrator import analytic_fall, integrate
+from spray_particles.model.system import EmittingVehicle, SprayParams, SpraySystem
+from spray_particles.model.water import (
     drop_mass_kg,
     mean_drop_diameter_m,
     tread_pickup_m3_s,
@@ -291,7 +291,7 @@ def test_particles_die_on_the_ground_the_body_and_at_their_lifetime():
 
 
 def test_ball_share_above_the_ground_is_the_spherical_cap_volume():
-    from spray_particles.system import ball_share_above
+    from spray_particles.model.system import ball_share_above
 
     r = np.array([1.0, 1.0, 1.0, 1.0, 0.5])
     share = ball_share_above(np.array([2.0, 0.0, -2.0, 0.5, 0.25]), r)
@@ -310,7 +310,7 @@ def test_drop_packets_deposit_what_reaches_the_ground_and_lose_it_for_good():
 def test_drop_packets_are_flattened_only_near_the_ground():
     """In free flight a packet spreads alike in every direction; near the ground its height is capped at the
     settling layer K / w_s, or at its centre's height where that is more."""
-    from spray_particles.system import _packet_axes
+    from spray_particles.model.system import _packet_axes
 
     g, r0, k = 9.81, 0.05, 0.2  # K = 0.2 m^2/s at 0.5 s: horizontal sqrt(r0^2 + 2 K t) = 0.45 m
     kappa = g / 2.0**2  # settling at w_s = 2 m/s (no Stokes drag): K / w_s = 0.1 m

@@ -5,12 +5,12 @@ import pytest
 
 from lidar_weather_sim.sensor.scan import ScanPattern
 from lidar_weather_sim.testing.fixtures import simple_profile
-from spray_particles.constants import load_constants
-from spray_particles.emitter import vehicle_emitter
-from spray_particles.metrics import bev_histogram, compare_histograms, per_frame_overlap
-from spray_particles.reference import DropletReference, blob_share, detect_frame
-from spray_particles.system import EmittingVehicle, Particles, SprayParams
-from spray_particles.water import mean_drop_diameter_m, tread_pickup_m3_s, tyre_dimensions
+from spray_particles.model.constants import load_constants
+from spray_particles.model.emitter import vehicle_emitter
+from spray_particles.validation.metrics import bev_histogram, compare_histograms, per_frame_overlap
+from spray_particles.validation.reference import DropletReference, blob_share, detect_frame
+from spray_particles.model.system import EmittingVehicle, Particles, SprayParams
+from spray_particles.model.water import mean_drop_diameter_m, tread_pickup_m3_s, tyre_dimensions
 
 C = load_constants()
 

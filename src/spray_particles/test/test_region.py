@@ -11,10 +11,10 @@ from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
-from spray_particles.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
-from spray_particles.raycast import sphere_hits
+from spray_particles.sensing.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
+from spray_particles.sensing.raycast import sphere_hits
 from spray_particles.region import SprayRegion
-from spray_particles.system import Particles
+from spray_particles.model.system import Particles
 
 
 def test_spray_is_registered_by_entry_point():
@@ -50,7 +50,7 @@ def test_sphere_hits_equal_brute_force_for_cm_spheres_at_50_m_including_the_azim
 def test_sphere_hits_of_a_batch_in_a_slice_of_the_circle_are_every_pair_in_azimuth_order(slice_rad):
     """A batch of columns spans a slice (OS1-128's 10 ms: 0.6 rad): its rays' cell table covers that slice. Every
     (ray, sphere) pair the brute force finds, and each sphere's hits in the order of equal azimuth bins, then ray."""
-    from spray_particles.raycast import AZIMUTH_BINS
+    from spray_particles.sensing.raycast import AZIMUTH_BINS
 
     rng = np.random.default_rng(7)
     n_rays = 20000

@@ -16,21 +16,21 @@ published step advances the system to its stamp and publishes, stamped with it. 
 vehicle whose frame is not known yet throws nothing; a stamp more than 1 s older than
 the last one (a looped bag) starts the particles afresh.
 
-- ``/spray/particles`` sensor_msgs/PointCloud2 (fields in spray_particles.particle_cloud: centre,
+- ``/spray/particles`` sensor_msgs/PointCloud2 (fields in spray_particles.sensing.particle_cloud: centre,
   semi-axes, population, drop cross-section, emitting actor id), which the ``spray`` region of
   ``lidar_sim_node`` reads with ``source: topic``;
 - ``/spray/markers`` visualization_msgs/MarkerArray, one SPHERE_LIST per population.
 
 Parameters: ``scenario`` (string), ``rate_hz`` (double), ``frame_id`` (string, the fixed
 frame), ``actors_from_tf`` (bool), ``max_steps`` (int, 0 = forever). :func:`marker_array`
-and :func:`spray_particles.particle_cloud.particle_cloud` need no running node.
+and :func:`spray_particles.sensing.particle_cloud.particle_cloud` need no running node.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from spray_particles.particle_cloud import TOPIC_PARTICLES
+from spray_particles.sensing.particle_cloud import TOPIC_PARTICLES
 
 TOPIC_MARKERS = "/spray/markers"
 #: Simulated seconds a throwaway copy of the region is stepped at start-up, before the node publishes:

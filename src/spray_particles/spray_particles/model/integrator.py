@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spray_particles.forces import acceleration
+from spray_particles.model.forces import acceleration
 
 
 def rk4_step(pos, vel, air, kappa, lam, gravity: float, dt: float):
@@ -53,7 +53,7 @@ def exponential_step(pos, vel, air, kappa, lam, gravity: float, dt: float):
 def step(pos, vel, air, kappa, lam, gravity: float, dt: float, stiff_limit: float = 0.5):
     """One step of every particle: RK4 where the drag rate r = kappa |v - u| + lambda (1/s) has
     r dt <= ``stiff_limit``, :func:`exponential_step` elsewhere (numba kernel; returns new arrays)."""
-    from spray_particles.kernels import integrate_inplace
+    from spray_particles.kernels.stages import integrate_inplace
 
     pos = np.array(pos, dtype=np.float64, order="C")
     vel = np.array(vel, dtype=np.float64, order="C")

@@ -1,7 +1,7 @@
 """Fits of the constants in ``config/spray.yaml`` to the thesis' tables (paper 3).
 
 Each function takes the ``spray`` block of ``thesis_tables.yaml`` (and physical constants) and
-returns the constant the config file holds; ``test_calibration.py`` re-runs them.
+returns the constant the config file holds; ``test_physics.py`` re-runs them.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ from functools import cached_property
 
 import numpy as np
 
-from spray_particles.fused import ring_body
+from spray_particles.kernels.fused import ring_body
 
 
 def ring_emission(i, n_vertices: int, speed_m_s: float, radius_m: float, dt_s: float):

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spray_particles.constants import SprayConstants
-from spray_particles.water import mean_drop_diameter_m, tread_pickup_m3_s
+from spray_particles.model.constants import SprayConstants
+from spray_particles.model.water import mean_drop_diameter_m, tread_pickup_m3_s
 
 
 def airborne_water_m3(c: SprayConstants, film_mm: float, speed_m_s: float, dt_s: float) -> float:

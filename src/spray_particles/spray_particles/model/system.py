@@ -10,20 +10,20 @@ with (seed, tick index): same seed, same particles.
 Two populations (``population``): 0 = inertial particles (4 mm, thesis Table
 II-IV), each standing for a concentration of drops that causes one detection
 (render sphere ``mesh_diameter_m``); 1 = drop packets: each carries an equal share
-of the wheel's airborne water (spray_particles.drops) in ``weight`` drops of one
+of the wheel's airborne water (spray_particles.model.drops) in ``weight`` drops of one
 size drawn from the drop-size distribution, with that size's drag, so the small
 ones follow the air and linger (the low-Stokes population the thesis names as
 missing); a packet spreads by turbulent mixing (``diffusivity``, config/spray.yaml
 ``mist``), loses the drops that reach the ground (``airborne``) and is seen by its
 optical depth (:meth:`SpraySystem.mist_radii`, the ``spray`` region).
 
-A tick of fewer than ``kernels.PARALLEL_FROM`` particles runs in two numba calls
-(spray_particles.fused) with the emission drawn first into the survivors' free rows;
+A tick of fewer than ``kernels.stages.PARALLEL_FROM`` particles runs in two numba calls
+(spray_particles.kernels.fused) with the emission drawn first into the survivors' free rows;
 bigger sets (the droplet reference) go stage by stage through the parallel kernels.
 Both give the same particles bit for bit (test_determinism.py).
 
 Why one module of ~500 lines: the particle system's state (the arrays of one population) and the
-stages that advance it are one thing; the stages' kernels already live in fused.py and kernels.
+stages that advance it are one thing; the stages' kernels live in kernels/fused.py and kernels/stages.py.
 """
 
 from __future__ import annotations
@@ -35,14 +35,16 @@ import numpy as np
 from pydantic import Field
 
 from lidar_weather_sim.core.config import ConfigModel
-from spray_particles import fused
-from spray_particles.constants import SprayConstants, load_constants
-from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
-from spray_particles.emitter import WheelEmitter
-from spray_particles.forces import CurlNoise, drag_rates, lateral_wind_speed
-from spray_particles.integrator import step as integrate_step
-from spray_particles.kernels import PARALLEL_FROM
-from spray_particles.seeds import TickGenerators
+from spray_particles.kernels import fused
+from spray_particles.model.constants import SprayConstants, load_constants
+from spray_particles.model.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
+from spray_particles.model.emitter import WheelEmitter
+from spray_particles.model.forces import CurlNoise, drag_rates, lateral_wind_speed
+from spray_particles.model.integrator import step as integrate_step
+from spray_particles.kernels.inputs import (AirModel, CurlModes, ParticleArrays, TickConstants, VehicleBodies,
+                                             VehicleState)  # fmt: skip
+from spray_particles.kernels.stages import PARALLEL_FROM
+from spray_particles.model.seeds import TickGenerators
 
 #: A mist packet with less than this share of its drops still airborne is dropped.
 MIN_MIST_SHARE = 0.01
@@ -150,22 +152,7 @@ class SpraySystem:
         self._pose_cache: dict[int, dict] = {}
         self._target_tick = 0
         self._state_cache: tuple[int, tuple] | None = None  # (tick, its _vehicle_state): the next tick's s0
-        vs = self.vehicles
-        nv, wmax = len(vs), max([v.emitter.n_wheels for v in vs] or [1])
-        self._length = np.array([v.length_m for v in vs], dtype=np.float64)
-        self._width = np.array([v.width_m for v in vs], dtype=np.float64)
-        self._height = np.array([v.height_m for v in vs], dtype=np.float64)
-        self._clearance = np.array([v.ground_clearance_m for v in vs], dtype=np.float64)
-        self._wheel_xz = np.zeros((nv, wmax, 2))
-        self._wheel_y = np.zeros((nv, wmax))
-        self._n_wheels = np.array([v.emitter.n_wheels for v in vs], dtype=np.int64)
-        for k, v in enumerate(vs):
-            self._wheel_xz[k, : v.emitter.n_wheels, 0] = v.emitter.wheel_xy[:, 0]
-            self._wheel_xz[k, : v.emitter.n_wheels, 1] = v.emitter.radius_m
-            self._wheel_y[k, : v.emitter.n_wheels] = v.emitter.wheel_xy[:, 1]
-        #: wheel arch: a cylinder 5 cm larger than the tyre, 5 cm wider on each side (m)
-        self._arch_r = np.array([v.emitter.radius_m + 0.05 for v in vs], dtype=np.float64)
-        self._arch_half_w = np.array([0.5 * v.emitter.width_m + 0.05 for v in vs], dtype=np.float64)
+        self._bodies = _vehicle_bodies(self.vehicles)
         self._ambient = np.asarray(self.params.ambient_wind_m_s, dtype=np.float64)
         self._generators = TickGenerators(2)  # the tick's and a population's draws
 
@@ -220,20 +207,26 @@ class SpraySystem:
     def air_velocity(self, p: Particles, t: float, rot, org, vel) -> np.ndarray:
         """Air velocity (n, 3) m/s, world frame, at the particles (numba kernel of
         :meth:`air_velocity_reference`)."""
-        from spray_particles.kernels import air_velocity
+        from spray_particles.kernels.stages import air_velocity
 
-        prm = self.params
         if not len(p) or not self.vehicles:
-            return np.broadcast_to(np.asarray(prm.ambient_wind_m_s, dtype=np.float64), (len(p), 3)).copy()
-        lat = self.constants.lateral_wind
+            return np.broadcast_to(self._ambient, (len(p), 3)).copy()
+        return air_velocity(p.pos, p.vehicle, p.side, VehicleState(rot, org, vel), self._bodies, self._air_model(vel),
+                            self._curl_modes(), float(t))  # fmt: skip
+
+    def _air_model(self, vel) -> AirModel:
+        """The air kernels' parameters with the vehicles at world velocity ``vel`` (V, 3) m/s."""
+        prm, lat = self.params, self.constants.lateral_wind
         v_lat = prm.lateral_wind_scale * lateral_wind_speed(np.linalg.norm(vel, axis=1), lat.slope,
                                                             lat.threshold_speed_m_s)  # fmt: skip
         lo, hi = self.constants.particles.lateral_field_range_m
+        return AirModel(np.asarray(v_lat, dtype=np.float64), self._ambient, float(prm.wind_over_speed),
+                        float(prm.wake_length_m), float(lo), float(hi), float(prm.turbulence_intensity))  # fmt: skip
+
+    def _curl_modes(self) -> CurlModes:
+        """The curl noise's modes as the kernels take them."""
         nz = self.noise
-        return air_velocity(p.pos, p.vehicle, p.side, rot, org, vel, self._length, self._width, self._height,
-                            np.asarray(v_lat, dtype=np.float64), np.asarray(prm.ambient_wind_m_s, dtype=np.float64),
-                            float(prm.wind_over_speed), float(prm.wake_length_m), float(lo), float(hi),
-                            float(prm.turbulence_intensity), nz.k, nz.omega, nz.phase, nz.curl, float(t))  # fmt: skip
+        return CurlModes(nz.k, nz.omega, nz.phase, nz.curl)
 
     def air_velocity_reference(self, p: Particles, t: float, rot, org, vel) -> np.ndarray:
         """Air velocity (n, 3) m/s, world frame, at the particles: ambient wind + wake of the particle's
@@ -350,24 +343,15 @@ class SpraySystem:
     def _fused_step(self, p: "Particles", t: float, s0, s1, extra: int) -> "Particles":
         """The update of :meth:`_tick` (air at ``t`` with the vehicle state ``s0``, one step, ageing,
         deposition and death with the state ``s1`` of the next tick) in two numba calls
-        (spray_particles.fused); the survivors come back with ``extra`` empty rows at the end."""
+        (spray_particles.kernels.fused); the survivors come back with ``extra`` empty rows at the end."""
         prm, c = self.params, self.constants
-        rot, org, vel = s0[:3]
-        lat = c.lateral_wind
-        v_lat = prm.lateral_wind_scale * lateral_wind_speed(np.linalg.norm(vel, axis=1), lat.slope,
-                                                            lat.threshold_speed_m_s)  # fmt: skip
-        lo, hi = c.particles.lateral_field_range_m
-        nz, g = self.noise, c.physics.gravity_m_s2
-        pos, vel_p, age, above, vertical = fused.move(
-            p.pos, p.vel, p.age, p.kappa, p.lam, p.diffusivity, p.vehicle, p.side, rot, org, vel, s1[0], s1[1],
-            self._length, self._width, self._height, np.asarray(v_lat, dtype=np.float64), self._ambient, float(prm.wind_over_speed),
-            float(prm.wake_length_m), float(lo), float(hi), float(prm.turbulence_intensity), nz.k, nz.omega, nz.phase,
-            nz.curl, float(t), float(g), float(prm.tick_s), 0.5, float(c.mist.initial_radius_m))  # fmt: skip
-        arrays = fused.survive(
-            pos, vel_p, age, p.lifetime, p.kappa, p.lam, p.vehicle, p.side, p.population, p.wheel, p.diameter, p.weight,
-            p.diffusivity, p.airborne, above, vertical, vertical**3, s1[0], s1[1], self._length, self._width, self._height,
-            self._clearance, self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w,
-            MIN_MIST_SHARE, extra)  # fmt: skip
+        now, later = VehicleState(*s0[:3]), VehicleState(*s1[:3])
+        tick = TickConstants(float(c.physics.gravity_m_s2), float(prm.tick_s), 0.5, float(c.mist.initial_radius_m))
+        arrays = ParticleArrays(*(getattr(p, f) for f in Particles.__dataclass_fields__))
+        pos, vel, age, above, vertical = fused.move(arrays, now, later, self._bodies, self._air_model(now.vel),
+                                                    self._curl_modes(), float(t), tick)  # fmt: skip
+        moved = arrays._replace(pos=pos, vel=vel, age=age)
+        arrays = fused.survive(moved, above, vertical, vertical**3, later, self._bodies, MIN_MIST_SHARE, extra)
         return Particles(*arrays)
 
     def _deposit_mist(self, p: Particles, rot, org) -> None:
@@ -386,10 +370,9 @@ class SpraySystem:
     def _alive(self, p: Particles, rot, org) -> np.ndarray:
         """Particles still alive: younger than their lifetime, above the ground under their vehicle,
         outside its body (lower body box minus the wheel arches)."""
-        from spray_particles.kernels import collisions
+        from spray_particles.kernels.stages import collisions
 
-        dead = collisions(p.pos, p.vehicle, rot, org, self._length, self._width, self._height, self._clearance,
-                          self._wheel_xz, self._wheel_y, self._n_wheels, self._arch_r, self._arch_half_w)  # fmt: skip
+        dead = collisions(p.pos, p.vehicle, rot, org, self._bodies)
         deposited = (p.population == 1) & (p.airborne <= MIN_MIST_SHARE)
         return (p.age < p.lifetime) & ~dead & ~deposited
 
@@ -446,6 +429,28 @@ class SpraySystem:
                 blocks.append((n, block))
                 self.emitted += n
         return blocks
+
+
+def _vehicle_bodies(vehicles: list[EmittingVehicle]) -> VehicleBodies:
+    """The body boxes and wheel arches of ``vehicles`` as the kernels take them (body frame, m); a wheel
+    arch is a cylinder 5 cm larger than the tyre, 5 cm wider on each side."""
+    nv, wmax = len(vehicles), max([v.emitter.n_wheels for v in vehicles] or [1])
+    wheel_xz, wheel_y = np.zeros((nv, wmax, 2)), np.zeros((nv, wmax))
+    for k, v in enumerate(vehicles):
+        wheel_xz[k, : v.emitter.n_wheels, 0] = v.emitter.wheel_xy[:, 0]
+        wheel_xz[k, : v.emitter.n_wheels, 1] = v.emitter.radius_m
+        wheel_y[k, : v.emitter.n_wheels] = v.emitter.wheel_xy[:, 1]
+    return VehicleBodies(
+        length=np.array([v.length_m for v in vehicles], dtype=np.float64),
+        width=np.array([v.width_m for v in vehicles], dtype=np.float64),
+        height=np.array([v.height_m for v in vehicles], dtype=np.float64),
+        clearance=np.array([v.ground_clearance_m for v in vehicles], dtype=np.float64),
+        wheel_xz=wheel_xz,
+        wheel_y=wheel_y,
+        n_wheels=np.array([v.emitter.n_wheels for v in vehicles], dtype=np.int64),
+        arch_r=np.array([v.emitter.radius_m + 0.05 for v in vehicles], dtype=np.float64),
+        arch_half_w=np.array([0.5 * v.emitter.width_m + 0.05 for v in vehicles], dtype=np.float64),
+    )
 
 
 def _append(p: Particles, blocks: list[tuple[int, dict]]) -> Particles:

@@ -1,6 +1,6 @@
 """One particle tick in two numba calls, and the wheel emission geometry (serial, cached on disk).
 
-They do what :class:`spray_particles.system.SpraySystem` did stage by stage with numpy
+They do what :class:`spray_particles.model.system.SpraySystem` did stage by stage with numpy
 (air velocity, integration, ageing, drop-packet deposition, collisions, death and the
 compaction of the survivors) in the same floating-point operations, so the particles
 are bit for bit the same: only IEEE-exact operations (+ - * / sqrt min max) and libm's
@@ -15,7 +15,7 @@ import math
 import numba
 import numpy as np
 
-from spray_particles.kernels import air_velocity, collisions, integrate_inplace
+from spray_particles.kernels.stages import air_velocity, collisions, integrate_inplace
 
 _air = air_velocity.serial
 _integrate = integrate_inplace.serial
@@ -23,17 +23,19 @@ _collisions = collisions.serial
 
 
 @numba.njit(cache=True, nogil=True)
-def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, rot1, org1, length, width, height,
-         v_lat, ambient, wind_over_speed, wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t, gravity, dt,
-         stiff_limit, r0):  # fmt: skip
-    """Air at tick time ``t`` (s; vehicle state ``rot``, ``org``, ``vcar`` of that tick), one step of
-    ``dt`` and ageing; returns new (pos, vel, age), each particle's height (m) above its vehicle's
-    ground plane at the next tick (``rot1``, ``org1``) and its vertical packet semi-axis (m, see
-    ``system._packet_axes``) at its new age and height. The inputs are not modified."""
-    air = _air(pos, vehicle, side, rot, org, vcar, length, width, height, v_lat, ambient, wind_over_speed,
-               wake_length, lat_lo, lat_hi, turb, nk, nomega, nphase, ncurl, t)  # fmt: skip
+def move(p, now, later, bodies, air, modes, t, tick):
+    """Air at tick time ``t`` (s; vehicles ``now``, a :class:`~.inputs.VehicleState`), one step of
+    ``tick.dt`` and ageing of the particles ``p`` (:class:`~.inputs.ParticleArrays`); returns new
+    (pos, vel, age), each particle's height (m) above its vehicle's ground plane at the next tick
+    (vehicles ``later``) and its vertical packet semi-axis (m, see ``model.system._packet_axes``) at its
+    new age and height. ``bodies``, ``air``, ``modes``: see :func:`.stages.air_velocity`; ``tick``: a
+    :class:`~.inputs.TickConstants`. The inputs are not modified."""
+    pos, vel, age, kappa, lam, diffusivity, vehicle = p.pos, p.vel, p.age, p.kappa, p.lam, p.diffusivity, p.vehicle
+    gravity, dt, r0 = tick.gravity, tick.dt, tick.r0
+    rot1, org1 = later.rot, later.org
+    air_u = _air(pos, vehicle, p.side, now, bodies, air, modes, t)
     new_pos, new_vel = pos.copy(), vel.copy()
-    _integrate(new_pos, new_vel, air, kappa, lam, gravity, dt, stiff_limit)
+    _integrate(new_pos, new_vel, air_u, kappa, lam, gravity, dt, tick.stiff_limit)
     n = pos.shape[0]
     new_age = np.empty(n)
     above, vertical = np.empty(n), np.empty(n)
@@ -49,17 +51,17 @@ def move(pos, vel, age, kappa, lam, diffusivity, vehicle, side, rot, org, vcar, 
 
 
 @numba.njit(cache=True, nogil=True)
-def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, wheel, diameter, weight, diffusivity,
-            airborne, above, vertical, vertical_cubed, rot, org, length, width, height, clearance, wheel_xz, wheel_y,
-            n_wheels, arch_r, arch_half_w, min_share, extra):  # fmt: skip
+def survive(p, above, vertical, vertical_cubed, later, bodies, min_share, extra):
     """Deposition of drop packets (population 1: ``airborne`` = min(airborne, share of the ball of
-    radius ``vertical`` centred ``above`` m above the vehicle's ground plane)), then the survivors (younger than their
-    lifetime, outside body and ground, packets above ``min_share``) compacted into new arrays with
+    radius ``vertical`` centred ``above`` m above the vehicle's ground plane)), then the survivors of ``p``
+    (:class:`~.inputs.ParticleArrays`, moved: younger than their lifetime, outside body and ground of the
+    vehicles ``later`` with their ``bodies``, packets above ``min_share``) compacted into new arrays with
     ``extra`` free rows at the end (for the particles emitted this tick), in the field order of
-    ``system.Particles``."""
+    ``model.system.Particles``."""
+    (pos, vel, age, lifetime, kappa, lam, vehicle, side, population, wheel, diameter, weight, diffusivity,
+     airborne) = p  # fmt: skip
     n = pos.shape[0]
-    dead = _collisions(pos, vehicle, rot, org, length, width, height, clearance, wheel_xz, wheel_y, n_wheels,
-                       arch_r, arch_half_w)  # fmt: skip
+    dead = _collisions(pos, vehicle, later.rot, later.org, bodies)
     share = airborne.copy()
     keep = np.empty(n, np.bool_)
     m = 0
@@ -92,7 +94,7 @@ def survive(pos, vel, age, lifetime, kappa, lam, vehicle, side, population, whee
 def ring_body(draws, counts, wheel_xy, tread_offsets, n_vertices, treads, speed, radius, dt):
     """Body-frame positions (n, 3) m, velocities (n, 3) m/s, side (n,) and wheel (n,) of ``counts[w]``
     particles per wheel w from the uniforms ``draws`` (max count, W, 2): vertex and tread of eq. 7-10
-    (see ``emitter.ring_emission``, thesis x mapped to body -x), particle-major like ``WheelEmitter.emit``."""
+    (see ``model.emitter.ring_emission``, thesis x mapped to body -x), particle-major like ``WheelEmitter.emit``."""
     n = 0
     for w in range(counts.shape[0]):
         n += counts[w]
@@ -144,7 +146,7 @@ def quantiles(pmf, u):
 @numba.njit(cache=True, nogil=True)
 def packet_radii(age, later, diffusivity, kappa, lam, population, above, r0, gravity, sphere_radius):
     """Horizontal and vertical semi-axes (m) of every particle ``later`` s after its ``age``, ``above`` m
-    above its vehicle's ground plane: those of ``system._packet_axes`` for drop packets (population 1),
+    above its vehicle's ground plane: those of ``model.system._packet_axes`` for drop packets (population 1),
     ``sphere_radius`` for the others."""
     n = age.shape[0]
     horizontal, vertical = np.empty(n), np.empty(n)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -28,6 +29,52 @@ class SphereHits:
     range_m: np.ndarray  # (H,) distance from the ray origin to the entry point (m)
     cos_incidence: np.ndarray  # (H,) cosine between the ray and the sphere normal at entry (spheres)
     half_chord_m: np.ndarray  # (H,) half the length of the ray inside the sphere or ellipsoid (m)
+
+
+class Rays(NamedTuple):
+    """A batch of rays (world frame)."""
+
+    origins: np.ndarray  # (R, 3) m
+    directions: np.ndarray  # (R, 3) unit
+    max_range: np.ndarray  # (R,) m, a hit must enter before it
+
+
+class RayTable(NamedTuple):
+    """The rays counting-sorted into cells of ``n_az`` pseudo-angle bins x ``n_z`` z bins (:func:`_bin_rays`),
+    over the azimuth bins ``first_bin .. first_bin + bins - 1`` they occupy; cell ``(b - first_bin) * n_z + z``."""
+
+    order: np.ndarray  # (R,) ray indices in cell order
+    cell_start: np.ndarray  # (bins * n_z + 1,) first position of each cell in ``order``
+    z_sorted: np.ndarray  # (R,) the rays' z (the sine of their elevation) in that order
+    first_bin: int
+    bins: int
+    n_az: int
+    n_z: int
+
+
+class NearSpheres(NamedTuple):
+    """The spheres that can lie within reach of the rays (:func:`_near_spheres`), seen from the rays' mean
+    origin."""
+
+    idx: np.ndarray  # (m,) index into all spheres
+    near: np.ndarray  # (m,) m, centre distance beyond the origins' spread
+    radius: np.ndarray  # (m,) m
+    span: np.ndarray  # (m,) rad, angular radius seen from the origins
+    azimuth: np.ndarray  # (m,) rad, of the centre
+    elevation: np.ndarray  # (m,) rad, of the centre
+
+
+class Windows(NamedTuple):
+    """The azimuth windows of the near spheres in the rays' table (:func:`_cast`): one row per window
+    (a window crossing +-pi is two rows) and each near sphere's z span."""
+
+    sphere: np.ndarray  # (rows,) index into the near spheres
+    b_first: np.ndarray  # (rows,) first azimuth bin of the table (from first_bin on)
+    b_last: np.ndarray  # (rows,) last azimuth bin
+    zb_first: np.ndarray  # (m,) first z bin
+    zb_last: np.ndarray  # (m,) last z bin
+    z_lo: np.ndarray  # (m,) lowest sine of elevation
+    z_hi: np.ndarray  # (m,) highest sine of elevation
 
 
 def _empty() -> SphereHits:
@@ -55,13 +102,10 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     if not len(idx):
         return _empty()
     # numpy's own arcsin / arctan2 (the kernels use only IEEE-exact operations and libm's cos)
-    span_arcsin = np.arcsin(span_sine)
-    az_p = np.arctan2(q[:, 1], q[:, 0])
-    el_p = np.arcsin(el_sine)
-    order, cell_start, z_sorted, first_bin, bins = _bin_rays(directions, AZIMUTH_BINS, Z_BINS)
-    row, ray, sphere, entry, cos_incidence, half_chord = _cast(
-        idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin, bins, z_sorted, centres, z_scale,
-        origins, directions, max_range)  # fmt: skip
+    spheres = NearSpheres(idx, near, rad, np.arcsin(span_sine), np.arctan2(q[:, 1], q[:, 0]), np.arcsin(el_sine))
+    table = _bin_rays(directions, AZIMUTH_BINS, Z_BINS)
+    rays = Rays(origins, directions, max_range)
+    row, ray, sphere, entry, cos_incidence, half_chord = _cast(spheres, table, centres, z_scale, rays)
     if not len(ray):
         return _empty()
     keep = _in_azimuth_order(row, ray, directions, AZIMUTH_BINS)
@@ -114,10 +158,10 @@ def _z_bin(z, n_z):
 @numba.njit(cache=True, nogil=True)
 def _bin_rays(directions, n_az, n_z):
     """Counting sort of the rays by cell (pseudo-angle bin x z bin, row-major) over the azimuth bins they
-    occupy, ``first``..``first + span - 1``: ray order (R,), the first position of each cell in it
-    (span * n_z + 1,; cell ``(b - first) * n_z + z``), the rays' z (the sine of their elevation) in that
-    order, ``first`` and ``span``. A batch of columns spans a slice of the circle (OS1-128's 10 ms: 36 deg), so
-    its table is that slice's, not the circle's 262 144 cells."""
+    occupy, ``first``..``first + span - 1``: a :class:`RayTable` of the ray order (R,), the first position of
+    each cell in it (span * n_z + 1,; cell ``(b - first) * n_z + z``), the rays' z (the sine of their
+    elevation) in that order, ``first``, ``span``, ``n_az`` and ``n_z``. A batch of columns spans a slice of
+    the circle (OS1-128's 10 ms: 36 deg), so its table is that slice's, not the circle's 262 144 cells."""
     n = directions.shape[0]
     ray_bin = np.empty(n, np.int64)
     first, last = n_az, -1
@@ -143,7 +187,7 @@ def _bin_rays(directions, n_az, n_z):
         order[k] = i
         z_sorted[k] = directions[i, 2]
         fill[ray_cell[i]] += 1
-    return order, start, z_sorted, first, span
+    return RayTable(order, start, z_sorted, first, span, n_az, n_z)
 
 
 #: Longest row sorted by insertion (a sphere's hits are a few hundred; one around the sensor takes every ray, whose
@@ -222,12 +266,15 @@ def _azimuth_bin(azimuth, n_bins):
 
 
 @numba.njit(cache=True, nogil=True)
-def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin, bins, z_sorted, centres, z_scale,
-          origins, directions, max_range):  # fmt: skip
-    """Azimuth windows of the near spheres (their angular radius ``span`` widened by 1e-4 and 1e-9 rad,
-    over cos(elevation); windows crossing +-pi split into two rows, listed after all first rows; a
-    sphere around the origins gets the full circle once), then the narrow phase over each window's
-    rays (see :func:`_narrow_phase`). Returns (window row, ray, sphere, entry range, cos incidence, half chord)."""
+def _cast(spheres, table, centres, z_scale, rays):
+    """Azimuth windows of the near ``spheres`` (:class:`NearSpheres`; their angular radius ``span`` widened by
+    1e-4 and 1e-9 rad, over cos(elevation); windows crossing +-pi split into two rows, listed after all first
+    rows; a sphere around the origins gets the full circle once) in the ray ``table`` (:class:`RayTable`), then
+    the narrow phase over each window's ``rays`` (:class:`Rays`; see :func:`_narrow_phase`). Returns (window row,
+    ray, sphere, entry range, cos incidence, half chord)."""
+    idx, near, rad, span_arcsin, az_p, el_p = (spheres.idx, spheres.near, spheres.radius, spheres.span,
+                                               spheres.azimuth, spheres.elevation)  # fmt: skip
+    cell_start, first_bin, bins = table.cell_start, table.first_bin, table.bins
     m = idx.shape[0]
     span = np.empty(m)
     lo_a, hi_a = np.empty(m), np.empty(m)
@@ -254,8 +301,8 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin,
         if hi_a[j] > np.pi:
             rp[r], rlo[r], rhi[r] = j, -np.pi, hi_a[j] - 2 * np.pi
             r += 1
-    n_az = AZIMUTH_BINS
-    n_z = Z_BINS
+    n_az = table.n_az
+    n_z = table.n_z
     b_first, b_last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
     z_lo, z_hi = np.empty(m), np.empty(m)
     zb_first, zb_last = np.empty(m, np.int64), np.empty(m, np.int64)
@@ -275,8 +322,8 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin,
         for b in range(b_first[r], b_last[r] + 1):  # a ray is a candidate of a row at most once: room for every hit
             room += cell_start[b * n_z + zb_last[p] + 1] - cell_start[b * n_z + zb_first[p]]
     out = (np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room), np.empty(room))
-    n = _narrow_phase(b_first, b_last, zb_first, zb_last, n_z, cell_start, rp, order, z_sorted, z_lo, z_hi, idx,
-                      centres, rad, z_scale, origins, directions, max_range, out)  # fmt: skip
+    n = _narrow_phase(Windows(rp, b_first, b_last, zb_first, zb_last, z_lo, z_hi), table, spheres, centres, z_scale,
+                      rays, out)  # fmt: skip
     row, ray, entry, half_chord = out[0][:n], out[1][:n], out[2][:n], out[3][:n]
     sphere, cos_incidence = np.empty(n, np.int64), np.empty(n)
     for h in range(n):
@@ -286,14 +333,18 @@ def _cast(idx, near, rad, span_arcsin, az_p, el_p, order, cell_start, first_bin,
 
 
 @numba.njit(cache=True, inline="always")
-def _narrow_phase(b_first, b_last, zb_first, zb_last, n_z, cell_start, rp, order, z_sorted, z_lo, z_hi, idx, centres,
-                  radius, z_scale, origins, directions, max_range, out):  # fmt: skip
-    """For each window row (sphere ``idx[rp[j]]``'s azimuth bins ``b_first[j]..b_last[j]`` of the rays' table and
-    its z bins, over the rays sorted into cells, ``order``, whose z are ``z_sorted``): the rays within its z span
-    ``z_lo..z_hi`` that pass through it (z stretched by ``z_scale`` = radius / vertical semi-axis, so
-    ellipsoids become spheres; rays are solved along their own unit length) with the entry in
-    (0, max_range); a ray that starts inside enters at 0 with the chord from its origin to the exit.
-    Fills ``out`` = (row, ray, entry range, half chord) and returns the count."""
+def _narrow_phase(windows, table, spheres, centres, z_scale, rays, out):
+    """For each window row (:class:`Windows`; sphere ``idx[rp[j]]``'s azimuth bins ``b_first[j]..b_last[j]`` of
+    the rays' ``table`` and its z bins, over the rays sorted into cells, ``order``, whose z are ``z_sorted``):
+    the ``rays`` within its z span ``z_lo..z_hi`` that pass through it (z stretched by ``z_scale`` = radius /
+    vertical semi-axis, so ellipsoids become spheres; rays are solved along their own unit length) with the
+    entry in (0, max_range); a ray that starts inside enters at 0 with the chord from its origin to the exit.
+    ``spheres``: :class:`NearSpheres`, ``centres`` (P, 3) m of all spheres. Fills ``out`` = (row, ray, entry
+    range, half chord) and returns the count."""
+    rp, b_first, b_last, zb_first, zb_last, z_lo, z_hi = windows
+    n_z, cell_start, order, z_sorted = table.n_z, table.cell_start, table.order, table.z_sorted
+    idx, radius = spheres.idx, spheres.radius
+    origins, directions, max_range = rays
     n = 0
     for j in range(len(b_first)):
         p = rp[j]

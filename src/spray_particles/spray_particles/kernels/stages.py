@@ -1,7 +1,7 @@
 """numba kernels of one particle tick: air velocity, integration, collisions (fused, parallel).
 
-They implement exactly the numpy reference of :mod:`spray_particles.forces`,
-:mod:`spray_particles.integrator` and :class:`spray_particles.system.SpraySystem`
+They implement exactly the numpy reference of :mod:`spray_particles.model.forces`,
+:mod:`spray_particles.model.integrator` and :class:`spray_particles.model.system.SpraySystem`
 (tests compare them); units and frames as there (world frame, m, s).
 """
 
@@ -82,9 +82,15 @@ def integrate_inplace(pos, vel, air, kappa, lam, g, dt, stiff_limit):
                 pos[i, k], vel[i, k] = p[k], v[k]
 
 
-def air_velocity(pos, vehicle, side, rot, org, vcar, length, width, height, v_lat, ambient, wind_over_speed,
-                 wake_length, lat_lo, lat_hi, turb_intensity, nk, nomega, nphase, ncurl, t):  # fmt: skip
-    """Air velocity (n, 3) at the particles (see SpraySystem.air_velocity)."""
+def air_velocity(pos, vehicle, side, state, bodies, air, modes, t):
+    """Air velocity (n, 3) m/s at the particles (see SpraySystem.air_velocity) at time ``t`` (s): vehicles
+    in ``state`` (:class:`~.inputs.VehicleState`), their ``bodies`` (:class:`~.inputs.VehicleBodies`),
+    ``air`` (:class:`~.inputs.AirModel`) and the curl noise's ``modes`` (:class:`~.inputs.CurlModes`)."""
+    rot, org, vcar = state.rot, state.org, state.vel
+    length, width, height = bodies.length, bodies.width, bodies.height
+    v_lat, ambient, wind_over_speed, wake_length = air.v_lat, air.ambient, air.wind_over_speed, air.wake_length
+    lat_lo, lat_hi, turb_intensity = air.lateral_lo, air.lateral_hi, air.turbulence
+    nk, nomega, nphase, ncurl = modes.k, modes.omega, modes.phase, modes.curl
     n = pos.shape[0]
     m = nk.shape[0]
     out = np.empty((n, 3))
@@ -114,10 +120,13 @@ def air_velocity(pos, vehicle, side, rot, org, vcar, length, width, height, v_la
     return out
 
 
-def collisions(pos, vehicle, rot, org, length, width, height, clearance, wheel_xz, wheel_y, n_wheels, arch_r,
-               arch_half_w):  # fmt: skip
+def collisions(pos, vehicle, rot, org, bodies):
     """True where a particle is below the ground of its vehicle's footprint plane or inside its body
-    box (ground clearance to height) but not in a wheel arch (body frame)."""
+    box (ground clearance to height) but not in a wheel arch (body frame; vehicles at ``rot``, ``org``,
+    their ``bodies`` a :class:`~.inputs.VehicleBodies`)."""
+    length, width, height, clearance = bodies.length, bodies.width, bodies.height, bodies.clearance
+    wheel_xz, wheel_y, n_wheels, arch_r, arch_half_w = (bodies.wheel_xz, bodies.wheel_y, bodies.n_wheels,
+                                                        bodies.arch_r, bodies.arch_half_w)  # fmt: skip
     n = pos.shape[0]
     dead = np.zeros(n, np.bool_)
     for i in numba.prange(n):

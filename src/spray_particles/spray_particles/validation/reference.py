@@ -3,7 +3,7 @@
 Drops
 -----
 The wheels emit drops with the same emitter (eq. 7-10) and forces as the particle
-model, but many more, each with its own diameter (spray_particles.drops: lognormal
+model, but many more, each with its own diameter (spray_particles.model.drops: lognormal
 around eq. 3's D_mean(v_c)) and drag rates (eq. 19, Stokes term). Each computational
 drop carries the same volume of water: the airborne share of eq. 2's tread pick-up
 over the tick, divided by the drops of the tick; its ``weight`` is the number of real
@@ -41,9 +41,9 @@ import numpy as np
 from scipy.special import erf
 
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, overlap_factor
-from spray_particles.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
-from spray_particles.forces import drag_rates
-from spray_particles.system import Particles, SpraySystem, drawn_film_mm
+from spray_particles.model.drops import airborne_water_m3, drops_per_volume, volume_weighted_diameters
+from spray_particles.model.forces import drag_rates
+from spray_particles.model.system import Particles, SpraySystem, drawn_film_mm
 
 
 class DropletReference(SpraySystem):
