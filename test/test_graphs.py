@@ -239,7 +239,9 @@ def test_up_fails_when_a_node_fails(processes, cli, tmp_path):
     up = processes.start(*cli, "up", "sim", "scenario:=no_such_scenario", "filter:=true", "--run-dir", str(tmp_path / "run"))
     assert up.wait(timeout=60) == 1, processes.output(up)
     out = processes.output(up)
-    assert "lidar_sim_node exited with status 2 (failure)" in out and "weather_filter_node exited with status 0" in out
+    assert "lidar_sim_node exited with status 2 (failure)" in out
+    # stopped by up: at once (0) or, still in its warm-up on a loaded machine, by the SIGTERM after the grace time
+    assert re.search(r"weather_filter_node exited with status (0|-15)\b", out), out
 
 
 
