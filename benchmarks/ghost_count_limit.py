@@ -29,7 +29,7 @@ def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
     from lidar_weather_sim.scenario.effects import Effect
     from lidar_weather_sim.gap.ghost import cover_returns as cover_count
-    from lidar_weather_sim.gap.resim import Resimulator
+    from lidar_weather_sim.replay.resimulator import Resimulator
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.scenario.schema import load_scenario
 

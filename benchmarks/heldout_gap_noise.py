@@ -6,9 +6,9 @@
 Each seed re-simulates the real OS1-128 recording's 3 scans in SCENARIO with PROFILE and no hidden effect (as
 ``sensor_effect_recovery.py`` writes its "measured" bag, seed 1000 + k), then scores the exact model against it on
 the held-out scan (budgets 2 / 1 / 1, ``gap --effects sensor``'s terms, not clipped at 0) with the search's own
-draw and with each of the confirmation's independent redraws (:data:`~lidar_weather_sim.gap.search.CONFIRM_SEED_OFFSETS`).
+draw and with each of the confirmation's independent redraws (:data:`~lidar_weather_sim.gap.evaluation.CONFIRM_SEED_OFFSETS`).
 Every value would be 0 for a noiseless statistic; their spread is what one held-out frame's gap moves by from draw
-to draw, to set against the search's absolute margin (:data:`~lidar_weather_sim.gap.search.MIN_ABS_GAIN`).
+to draw, to set against the search's absolute margin (:data:`~lidar_weather_sim.gap.evaluation.MIN_ABS_GAIN`).
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ from sensor_effect_recovery import MEASURED_SEED, resimulate
 
 def main() -> None:
     from lidar_weather_sim.core.paths import cache_dir
-    from lidar_weather_sim.gap.resim import Resimulator
-    from lidar_weather_sim.gap.search import CONFIRM_SEED_OFFSETS, MIN_ABS_GAIN, GapSearch
+    from lidar_weather_sim.gap.evaluation import CONFIRM_SEED_OFFSETS, MIN_ABS_GAIN
+    from lidar_weather_sim.gap.resim import GapResimulator
+    from lidar_weather_sim.gap.search import GapSearch
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.scenario.schema import load_scenario
 
@@ -43,7 +44,7 @@ def main() -> None:
         for k in range(1, args.seeds + 1):
             measured = Path(tmp) / f"seed{k}"
             resimulate(Path(args.recording), scenario, args.profile, [], measured, seed=MEASURED_SEED + k)
-            resim = Resimulator(Recording.load(measured), scenario, args.profile)
+            resim = GapResimulator(Recording.load(measured), scenario, args.profile)
             search = GapSearch(resim, fit_frames=2, heldout_frames=1, screen_frames=1, families=("sensor",))
             row = [search.gap([], "heldout", redraw, clip=False) for redraw in draws]
             values.append(row)
