@@ -50,7 +50,8 @@ def test_sector_masks_partition_the_points():
 
 def test_gap_search_fits_and_scores_on_the_split():
     """GapSearch with a split: its frames (thinned to the budgets), and for sectors each part's points only."""
-    from lidar_weather_sim.gap.search import GapSearch, split_frames
+    from lidar_weather_sim.gap.frames import split_frames
+    from lidar_weather_sim.gap.search import GapSearch
 
     assert split_frames(10, 30, 30, DataSplit("frames", [0, 4, 8], [2, 6])) == ([0, 4, 8], [2, 6])
     assert split_frames(10, 2, 30, DataSplit("frames", [0, 4, 8], [2, 6])) == ([0, 8], [2, 6])
@@ -71,8 +72,8 @@ def test_gap_search_fits_and_scores_on_the_split():
     search = GapSearch(FakeResim(), split=split_recording(1))
     assert search.fit_idx == [0] == search.held_idx
     assert search._measured["heldout"].detections().sum() == 180 == search._measured["fit"].detections().sum()
-    assert search.keep("heldout") is not None
-    assert GapSearch(FakeResim(), split=DataSplit("frames", [0], [0])).keep("heldout") is None  # whole frames
+    assert search.point_mask("heldout") is not None
+    assert GapSearch(FakeResim(), split=DataSplit("frames", [0], [0])).point_mask("heldout") is None  # whole frames
 
 
 def _mesh_only(**extra) -> dict:

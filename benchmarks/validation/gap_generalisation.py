@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from lidar_weather_sim.augment.weather import augment_recording
+from lidar_weather_sim.augment.command import augment_recording
 from lidar_weather_sim.references.cases import Case, draw_cases
 from lidar_weather_sim.gap.command import run_gap
 from lidar_weather_sim.scenario.effects import EFFECTS

@@ -21,8 +21,8 @@ import sys
 import numpy as np
 
 from lidar_weather_sim.scenario.effects import parse_effect
-from lidar_weather_sim.gap.resim import Resimulator, measured_signature
-from lidar_weather_sim.gap.search import split_frames
+from lidar_weather_sim.gap.frames import split_frames
+from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
 from lidar_weather_sim.gap.signatures import ZONES, gap_terms, gap_value, zone_of
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sets = {"nothing": []} | {text: [parse_effect(e) for e in text.split(",")] for text in args.effects}
         recording = Recording.load(args.bag, args.topic)
-        resim = Resimulator(recording, load_scenario(args.scenario), args.profile,
+        resim = GapResimulator(recording, load_scenario(args.scenario), args.profile,
                             atmosphere_model=args.atmosphere_model)  # fmt: skip
     except (ValueError, OSError) as exc:
         print(f"gap_terms: {exc}", file=sys.stderr)

@@ -217,7 +217,7 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     if args.with_actors and not args.on:
         raise ValueError("--with-actors puts the scenario's actors on a recording: it needs --on BAG")
     if args.on:
-        from lidar_weather_sim.augment.weather import augment_recording
+        from lidar_weather_sim.augment.command import augment_recording
 
         if args.frames is not None or args.seed is not None:
             raise ValueError("--on puts the effects on every frame of its recording, at the scenario's seed: "
@@ -245,18 +245,11 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
 
 
 def _cmd_augment(args: argparse.Namespace) -> int:
-    from lidar_weather_sim.augment.obstacles import augment_bag, check_profile, profile_for_cloud
-    from lidar_weather_sim.augment.kinds import parse_kinds
-    from lidar_weather_sim.io.recording import Recording
-    from lidar_weather_sim.sensor.profile import load_profile
+    from lidar_weather_sim.augment.command import augment_obstacles
 
-    kinds = parse_kinds(args.kinds)
-    first = Recording.load(args.bag, args.topic).frames[0].points
-    name = args.profile or profile_for_cloud(first)
-    profile = load_profile(name)
-    check_profile(first, profile, name)
-    done = augment_bag(args.bag, args.out, profile, name, topic=args.topic, objects=args.objects, size_m=args.sizes,
-                       seed=args.seed, overwrite=args.overwrite, kinds=kinds, epw_match=args.epw_match)  # fmt: skip
+    done, name, kinds = augment_obstacles(args.bag, args.out, profile=args.profile, topic=args.topic,
+                                          objects=args.objects, sizes_m=args.sizes, kinds=args.kinds,
+                                          epw_match=args.epw_match, seed=args.seed, overwrite=args.overwrite)  # fmt: skip
     if args.epw_match == "lead" and "not matched" in done.epw:
         print(f"lidar-weather-sim augment: note: {done.epw}", file=sys.stderr)
     print(f"wrote {done.frames} frames of {args.bag} with {done.boxes} obstacles ({args.objects} per frame, "
@@ -276,17 +269,11 @@ def _sizes(text: str) -> tuple[float, float]:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from lidar_weather_sim.gap.compare import build_comparison
-    from lidar_weather_sim.gap.report import write_compare
-    from lidar_weather_sim.io.recording import Recording
+    from lidar_weather_sim.gap.command import compare
     from lidar_weather_sim.scenario.schema import load_scenario
 
     scenario = load_scenario(args.scenario) if args.scenario else None
-    comparison = build_comparison(Recording.load(args.measured, args.topic), Recording.load(args.simulated, args.topic),
-                                  scenario)  # fmt: skip
-    m = write_compare(Path(args.out), comparison, args.measured, args.simulated)
+    m = compare(args.measured, args.simulated, args.out, scenario, args.topic)
     print(f"{m['frames']['paired']} frame pairs: gap {m['gap']:.4f}, bird's-eye Pearson {m['bev']['pearson']:.3f}; "
           f"wrote {args.out}/metrics.json, report.md and plots")  # fmt: skip
     return 0
@@ -295,11 +282,10 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _cmd_gap(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from lidar_weather_sim.gap.command import run_gap
-    from lidar_weather_sim.gap.split import split_beside
+    from lidar_weather_sim.gap.command import found_effects, run_gap, scenario_split
     from lidar_weather_sim.scenario.schema import load_scenario, scenario_path
 
-    split = split_beside(scenario_path(args.scenario))  # a twin's directory: fit and score on its split
+    split = scenario_split(args.scenario)  # a twin's directory: fit and score on its split
     if split is not None:
         print(f"lidar-weather-sim gap: note: using the {split.kind} split of "
               f"{scenario_path(args.scenario).parent / 'split.yaml'} (fit on calibration, score on held-out)",
@@ -314,12 +300,10 @@ def _cmd_gap(args: argparse.Namespace) -> int:
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
                          scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")),
                          split=split, atmosphere_model=args.atmosphere_model)  # fmt: skip
-    from lidar_weather_sim.gap.report import format_params
-
-    found = ", ".join(f"{e['name']} ({format_params(e['params'])})" for e in result["effects"]) or "no effect"
     bev = result.get("heldout_bev")
     pearson = f", held-out bird's-eye Pearson {bev['before']['pearson']:.3f} -> {bev['after']['pearson']:.3f}" if bev else ""
-    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found}{pearson}; wrote {args.out}/gap.json")
+    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found_effects(result)}{pearson}; "
+          f"wrote {args.out}/gap.json")  # fmt: skip
     return 0
 
 

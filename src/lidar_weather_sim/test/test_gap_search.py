@@ -6,9 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lidar_weather_sim.gap import search as search_module
+from lidar_weather_sim.gap import rounds as rounds_module
 from lidar_weather_sim.scenario.effects import parse_effect
-from lidar_weather_sim.gap.search import MIN_ABS_GAIN, MIN_GAIN, Candidate, Diagnosis, GapSearch, refined_ranks
+from lidar_weather_sim.gap.diagnosis import Candidate, Diagnosis
+from lidar_weather_sim.gap.evaluation import MIN_ABS_GAIN, MIN_GAIN
+from lidar_weather_sim.gap.rounds import refined_ranks
+from lidar_weather_sim.gap.search import GapSearch
 from lidar_weather_sim.scenario.schema import load_scenario
 
 FOG, SUN, DIRT = (parse_effect(text) for text in ("atmosphere.fog:visual_range=80", "sensor.sun:irradiance=400",
@@ -23,7 +26,7 @@ class LandscapeSearch(GapSearch):
         """``redrawn``: the held-out gaps on the confirmation's independent redraw (default: the same)."""
         self.landscape, self.min_gain, self.min_abs_gain = landscape, MIN_GAIN, MIN_ABS_GAIN
         self.on_redraws, self.families = redrawn or landscape, families
-        self.engine = None
+        self.workers = None
         self.log: list[str] = []
         self.progress = self.log.append
 
@@ -48,7 +51,7 @@ def test_an_effect_made_redundant_by_a_later_one_is_dropped():
                  _set(FOG): 0.20, _set(SUN): 0.43}  # fmt: skip
     search = LandscapeSearch(landscape)
     diag = _diagnosis([FOG, DIRT, SUN], [0.43, 0.22, 0.20])
-    assert search.prune(diag, 0.0050) == pytest.approx(0.0052)
+    assert search.prune_round(diag, 0.0050) == pytest.approx(0.0052)
     assert [e.name for e in diag.effects] == ["atmosphere.fog", "sensor.sun"]
     assert [c.effect.name for c in diag.rejected] == ["cover.dirt"] and diag.rejected[0].heldout_gap == 0.0050
     assert [g for _, g in diag.accepted] == [0.43, 0.20]  # each kept effect's gap before it is unchanged
@@ -59,7 +62,7 @@ def test_effects_that_each_earn_the_margin_all_stay():
     # the case test_gap meets on the thesis geometry: dirt 0.995 takes 0.0075 to 0.0013
     landscape = {_set(FOG, SUN, DIRT): 0.0013, _set(FOG, SUN): 0.0075, _set(FOG, DIRT): 0.21, _set(SUN, DIRT): 0.43}
     diag = _diagnosis([FOG, SUN, DIRT], [0.43, 0.21, 0.0075])
-    assert LandscapeSearch(landscape).prune(diag, 0.0013) == 0.0013
+    assert LandscapeSearch(landscape).prune_round(diag, 0.0013) == 0.0013
     assert [e.name for e in diag.effects] == ["atmosphere.fog", "sensor.sun", "cover.dirt"] and diag.rejected == []
 
 
@@ -70,7 +73,7 @@ def test_the_margin_is_the_acceptance_rule_both_ways(without, kept):
     landscape = {_set(FOG, SUN): current, _set(FOG): without, _set(SUN): 1.0}
     diag = _diagnosis([FOG, SUN], [0.4, 0.3])
     search = LandscapeSearch(landscape)
-    search.prune(diag, current)
+    search.prune_round(diag, current)
     assert ("sensor.sun" in [e.name for e in diag.effects]) is kept
 
 
@@ -82,7 +85,7 @@ class RoundsSearch(LandscapeSearch):
     fit_idx, held_idx = [0], [1]
     screened: dict = {}  # (names accepted, candidate name) -> its held-out gap in that round, where not the landscape's
 
-    def run_round(self, accepted, excluded=()):
+    def screen_round(self, accepted, excluded=()):
         return [Candidate(e, 0.0, self.screened.get((_set(*accepted), e.name), self.gap(accepted + [e], "heldout")), 1)
                 for e in self.pool if e not in accepted and e not in excluded]  # fmt: skip
 
@@ -160,7 +163,7 @@ def test_effects_read_off_the_data_are_tried_first_and_must_earn_the_margin():
     search = LandscapeSearch({_set(): 0.27, _set(offsets): 0.15, _set(offsets, weak): 0.148})
     search.data_candidates = [offsets, weak]
     diag = Diagnosis(0.27, 0.27)
-    current, accepted = search.data_round(diag, 0.27)
+    current, accepted = search.read_off_round(diag, 0.27)
     assert accepted == [offsets] and current == 0.15
     assert [c.effect for c, _ in diag.accepted] == [offsets] and [c.heldout_gap for c in diag.rounds[0]] == [0.15, 0.148]
 
@@ -176,13 +179,13 @@ def test_dead_channels_are_kept_where_they_do_not_earn_the_margin_but_do_not_mak
     search = LandscapeSearch(landscape)
     search.data_candidates = [dead, weak]
     diag = Diagnosis(0.0052, 0.0052)
-    current, accepted = search.data_round(diag, 0.0052)
+    current, accepted = search.read_off_round(diag, 0.0052)
     assert accepted == [dead] and current == 0.0038
     diag.accepted.append((Candidate(gamma, 0.0, 0.0004, 1), 0.0038))
-    assert search.prune(diag, 0.0004) == 0.0004 and [e.name for e in diag.effects] == [dead.name, gamma.name]
+    assert search.prune_round(diag, 0.0004) == 0.0004 and [e.name for e in diag.effects] == [dead.name, gamma.name]
     worse = LandscapeSearch({_set(): 0.0022, _set(dead): 0.0023, _set(dead, weak): 0.0023, _set(weak): 0.0022})
     worse.data_candidates = [dead, weak]
-    assert worse.data_round(Diagnosis(0.0022, 0.0022), 0.0022) == (0.0022, [])
+    assert worse.read_off_round(Diagnosis(0.0022, 0.0022), 0.0022) == (0.0022, [])
 
 
 def test_dead_channels_that_one_held_out_draw_finds_worse_are_judged_on_the_redraws():
@@ -195,14 +198,14 @@ def test_dead_channels_that_one_held_out_draw_finds_worse_are_judged_on_the_redr
     redrawn = {_set(): 0.0021, _set(dead): 0.0015, _set(gamma): 0.0014, _set(dead, gamma): 0.0010}
     search = LandscapeSearch(landscape, redrawn)
     search.data_candidates = [dead]
-    assert search.data_round(Diagnosis(0.0020, 0.0020), 0.0020) == (0.0024, [dead])
+    assert search.read_off_round(Diagnosis(0.0020, 0.0020), 0.0020) == (0.0024, [dead])
     assert any(line.endswith("mean over redraws 0.0015 with it, 0.0021 without") for line in search.log)
     diag = _diagnosis([dead, gamma], [0.0020, 0.0024])
     search.on_redraws = {**redrawn, _set(dead): 0.0035}  # gamma, fitted next, is worth its margin there
-    assert search.prune(diag, 0.0003) == 0.0003 and [e.name for e in diag.effects] == [dead.name, gamma.name]
+    assert search.prune_round(diag, 0.0003) == 0.0003 and [e.name for e in diag.effects] == [dead.name, gamma.name]
     worse = LandscapeSearch(landscape, {**redrawn, _set(dead): 0.0023})
     worse.data_candidates = [dead]
-    assert worse.data_round(Diagnosis(0.0020, 0.0020), 0.0020) == (0.0020, [])
+    assert worse.read_off_round(Diagnosis(0.0020, 0.0020), 0.0020) == (0.0020, [])
 
 
 def _channel_frames(rng, intensity_by_channel: dict[int, np.ndarray], frames: int = 3) -> list[np.ndarray]:
@@ -481,9 +484,9 @@ def test_a_recorded_return_mode_is_evident_and_no_other_is_tried():
     search = LandscapeSearch({_set(): 0.0030, _set(dual): 0.0030})
     search.recorded_mode = "dual"
     search.data_candidates = [dual]
-    assert search.data_round(Diagnosis(0.0030, 0.0030), 0.0030) == (0.0030, [dual])
-    assert search.evident(dual) and not search.evident(last)
-    assert not search.worth(last, 0.0029, 0.0030) and search.worth(dual, 0.0030, 0.0030)
+    assert search.read_off_round(Diagnosis(0.0030, 0.0030), 0.0030) == (0.0030, [dual])
+    assert search.proven_by_data(dual) and not search.proven_by_data(last)
+    assert not search.earns_margin(last, 0.0029, 0.0030) and search.earns_margin(dual, 0.0030, 0.0030)
 
 
 def test_a_recorded_return_mode_is_not_refitted():
@@ -511,8 +514,8 @@ def test_a_candidate_that_conflicts_with_one_accepted_effect_is_tried_in_its_pla
     search = LandscapeSearch({}, families=("weather",))
     search.resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
     snow, dirt = parse_effect("atmosphere.snow:intensity=0.7"), parse_effect("cover.dirt:transmission=0.73")
-    plain = {c.name: base for c, base in search.options([snow, dirt])}
-    swaps = {c.name: [e.name for e in base] for c, base in search.options([snow, dirt], swaps=True)}
+    plain = {c.name: base for c, base in search.round_candidates([snow, dirt])}
+    swaps = {c.name: [e.name for e in base] for c, base in search.round_candidates([snow, dirt], swaps=True)}
     assert "atmosphere.rain" not in plain and "cover.water" not in plain
     assert all(base == [snow, dirt] for base in plain.values())
     assert swaps["atmosphere.rain"] == ["cover.dirt"] and swaps["cover.water"] == ["atmosphere.snow"]
@@ -584,7 +587,7 @@ class ValueSearch(GapSearch):
     rain is sharp in its value, so on its grid it screens far worse than the accepted snow, refined far better."""
 
     def __init__(self) -> None:
-        self.families, self.grid, self.refine, self.engine = ("weather",), 5, 2, None
+        self.families, self.grid, self.refine, self.workers = ("weather",), 5, 2, None
         self.min_gain, self.min_abs_gain = MIN_GAIN, MIN_ABS_GAIN
         self.resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
         self.data_candidates, self.log = [], []
@@ -605,7 +608,7 @@ class ValueSearch(GapSearch):
 def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_refined_and_wins(monkeypatch):
     snow, dirt = parse_effect("atmosphere.snow:intensity=0.3"), parse_effect("cover.dirt:transmission=0.75")
     search = ValueSearch()
-    required = search.required(search.gap([snow, dirt], "heldout"))
+    required = search.gap_to_beat(search.gap([snow, dirt], "heldout"))
 
     def rain_of(candidates):
         (rain,) = [c for c in candidates if c.effect.name == "atmosphere.rain"]
@@ -615,5 +618,5 @@ def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_ref
     assert rain.heldout_gap <= required and rain.effect.value == pytest.approx(9.0, rel=0.05)
     assert [e.name for e in rain.companions] == ["cover.dirt"]
     # refining only the best two (every one a change that does little, beside the snow): rain stays on its grid
-    monkeypatch.setattr(search_module, "refined_ranks", lambda swaps, refine: list(range(min(refine, len(swaps)))))
+    monkeypatch.setattr(rounds_module, "refined_ranks", lambda swaps, refine: list(range(min(refine, len(swaps)))))
     assert rain_of(search.joint_round([snow, dirt])).heldout_gap > 3 * required

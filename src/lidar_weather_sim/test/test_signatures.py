@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_weather_sim.core.points import empty_points, fill_polar
-from lidar_weather_sim.gap.search import MIN_ABS_GAIN
+from lidar_weather_sim.gap.evaluation import MIN_ABS_GAIN
 from lidar_weather_sim.gap.signatures import FrameContext, Signature, gap_terms, gap_value, systematic_bray_curtis
 
 CHANNELS = 16

@@ -1,8 +1,9 @@
-"""A simulated effect put on top of real frames (``make-measured --on BAG``), as the thesis'
-paper 4 inserts simulated objects into real spray frames.
+"""A simulated effect put on top of real frames (``make-measured --on BAG``,
+:func:`lidar_weather_sim.augment.command.augment_recording`), as the thesis' paper 4 inserts simulated objects
+into real spray frames.
 
 Every frame of the recording is re-simulated from its recorded poses twice with the same
-draws (:class:`~lidar_weather_sim.gap.resim.Resimulator`): with the scenario alone and with the
+draws (:class:`~lidar_weather_sim.replay.resimulator.Resimulator`): with the scenario alone and with the
 effects. Then, per beam (channel and azimuth column of the profile):
 
 - returns the effects create (weather, cover, spray and noise labels in the effect run)
@@ -23,20 +24,10 @@ act on a simulated frame (:func:`lidar_weather_sim.sensor.response.apply_respons
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
-from lidar_weather_sim.scenario.effects import Effect, apply_effects
-from lidar_weather_sim.gap.resim import Resimulator
-from lidar_weather_sim.gap.signatures import beam_keys, nearest_returns
-from lidar_weather_sim.io.bags import BagWriter, read_messages
-from lidar_weather_sim.io.recording import Recording
-from lidar_weather_sim.regions.base import region_entropy
-from lidar_weather_sim.scenario.schema import Scenario
-from lidar_weather_sim.sensor.response import apply_response
+from lidar_weather_sim.replay.beams import beam_keys, nearest_returns
 
 
 def augment_frame(real: np.ndarray, base: np.ndarray, effect: np.ndarray, columns: int,
@@ -69,30 +60,3 @@ def _behind(points: np.ndarray, occluders: np.ndarray, columns: int) -> np.ndarr
     k = beam_keys(points, columns)
     at = np.clip(np.searchsorted(keys, k), 0, len(keys) - 1)
     return (keys[at] == k) & (points["distance"] > nearest[at])
-
-
-def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect], output: str | Path, *,
-                      profile: str | None = None, topic: str | None = None, overwrite: bool = False,
-                      atmosphere_model: str | None = None, with_actors: bool = False) -> int:  # fmt: skip
-    """Write ``path`` with ``effects`` simulated on top of its frames to ``output`` (fog, rain and snow by the
-    atmosphere region's ``atmosphere_model``, None: the scenario's; ``with_actors``: the scenario's actors
-    too); returns the frames written."""
-    recording = Recording.load(path, topic)
-    resim = Resimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
-    columns = resim.world.profile.scan.columns
-    everything = range(len(recording.frames))
-    weather = [e for e in effects if e.spec.family != "sensor"]
-    response = apply_effects(scenario, [e for e in effects if e.spec.family == "sensor"]).sensor.response
-    base = resim.frames([], everything)
-    with_effects = resim.frames(weather, everything) if weather else base
-    min_range = float(resim.world.profile.range.min_m)
-    actors = tuple(a.id for a in scenario.actors) if with_actors else ()
-    with BagWriter(output, overwrite=overwrite) as bag:
-        for m in read_messages(path, [TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC]):
-            bag.write(m.topic, m.msg, m.log_time_ns)
-        for k, (frame, b, e) in enumerate(zip(recording.frames, base, with_effects)):
-            points = augment_frame(frame.points, b, e, columns, actors)
-            rng = np.random.default_rng(region_entropy(scenario.seed, k, "sensor_response", 0))
-            points = apply_response(points, response, rng, min_range)
-            bag.write_cloud(recording.topic, points, frame.stamp_ns, frame.frame_id, log_time_ns=frame.log_time_ns)
-    return len(recording.frames)

@@ -39,6 +39,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidar_weather_sim.gap.signatures import SAME_SURFACE_M
+from lidar_weather_sim.replay.beams import paired_beams
+
 MIN_SIMULATED_PER_FRAME = 10.0
 MAX_MEASURED_SHARE = 0.05
 MAX_WEAK_GAIN = 0.8  # a channel at least this strong is not named weak
@@ -117,8 +120,6 @@ def _paired_shifts(measured: list[np.ndarray], simulated: list[np.ndarray], chan
     return of a weak channel is ``ln g`` lower, whatever its strength), the recorded byte taken back through the
     response all channels share (:func:`_shared_response`): the mean within ``PAIRED_WINDOW_BYTES`` of the median,
     which averages the bytes' rounding out; NaN with fewer than ``MIN_PAIRS`` pairs."""
-    from lidar_weather_sim.gap.signatures import SAME_SURFACE_M, paired_beams
-
     recorded, chans, levels = [], [], []
     for m, s in zip(measured, simulated):
         im, is_ = paired_beams(m, s, columns)

@@ -1,4 +1,6 @@
-"""``lidar-weather-sim gap``: load, diagnose (:mod:`lidar_weather_sim.gap.search`), re-simulate all frames, report."""
+"""The gap package's entry points, as the command line calls them: ``lidar-weather-sim compare``
+(:func:`compare`) and ``lidar-weather-sim gap`` (:func:`run_gap`: load, diagnose with
+:mod:`lidar_weather_sim.gap.search`, re-simulate all frames, report)."""
 
 from __future__ import annotations
 
@@ -9,15 +11,29 @@ from typing import Callable
 import yaml
 
 from lidar_weather_sim.core.engine import Engine
-from lidar_weather_sim.gap.compare import bev_metrics
-from lidar_weather_sim.scenario.effects import apply_effects
-from lidar_weather_sim.gap.parallel import SearchSource
-from lidar_weather_sim.gap.report import write_gap
-from lidar_weather_sim.gap.resim import Resimulator, measured_signature
+from lidar_weather_sim.gap.compare import bev_metrics, build_comparison
+from lidar_weather_sim.gap.parallel import SearchSource, Workers
+from lidar_weather_sim.gap.report import format_params, write_compare, write_gap
+from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
 from lidar_weather_sim.gap.search import GapSearch
-from lidar_weather_sim.gap.split import DataSplit
+from lidar_weather_sim.gap.split import DataSplit, split_beside
 from lidar_weather_sim.io.recording import Recording
-from lidar_weather_sim.scenario.schema import Scenario
+from lidar_weather_sim.scenario.effects import apply_effects
+from lidar_weather_sim.scenario.schema import Scenario, scenario_path
+
+
+def compare(measured: str | Path, simulated: str | Path, out: str | Path, scenario: Scenario | None = None,
+            topic: str | None = None) -> dict:  # fmt: skip
+    """Compare the ``simulated`` recording with the ``measured`` one (:mod:`lidar_weather_sim.gap.compare`) and write
+    metrics.json, report.md and the plots to ``out``; returns metrics.json's content."""
+    comparison = build_comparison(Recording.load(measured, topic), Recording.load(simulated, topic), scenario)
+    return write_compare(Path(out), comparison, str(measured), str(simulated))
+
+
+def scenario_split(scenario: str) -> DataSplit | None:
+    """The calibration / held-out split beside a scenario (name or YAML path): a twin directory's split.yaml, which
+    :func:`run_gap` then fits and scores on; None without one."""
+    return split_beside(scenario_path(scenario))
 
 
 def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profile: str | None = None,
@@ -35,13 +51,14 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
     ``atmosphere_model`` (``fitted`` | ``physical``): the atmosphere region's model the fog, rain and snow
     effects are searched and fitted with (None: the scenario's, else the region's default)."""
     recording = Recording.load(measured, topic)
-    resim = Resimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
+    resim = GapResimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
     report = (lambda text: progress(text, resim.casts)) if progress else None
     source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
                           tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None,
                           atmosphere_model)  # fmt: skip
     with Engine(scheduler, workers) as engine:
-        search = GapSearch(resim, progress=report, engine=engine, source=source, split=split, **budgets)
+        remote = None if engine.serial else Workers(engine, source)
+        search = GapSearch(resim, progress=report, workers=remote, split=split, **budgets)
         diagnosis = search.run()
     patched = apply_effects(scenario, diagnosis.effects, atmosphere_model)
     patched = patched.model_copy(update={"name": f"{scenario.name}_patched",
@@ -54,10 +71,15 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
     result = write_gap(Path(out), diagnosis, measured_sig, before, after, text,
                        runnable=not scenario.mesh_only or bool(scenario.trajectory))  # fmt: skip
     if split is not None:
-        held, keep = diagnosis.heldout_indices, search.keep("heldout")
+        held, keep = diagnosis.heldout_indices, search.point_mask("heldout")
         measured_held = measured_signature(recording, held, resim.contexts, resim.channels, keep)
         result["split"]["kind"] = split.kind
         result["heldout_bev"] = {"before": bev_metrics(measured_held, resim.signature([], held, keep)),
                                  "after": bev_metrics(measured_held, resim.signature(diagnosis.effects, held, keep))}  # fmt: skip
         (Path(out) / "gap.json").write_text(json.dumps(result, indent=1))
     return result
+
+
+def found_effects(result: dict) -> str:
+    """The effects of a gap.json content (:func:`run_gap`) as ``name (key=value, ...), ...``, or "no effect"."""
+    return ", ".join(f"{e['name']} ({format_params(e['params'])})" for e in result["effects"]) or "no effect"

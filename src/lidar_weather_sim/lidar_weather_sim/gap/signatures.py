@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidar_weather_sim.core.frame_parameters import FEATURES, frame_features
+from lidar_weather_sim.replay.beams import paired_beams
+from lidar_weather_sim.replay.surroundings import ActorBox
 
 ZONES = ("cover", "near", "body", "wake", "road", "far")
 COVER_M, NEAR_M = 0.5, 5.0
@@ -52,18 +54,6 @@ ACTOR_ZONE_BEHIND_M = 10.0  # spray flies this far behind a vehicle
 ACTOR_ZONE_MARGIN_M = (1.0, 1.5, 1.5)  # beyond the body: ahead, to the sides, above
 BODY_MARGIN_M = 0.3  # returns this close to a body box belong to the body
 WAKE_ABOVE_ROAD_M = 0.15  # wake returns are at least this high in the vehicle's frame
-
-
-@dataclass(frozen=True)
-class ActorBox:
-    """A vehicle in the sensor frame: ``pose`` body-to-sensor 4x4 (body origin: centre of the
-    footprint on the road, x forward), size in m."""
-
-    actor_id: int
-    pose: np.ndarray
-    length_m: float = 4.7
-    width_m: float = 1.85
-    height_m: float = 1.45
 
 
 @dataclass(frozen=True)
@@ -301,30 +291,6 @@ def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> f
 #: or noise wider than the window: a beam that pairs up is counted whatever its residual).
 RESIDUAL_EDGES = np.concatenate([[-np.inf], np.linspace(-0.3, 0.3, 301), [np.inf]])
 SAME_SURFACE_M = 0.3  # paired returns this close in range are taken to be off the same surface
-
-
-def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
-    """One integer per point naming its beam: channel x columns + azimuth column."""
-    col = np.floor((points["azimuth"].astype(np.float64) + np.pi) / (2.0 * np.pi) * columns).astype(np.int64)
-    return points["channel"].astype(np.int64) * columns + np.clip(col, 0, columns - 1)
-
-
-def nearest_returns(points: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
-    """(beam keys, index into ``points``) of each beam's nearest return, sorted by key."""
-    keys = beam_keys(points, columns)
-    order = np.lexsort((points["distance"], keys))
-    keys = keys[order]
-    first = np.ones(len(keys), bool)
-    first[1:] = keys[1:] != keys[:-1]
-    return keys[first], order[first]
-
-
-def paired_beams(a: np.ndarray, b: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices into ``a`` and into ``b`` of each beam's nearest return, over the beams both frames return on."""
-    ka, ia = nearest_returns(a, columns)
-    kb, ib = nearest_returns(b, columns)
-    _, ja, jb = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
-    return ia[ja], ib[jb]
 
 
 def paired_residuals(a: np.ndarray, b: np.ndarray, columns: int,

@@ -3,7 +3,7 @@
 Two kinds:
 
 - ``frames``: whole frames (by their index in the topic, stamp order): even frames calibrate, odd
-  frames are held out, as :func:`lidar_weather_sim.gap.search.split_frames` splits them.
+  frames are held out, as :func:`lidar_weather_sim.gap.frames.split_frames` splits them.
 - ``sectors``: for recordings with few frames (a single scan works), every frame is used but only
   the points of some azimuth sectors (sensor frame, REP-103: azimuth = atan2(y, x), deg, [lo, hi))
   calibrate; the points of the other sectors are held out. Contiguous sectors of ``sector_deg``

@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 from scipy.spatial import cKDTree
 
-from lidar_weather_sim.gap.search import _thin
+from lidar_weather_sim.gap.frames import thin_evenly
 from lidar_weather_sim.gap.split import SECTOR_DEG, SPLIT_FILE, DataSplit, split_recording
 from lidar_weather_sim.io.bags import BagError
 from lidar_weather_sim.io.recording import Recording
@@ -105,7 +105,7 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
 
     t = time.perf_counter()
     pattern = ScanPattern(profile)
-    used = _thin(split.calibration_frames, max_frames)
+    used = thin_evenly(split.calibration_frames, max_frames)
     clouds, intensity = [], []
     for i in used:
         keep = split.keep(rec.frames[i].points, "calibration")

@@ -1,0 +1,61 @@
+"""The effects the gap search reads off the recording instead of fitting them (sensor family only).
+
+The calibration frames against their re-simulation without effects and the profile's elevation table:
+dead and weak channels, elevation offsets and the beams' origin (:mod:`lidar_weather_sim.gap.channels`), the
+near-field ghost rate (:mod:`lidar_weather_sim.gap.ghost`) and the return mode the points' codes name when it is
+not the scenario's (:mod:`lidar_weather_sim.gap.return_modes`). The search tries them before any fitted effect
+(:meth:`lidar_weather_sim.gap.rounds.SearchRounds.read_off_round`).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from lidar_weather_sim.gap.channels import MIN_ORIGIN_M, beam_origin, dead_channels, elevation_offsets, weak_channels
+from lidar_weather_sim.gap.ghost import cover_returns, ghost_rate
+from lidar_weather_sim.gap.resim import GapResimulator
+from lidar_weather_sim.scenario.effects import EFFECTS, Effect, format_channel_values
+
+GHOST_REDRAWS = (1, 2, 3, 4)  # the model draws averaged for each count of the ghost rate read off the data
+
+
+def read_off_effects(resim: GapResimulator, fit_idx: list[int], keep: Callable[[np.ndarray], np.ndarray] | None,
+                     recorded_mode: str | None) -> list[Effect]:  # fmt: skip
+    """The effects whose value the calibration frames ``fit_idx`` show (module doc), the points ``keep`` selects
+    (None: all); ``recorded_mode``: the return mode the recording's codes name (None: not recorded)."""
+    keep = keep or (lambda points: np.ones(len(points), bool))
+    measured = [m[keep(m)] for m in (resim.recording.frames[i].points for i in sorted(fit_idx))]
+    simulated = [s[keep(s)] for s in resim.frames([], fit_idx)]
+    profile, channels = resim.world.profile, resim.channels
+    out = []
+    dead = dead_channels(measured, simulated, channels)
+    if dead:
+        out.append(Effect("sensor.dead_channels", {"channels": "+".join(map(str, dead))}))
+    weak = weak_channels(measured, simulated, channels, profile.detection.intensity_dynamic_range, profile.scan.columns)
+    if weak:
+        out.append(Effect("sensor.weak_channels", {"gains": format_channel_values(weak)}))
+    nominal = np.array([b.elevation_deg for b in profile.beams])[profile.channel_order]
+    offsets = elevation_offsets(measured, nominal)
+    if offsets:
+        out.append(Effect("sensor.elevation_offsets", {"offsets": format_channel_values(offsets)}))
+    if recorded_mode is not None and recorded_mode != (resim.scenario.sensor.return_mode or profile.detection.return_mode):
+        out.append(Effect("sensor.return_mode", {"mode": recorded_mode}))
+    up, radial = beam_origin(measured, nominal)
+    if abs(up) >= MIN_ORIGIN_M:
+        out.append(Effect("sensor.beam_origin", {"z": up}))
+    if radial >= MIN_ORIGIN_M:
+        out.append(Effect("sensor.beam_origin_radial", {"radius": radial}))
+    ghost = EFFECTS["sensor.near_field_ghost"]
+
+    def expected(rate: float) -> float:  # the model's cover-zone count at ``rate``, mean over the draws
+        effects = [Effect(ghost.name, {ghost.main: rate})]
+        return float(np.mean([cover_returns([f[keep(f)] for f in resim.frames(effects, fit_idx, redraw=d)])
+                              for d in GHOST_REDRAWS]))  # fmt: skip
+
+    recorded, without = cover_returns(measured), cover_returns(simulated)
+    rate = ghost_rate(recorded, without, expected, ghost.bounds, len(GHOST_REDRAWS))
+    if rate is not None:
+        out.append(Effect(ghost.name, {ghost.main: rate}))
+    return out
