@@ -146,8 +146,7 @@ def test_a_truncated_bag_is_read_up_to_its_last_whole_chunk(recorded, tmp_path):
 
 _KILLED_WRITER = """
 import os, signal, sys
-from lidar_weather_sim.io.bags import BagWriter
-from lidar_weather_sim.io.bag_messages import clock_message
+from lidar_weather_sim.io.bags import BagWriter, clock_message
 writer = BagWriter(sys.argv[1])
 for k in range(int(sys.argv[2])):
     writer.write("/clock", clock_message(k * 10_000_000), k * 10_000_000)

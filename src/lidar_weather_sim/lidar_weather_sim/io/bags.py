@@ -22,7 +22,11 @@ the summary; readers check both, and any error reading a bag (a flipped length,
 an undecodable string) becomes one BagError naming the file and, where a walk of
 its records finds it, the offset of the first broken record.
 
-Why one module of ~500 lines: reading, writing and recovering rosbag2 files share the open-bag
+Messages of the ``/tf``, ``/tf_static`` and ``/clock`` topics (:func:`tf_message`, :func:`clock_message`)
+are built here, from the same typestore: transforms are :class:`~lidar_weather_sim.core.geometry.FrameTransform`
+(parent, child, translation x, y, z in m, unit quaternion x, y, z, w), stamps integer nanoseconds.
+
+Why one module of ~550 lines: reading, writing and recovering rosbag2 files share the open-bag
 helpers and the crash-safety rules above (a recording is never left without its index).
 """
 
@@ -36,7 +40,7 @@ import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from functools import cache
+from functools import cache, partial
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
@@ -47,6 +51,7 @@ from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterEr
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_typestore
 
+from lidar_weather_sim.core.geometry import FrameTransform
 from lidar_weather_sim.core.names import TOPIC_POINTS
 from lidar_weather_sim.io.cloud_codec import (
     DATATYPE_TO_DTYPE,
@@ -138,8 +143,33 @@ def message_types() -> MessageTypes:
         PointField=types["sensor_msgs/msg/PointField"],
         Header=types["std_msgs/msg/Header"],
         Time=types["builtin_interfaces/msg/Time"],
-        data=lambda body: np.frombuffer(body, dtype=np.uint8),
+        data=partial(np.frombuffer, dtype=np.uint8),
     )
+
+
+def time_message(ns: int):
+    """builtin_interfaces/Time of ``ns`` nanoseconds."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return typestore().types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+def tf_message(ns: int, transforms: Iterable[FrameTransform]):
+    """tf2_msgs/TFMessage of ``transforms``, each stamped ``ns``."""
+    t = typestore().types
+    stamped = []
+    for parent, child, translation, quaternion in transforms:
+        x, y, z = (float(v) for v in translation)
+        qx, qy, qz, qw = (float(v) for v in quaternion)
+        transform = t["geometry_msgs/msg/Transform"](translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                                                    rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))  # fmt: skip
+        header = t["std_msgs/msg/Header"](stamp=time_message(ns), frame_id=parent)
+        stamped.append(t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform))
+    return t["tf2_msgs/msg/TFMessage"](transforms=stamped)
+
+
+def clock_message(ns: int):
+    """rosgraph_msgs/Clock at ``ns`` nanoseconds."""
+    return typestore().types["rosgraph_msgs/msg/Clock"](clock=time_message(ns))
 
 
 # --- locating a bag and its raw messages --------------------------------------------------

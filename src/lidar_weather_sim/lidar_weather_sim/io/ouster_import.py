@@ -62,8 +62,7 @@ from lidar_weather_sim.core.names import (
     TOPIC_TF_STATIC,
 )
 from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW, ReturnType, fill_polar
-from lidar_weather_sim.io.bag_messages import clock_message, tf_message
-from lidar_weather_sim.io.bags import BagWriter
+from lidar_weather_sim.io.bags import BagWriter, clock_message, tf_message
 from lidar_weather_sim.io.ouster_pcap import (
     OusterFormatError,
     OusterMetadata,

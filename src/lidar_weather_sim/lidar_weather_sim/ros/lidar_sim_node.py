@@ -49,6 +49,7 @@ from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
 
 from lidar_weather_sim.core.config import ConfigError
+from lidar_weather_sim.core.geometry import FrameTransform
 from lidar_weather_sim.core.names import (
     FRAME_BASE_LINK,
     FRAME_LIDAR,
@@ -76,8 +77,8 @@ from lidar_weather_sim.ros.node_main import POLL_S, run_node, stop_requested
 from lidar_weather_sim.ros.qos import CLOCK_QOS, TF_QOS, TF_STATIC_QOS
 from lidar_weather_sim.ros.readiness import ReadyGate
 from lidar_weather_sim.ros.sync import FrameSync
+from lidar_weather_sim.scenario.player import moving_transforms, static_transforms
 from lidar_weather_sim.scenario.schema import load_scenario
-from lidar_weather_sim.scenario.transforms import FrameTransform, moving_transforms, static_transforms
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.session import RuntimeSettings, SimSession, parse_region_params
 from lidar_weather_sim.sim.simulator import scenario_settings

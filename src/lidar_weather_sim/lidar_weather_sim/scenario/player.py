@@ -10,6 +10,10 @@ A mesh-only scenario has no ego: its player has no ego poses
 (:class:`NoEgoError`); sensor poses then come from a recording or /tf, or from the
 scenario's ``trajectory`` (:class:`TrajectoryTrack`) when it has one. Actors with a ``trajectory``
 (those of a mesh-only scenario) follow it instead of a lane.
+
+Actors placed the way the thesis measured them (``lead_gap_m``) get their lane and s here, before any
+track is built (:func:`place_lead`); :func:`static_transforms` and :func:`moving_transforms` give the
+player's tf tree, which the sim node publishes and the offline run records.
 """
 
 from __future__ import annotations
@@ -19,15 +23,17 @@ import numpy as np
 
 from lidar_weather_sim.core.config import ConfigError
 from lidar_weather_sim.core.geometry import (
+    FrameTransform,
     matrix_quaternion,
+    pose_transform,
     quaternion_matrices,
     quaternion_multiply,
     quaternion_rotate,
     rpy_matrix,
     yaw_quaternions,
 )
-from lidar_weather_sim.scenario.placement import place_lead
-from lidar_weather_sim.scenario.schema import Mount, Mover, Scenario
+from lidar_weather_sim.core.names import FRAME_BASE_LINK, FRAME_LIDAR, FRAME_MAP, actor_frame
+from lidar_weather_sim.scenario.schema import Actor, Mount, Mover, Scenario
 from lidar_weather_sim.scene.opendrive import RoadNetwork
 
 
@@ -37,6 +43,94 @@ def mount_matrix(mount: Mount) -> np.ndarray:
     m[:3, :3] = rpy_matrix(*np.deg2rad([mount.roll_deg, mount.pitch_deg, mount.yaw_deg]))
     m[:3, 3] = [mount.x_m, mount.y_m, mount.z_m]
     return m
+
+
+# Lead placement: actors placed the way the thesis measured them: by the gap from the ego's sensor.
+#
+# Paper 3 gives the car ahead relative to the ego's LiDAR, "(17.5 +- 0.3) m in x and (3.7 +- 0.1) m
+# in y" (thesis line 2176), and paper 4 says where on that car: "the middle of the lower side of its
+# bounding box (considering bird's eye view)" (line 2868), i.e. the middle of its rear. An actor with
+# ``lead_gap_m`` is placed so that this point lies ``lead_gap_m`` ahead of the sensor and
+# ``lead_offset_y_m`` (default 3.7) to its left, both along the ego's axes (REP-103: x forward, y left) at
+# simulated time 0. The actor drives the lane whose centre is nearest that point; its rear middle then
+# lies on that lane's centre (3.75 m beside the ego's lane on ``highway_straight.xodr``, within the
+# thesis' 3.7 +- 0.1 m). The result is an ordinary actor (road, lane, s_m), so everything after this
+# (the player, ground truth, spray) sees no difference.
+
+#: The thesis' lateral offset of the car ahead's rear middle from the sensor (m, left; line 2176).
+THESIS_LEAD_OFFSET_Y_M = 3.7
+
+#: Newton steps projecting the rear middle onto a lane centre (converges in 1 on straight roads).
+_PROJECTION_STEPS = 6
+
+
+def _direction(network: RoadNetwork, road: str, lane: int, s_m: float) -> float:
+    """+1 if ``lane`` drives towards larger s at ``s_m``, else -1."""
+    along = network.lane_pose(road, lane, s_m)[3]
+    reference = network.lane_pose(road, lane, s_m, along_reference=True)[3]
+    return 1.0 if np.cos(along - reference) > 0 else -1.0
+
+
+def _xy(network: RoadNetwork, road: str, lane: int, s_m: float) -> tuple[np.ndarray, float]:
+    """Lane centre (x, y) in map (m) and the reference line's heading (rad) at ``s_m``."""
+    x, y, _, _ = network.lane_pose(road, lane, s_m)
+    heading = network.lane_pose(road, lane, s_m, along_reference=True)[3]
+    return np.array([float(x), float(y)]), float(heading)
+
+
+def _nearest_s(network: RoadNetwork, road: str, lane: int, target: np.ndarray, s_m: float) -> float:
+    """s (m) of the point of ``lane``'s centre nearest ``target`` (map x, y), starting at ``s_m``."""
+    length = network.road_length(road)
+    for _ in range(_PROJECTION_STEPS):
+        point, heading = _xy(network, road, lane, s_m)
+        step = float(np.dot(target - point, [np.cos(heading), np.sin(heading)]))
+        s_m = min(max(s_m + step, 0.0), length)
+        if abs(step) < 1e-6:
+            break
+    return s_m
+
+
+def rear_middle_target(ego: Mover, mount: Mount, network: RoadNetwork, gap_m: float, offset_y_m: float) -> np.ndarray:
+    """Map (x, y) of the point ``gap_m`` ahead of and ``offset_y_m`` left of the ego's sensor at time 0 (m)."""
+    x, y, _, heading = network.lane_pose(ego.road, ego.lane, ego.s_m)
+    forward = np.array([np.cos(heading), np.sin(heading)])
+    left = np.array([-forward[1], forward[0]])
+    sensor = np.array([float(x), float(y)]) + mount.x_m * forward + mount.y_m * left
+    return sensor + gap_m * forward + offset_y_m * left
+
+
+def place_lead(actor: Actor, ego: Mover, mount: Mount, network: RoadNetwork) -> Actor:
+    """``actor`` with ``lane`` and ``s_m`` resolved from its ``lead_gap_m`` / ``lead_offset_y_m``
+    (unchanged if it has no ``lead_gap_m``). Raises ConfigError naming the actor if no lane of the
+    ego's road has its centre within half a lane width of the rear middle."""
+    if actor.lead_gap_m is None:
+        return actor
+    offset_y = THESIS_LEAD_OFFSET_Y_M if actor.lead_offset_y_m is None else actor.lead_offset_y_m
+    where = f"actor {actor.id}: lead_gap_m {actor.lead_gap_m} m, lead_offset_y_m {offset_y} m"
+    if actor.road != ego.road:
+        raise ConfigError(f"{where}: road '{actor.road}' is not the ego's road '{ego.road}' (the gap is measured on it)")
+    target = rear_middle_target(ego, mount, network, actor.lead_gap_m, offset_y)
+    guess = ego.s_m + _direction(network, ego.road, ego.lane, ego.s_m) * (mount.x_m + actor.lead_gap_m)
+    guess = min(max(guess, 0.0), network.road_length(ego.road))
+    best = None
+    for lane in network.lane_ids(ego.road):
+        try:
+            s_m = _nearest_s(network, ego.road, lane, target, guess)
+            miss = float(np.linalg.norm(_xy(network, ego.road, lane, s_m)[0] - target))
+            width = float(network.lane_width(ego.road, lane, s_m)[()])
+        except (KeyError, ValueError):  # the lane ends before the target
+            continue
+        if best is None or miss < best[0]:
+            best = (miss, lane, s_m, width)
+    if best is None or best[0] > 0.5 * best[3]:
+        detail = "no lane there" if best is None else f"nearest lane {best[1]} centre is {best[0]:.2f} m away"
+        raise ConfigError(f"{where}: the rear middle is on no lane of road '{ego.road}' ({detail})")
+    _, lane, rear_s, _ = best
+    centre_s = rear_s + _direction(network, ego.road, lane, rear_s) * 0.5 * actor.size.length_m
+    length = network.road_length(ego.road)
+    if not 0.0 <= centre_s <= length:
+        raise ConfigError(f"{where}: its centre would be at s = {centre_s:.2f} m, off road '{ego.road}' (0-{length:.1f} m)")
+    return actor.model_copy(update={"lane": lane, "s_m": float(centre_s)})
 
 
 class MoverTrack:
@@ -286,6 +380,29 @@ class ScenarioPlayer:
             for t in np.flatnonzero(times >= appear_time(actor)):
                 out[t][actor_id] = body[t]
         return out, ego_pose
+
+
+# The tf tree of a scenario run: map -> base_link (the ego), base_link -> lidar (the mount) and
+# map -> actor_<id> (each actor present), from a :class:`ScenarioPlayer`.
+#
+# The sim node publishes these as rclpy messages, the offline run writes them as rosbags messages;
+# both only convert them. Frame names default to REP-105 (:mod:`lidar_weather_sim.core.names`).
+
+
+def static_transforms(player: ScenarioPlayer, base_frame: str = FRAME_BASE_LINK,
+                      sensor_frame: str = FRAME_LIDAR) -> list[FrameTransform]:  # fmt: skip
+    """The /tf_static edge: the sensor on base_link (the scenario's mount)."""
+    return [pose_transform(base_frame, sensor_frame, player.mount)]
+
+
+def moving_transforms(player: ScenarioPlayer, time_s: float, fixed_frame: str = FRAME_MAP,
+                      base_frame: str = FRAME_BASE_LINK) -> list[FrameTransform]:  # fmt: skip
+    """The /tf edges at simulated time ``time_s`` (s): base_link in the fixed frame, then actor_<id> of
+    every actor present, in the scenario's order. Raises NoEgoError for a scenario without an ego."""
+    translation, quaternion = player.base_link_poses(np.array([time_s]))
+    ego = FrameTransform(fixed_frame, base_frame, tuple(translation[0].tolist()), tuple(quaternion[0].tolist()))
+    actors = [pose_transform(fixed_frame, actor_frame(i), pose) for i, pose in player.actor_poses(time_s).items()]
+    return [ego, *actors]
 
 
 #: cos and sin of roll and pitch 0 as numpy computes them (rpy_matrix's cr, sr, cp, sp).

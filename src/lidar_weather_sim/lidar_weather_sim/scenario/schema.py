@@ -72,7 +72,7 @@ class TrajectoryPose(ConfigModel):
 class Actor(Mover):
     """A vehicle or box on the roads: at ``lane`` / ``s_m`` (its footprint centre), or placed by the
     thesis' measure, ``lead_gap_m`` / ``lead_offset_y_m`` from the ego's sensor to the middle of its
-    rear (:mod:`lidar_weather_sim.scenario.placement`)."""
+    rear (:func:`lidar_weather_sim.scenario.player.place_lead`)."""
 
     id: int = Field(ge=100, le=2**31, description="Object id of its points (ids below 100 belong to the map)")
     lane: int | None = Field(None, description="OpenDRIVE lane id at the start (not with lead_gap_m)")

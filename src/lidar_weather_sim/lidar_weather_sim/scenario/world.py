@@ -12,10 +12,8 @@ from lidar_weather_sim.regions.topic_inputs import TopicInputs
 from lidar_weather_sim.scenario.player import ScenarioPlayer
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scene.materials import MaterialTable
-from lidar_weather_sim.scene.mesh import box_mesh
 from lidar_weather_sim.scene.opendrive import RoadNetwork
-from lidar_weather_sim.scene.scene import Scene, load_static_mesh, vehicle_mesh
-from lidar_weather_sim.scene.surveyed import read_face_reflectivity, surveyed_materials
+from lidar_weather_sim.scene.scene import Scene
 from lidar_weather_sim.sensor.profile import SensorProfile, load_profile
 
 
@@ -54,19 +52,11 @@ class World:
         else:
             scene = Scene.from_xodr(_map_path(scenario.map))
         for mesh_name in scenario.static_meshes:
-            path = _map_path(mesh_name)
-            mesh = load_static_mesh(path, scene.materials.index("concrete"), scene.next_object_id())
-            reflectivity = read_face_reflectivity(path)  # a twin's mesh: its surveyed reflectivity per triangle
-            if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
-                scene.materials, mesh.material = surveyed_materials(scene.materials, reflectivity)
-            scene.add_static(mesh, mesh_name)
+            scene.add_mesh_file(_map_path(mesh_name), mesh_name)
         for actor in scenario.actors:
             size = actor.size
-            if actor.type == "vehicle":
-                mesh = vehicle_mesh(size.length_m, size.width_m, size.height_m, actor.id, scene.materials)
-            else:
-                mesh = box_mesh((size.length_m, size.width_m, size.height_m), scene.materials.index("car_paint"), actor.id)
-            scene.add_actor(actor.id, mesh, f"actor {actor.id}", actor.label_code)
+            scene.add_body(actor.id, size.length_m, size.width_m, size.height_m, vehicle=actor.type == "vehicle",
+                           name=f"actor {actor.id}", label=actor.label_code)  # fmt: skip
         return cls(scenario, profile, scene, ScenarioPlayer(scenario, scene.roads))
 
     def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None,

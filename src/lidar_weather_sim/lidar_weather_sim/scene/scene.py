@@ -18,6 +18,7 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
 from lidar_weather_sim.scene.opendrive import RoadNetwork
+from lidar_weather_sim.scene.surveyed import read_face_reflectivity, surveyed_materials
 
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 # glTF is y-up with the asset's front along +z and +x to its left: (x, y, z)_ros = (z, x, y)_gltf.
@@ -174,6 +175,26 @@ class Scene:
         """Append map-frame triangles (their object ids must be new)."""
         self._claim(mesh, name)
         self.static = TriangleMesh.concatenate([self.static, mesh])
+
+    def add_mesh_file(self, path: str | Path, name: str) -> None:
+        """Append the map-frame mesh file ``path`` (:func:`load_static_mesh`) as concrete under the next free object
+        id; a digital twin's mesh (:mod:`~lidar_weather_sim.scene.surveyed`) keeps its surveyed reflectivity per
+        triangle instead."""
+        mesh = load_static_mesh(path, self.materials.index("concrete"), self.next_object_id())
+        reflectivity = read_face_reflectivity(path)
+        if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
+            self.materials, mesh.material = surveyed_materials(self.materials, reflectivity)
+        self.add_static(mesh, name)
+
+    def add_body(self, object_id: int, length: float, width: float, height: float, *, vehicle: bool, name: str,
+                 label: Label = Label.VEHICLE) -> None:  # fmt: skip
+        """Register an actor body of that bounding box (m) under ``object_id``: a car (:func:`vehicle_mesh`) if
+        ``vehicle``, else a car-paint box."""
+        if vehicle:
+            mesh = vehicle_mesh(length, width, height, object_id, self.materials)
+        else:
+            mesh = box_mesh((length, width, height), self.materials.index("car_paint"), object_id)
+        self.add_actor(object_id, mesh, name, label)
 
     def add_actor(self, object_id: int, mesh: TriangleMesh, name: str = "actor", label: Label = Label.VEHICLE) -> None:
         """Register a body-frame actor mesh under ``object_id`` (its triangles get that id)."""

@@ -15,11 +15,9 @@ from typing import Callable
 import numpy as np
 
 from lidar_weather_sim.core.names import FRAME_LIDAR, TOPIC_CLOCK, TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC
-from lidar_weather_sim.io.bag_messages import clock_message, tf_message
-from lidar_weather_sim.io.bags import BagWriter
-from lidar_weather_sim.scenario.player import NoEgoError
+from lidar_weather_sim.io.bags import BagWriter, clock_message, tf_message
+from lidar_weather_sim.scenario.player import NoEgoError, moving_transforms, static_transforms
 from lidar_weather_sim.scenario.schema import Scenario
-from lidar_weather_sim.scenario.transforms import moving_transforms, static_transforms
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.simulator import Frame, LidarSimulator
 

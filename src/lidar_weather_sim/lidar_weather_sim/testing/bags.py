@@ -10,8 +10,7 @@ import numpy as np
 from lidar_weather_sim.core.geometry import FrameTransform, yaw_quaternions
 from lidar_weather_sim.core.names import FRAME_LIDAR, FRAME_MAP, TOPIC_POINTS, TOPIC_TF, actor_frame
 from lidar_weather_sim.core.points import empty_points, fill_polar
-from lidar_weather_sim.io.bag_messages import tf_message
-from lidar_weather_sim.io.bags import BagWriter
+from lidar_weather_sim.io.bags import BagWriter, tf_message
 
 
 def points_at(xyz, **fields) -> np.ndarray:
