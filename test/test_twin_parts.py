@@ -50,7 +50,7 @@ def test_sector_masks_partition_the_points():
 
 def test_gap_search_fits_and_scores_on_the_split():
     """GapSearch with a split: its frames (thinned to the budgets), and for sectors each part's points only."""
-    from lidar_weather_sim.gap.frames import split_frames
+    from lidar_weather_sim.gap.split import split_frames
     from lidar_weather_sim.gap.search import GapSearch
 
     assert split_frames(10, 30, 30, DataSplit("frames", [0, 4, 8], [2, 6])) == ([0, 4, 8], [2, 6])

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from lidar_weather_sim.scenario.effects import parse_effect
-from lidar_weather_sim.gap.frames import split_frames
+from lidar_weather_sim.gap.split import split_frames
 from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
 from lidar_weather_sim.gap.signatures import ZONES, gap_terms, gap_value, zone_of
 from lidar_weather_sim.io.recording import Recording

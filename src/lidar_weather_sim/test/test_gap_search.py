@@ -6,11 +6,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lidar_weather_sim.gap import rounds as rounds_module
+from lidar_weather_sim.gap import search as search_module
 from lidar_weather_sim.scenario.effects import parse_effect
-from lidar_weather_sim.gap.diagnosis import Candidate, Diagnosis
+from lidar_weather_sim.gap.search import Candidate, Diagnosis
 from lidar_weather_sim.gap.evaluation import MIN_ABS_GAIN, MIN_GAIN
-from lidar_weather_sim.gap.rounds import refined_ranks
+from lidar_weather_sim.gap.search import refined_ranks
 from lidar_weather_sim.gap.search import GapSearch
 from lidar_weather_sim.scenario.schema import load_scenario
 
@@ -618,5 +618,5 @@ def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_ref
     assert rain.heldout_gap <= required and rain.effect.value == pytest.approx(9.0, rel=0.05)
     assert [e.name for e in rain.companions] == ["cover.dirt"]
     # refining only the best two (every one a change that does little, beside the snow): rain stays on its grid
-    monkeypatch.setattr(rounds_module, "refined_ranks", lambda swaps, refine: list(range(min(refine, len(swaps)))))
+    monkeypatch.setattr(search_module, "refined_ranks", lambda swaps, refine: list(range(min(refine, len(swaps)))))
     assert rain_of(search.joint_round([snow, dirt])).heldout_gap > 3 * required

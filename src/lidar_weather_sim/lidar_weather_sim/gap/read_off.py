@@ -4,7 +4,7 @@ The calibration frames against their re-simulation without effects and the profi
 dead and weak channels, elevation offsets and the beams' origin (:mod:`lidar_weather_sim.gap.channels`), the
 near-field ghost rate (:mod:`lidar_weather_sim.gap.ghost`) and the return mode the points' codes name when it is
 not the scenario's (:mod:`lidar_weather_sim.gap.return_modes`). The search tries them before any fitted effect
-(:meth:`lidar_weather_sim.gap.rounds.SearchRounds.read_off_round`).
+(:meth:`lidar_weather_sim.gap.search.GapSearch.read_off_round`).
 """
 
 from __future__ import annotations

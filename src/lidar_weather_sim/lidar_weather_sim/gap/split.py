@@ -1,9 +1,9 @@
-"""A recording's calibration / held-out split as a file (``split.yaml``, written by ``lidar-weather-sim twin``).
+"""The gap search's frames: a recording's calibration / held-out split, by index or as a file (``split.yaml``, written by ``lidar-weather-sim twin``).
 
 Two kinds:
 
 - ``frames``: whole frames (by their index in the topic, stamp order): even frames calibrate, odd
-  frames are held out, as :func:`lidar_weather_sim.gap.frames.split_frames` splits them.
+  frames are held out, as :func:`split_frames` splits them.
 - ``sectors``: for recordings with few frames (a single scan works), every frame is used but only
   the points of some azimuth sectors (sensor frame, REP-103: azimuth = atan2(y, x), deg, [lo, hi))
   calibrate; the points of the other sectors are held out. Contiguous sectors of ``sector_deg``
@@ -110,3 +110,26 @@ def split_beside(scenario_file: str | Path) -> DataSplit | None:
     """The split in ``split.yaml`` next to a scenario file (a twin's directory), None if there is none."""
     path = Path(scenario_file).parent / SPLIT_FILE
     return DataSplit.load(path) if path.is_file() else None
+
+
+def thin_evenly(indices: list[int], budget: int) -> list[int]:
+    """At most ``budget`` of ``indices``, evenly spaced."""
+    if len(indices) <= budget:
+        return list(indices)
+    return [indices[int(k)] for k in np.linspace(0, len(indices) - 1, budget).round()]
+
+
+def split_frames(n: int, fit_frames: int, heldout_frames: int, split: DataSplit | None = None) -> tuple[list[int], list[int]]:
+    """Calibration (even) and held-out (odd) frame indices, each thinned evenly to its budget; with a
+    ``split`` (a twin's split.yaml), its parts' frames instead (the same frames for a sector split)."""
+    for name, budget in (("fit_frames", fit_frames), ("heldout_frames", heldout_frames)):
+        if budget < 1:
+            raise ValueError(f"gap: {name} must be at least 1, got {budget}")
+    if split is not None:
+        beyond = [i for i in split.calibration_frames + split.heldout_frames if not 0 <= i < n]
+        if beyond:
+            raise ValueError(f"gap: the split names frames {beyond[:5]} but the recording has {n} frames")
+        return thin_evenly(split.calibration_frames, fit_frames), thin_evenly(split.heldout_frames, heldout_frames)
+    if n < 2:
+        raise ValueError(f"gap needs at least 2 frames with poses (one to fit, one held out), the recording has {n}")
+    return thin_evenly(list(range(0, n, 2)), fit_frames), thin_evenly(list(range(1, n, 2)), heldout_frames)

@@ -77,7 +77,7 @@ class EffectSpec:
     signed: bool = False  # the main parameter may be 0 or negative (else it must be above 0)
     choices: tuple[str, ...] = ()  # a categorical effect: its main parameter is one of these
     from_data: bool = False  # the main parameter is a text read off the recording, tried as it is
-    evident: bool = False  # the data alone proves it (a channel silent where the model returns): see gap.acceptance.AcceptanceRule.earns_margin
+    evident: bool = False  # the data alone proves it (a channel silent where the model returns): see gap.evaluation.GapEvaluator.earns_margin
 
     @property
     def categorical(self) -> bool:

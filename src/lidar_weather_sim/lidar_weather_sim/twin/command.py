@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 from scipy.spatial import cKDTree
 
-from lidar_weather_sim.gap.frames import thin_evenly
+from lidar_weather_sim.gap.split import thin_evenly
 from lidar_weather_sim.gap.split import SECTOR_DEG, SPLIT_FILE, DataSplit, split_recording
 from lidar_weather_sim.io.bags import BagError
 from lidar_weather_sim.io.recording import Recording
