@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_weather_sim.augment.obstacles import ObstacleAugmenter
-from lidar_weather_sim.replay.surroundings import road_level
+from lidar_weather_sim.replay import road_level
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.sensor.profile import load_profile

@@ -22,8 +22,7 @@ import numpy as np
 
 from lidar_weather_sim.scenario.effects import parse_effect
 from lidar_weather_sim.gap.split import split_frames
-from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
-from lidar_weather_sim.gap.signatures import ZONES, gap_terms, gap_value, zone_of
+from lidar_weather_sim.gap.signatures import ZONES, GapResimulator, gap_terms, gap_value, measured_signature, zone_of
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import load_scenario
 

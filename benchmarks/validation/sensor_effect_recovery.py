@@ -107,7 +107,7 @@ def resimulate(recording_path: Path, scenario, profile: str, effects, out: Path,
     """The recording's frames cast again in ``scenario`` + ``effects`` with ``profile``, written as a bag
     with the recording's /tf, /tf_static and /clock."""
     from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
-    from lidar_weather_sim.replay.resimulator import Resimulator
+    from lidar_weather_sim.replay import Resimulator
     from lidar_weather_sim.io.bags import BagWriter, read_messages
     from lidar_weather_sim.io.recording import Recording
 
@@ -125,7 +125,7 @@ def changes_nothing(recording_path: Path, scenario, profile: str, effects, seed:
     """Whether ``effects`` leave every re-simulated frame as it is without them, point for point in every
     field but ``return_type`` (the driver's label of the mode, which no recording's geometry shows): such a draw
     is one no search can name (a ``dual`` return where no beam has a third echo is ``all``)."""
-    from lidar_weather_sim.replay.resimulator import Resimulator
+    from lidar_weather_sim.replay import Resimulator
     from lidar_weather_sim.io.recording import Recording
 
     recording = Recording.load(recording_path)

@@ -92,7 +92,7 @@ def _inserted_epw(path):
 def test_epw_of_inserted_points_matched_to_the_car_ahead_rear(spray_bag, tmp_path, capsys):
     """Fig. A4: the inserted points' EPW mean and sd become those of the recorded car rear."""
     from lidar_weather_sim.augment.obstacles import lead_rear_epw
-    from lidar_weather_sim.replay.surroundings import road_level
+    from lidar_weather_sim.replay import road_level
     from lidar_weather_sim.io.recording import Recording
 
     recording = Recording.load(spray_bag)

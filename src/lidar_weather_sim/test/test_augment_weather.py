@@ -11,7 +11,7 @@ import pytest
 from lidar_weather_sim.core.paths import cache_dir
 from lidar_weather_sim.core.points import POINT_DTYPE_NO_EPW, Label, empty_points, fill_polar
 from lidar_weather_sim.augment.weather import augment_frame
-from lidar_weather_sim.replay.beams import beam_keys
+from lidar_weather_sim.replay import beam_keys
 
 COLUMNS = 8
 
@@ -89,7 +89,7 @@ def test_spray_and_the_car_throwing_it_on_the_real_recording(tmp_path):
     if not bag.exists():
         pytest.skip(f"real recording {bag} absent (make setup imports it)")
     from lidar_weather_sim.scenario.effects import parse_effect
-    from lidar_weather_sim.replay.resimulator import Resimulator
+    from lidar_weather_sim.replay import Resimulator
     from lidar_weather_sim.io.recording import Recording
     from lidar_weather_sim.scenario.schema import load_scenario
 

@@ -130,7 +130,7 @@ def _street_cache():
 
 def test_the_real_street_is_cast_from_the_recorded_poses():
     _street_cache()
-    from lidar_weather_sim.replay.resimulator import RecordedPoses
+    from lidar_weather_sim.replay import RecordedPoses
     from lidar_weather_sim.io.recording import Recording
 
     world = World.build(load_scenario("ouster_street"))

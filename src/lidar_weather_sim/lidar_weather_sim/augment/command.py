@@ -15,7 +15,7 @@ from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.io.bags import BagWriter, read_messages
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.regions.base import region_entropy
-from lidar_weather_sim.replay.resimulator import Resimulator
+from lidar_weather_sim.replay import Resimulator
 from lidar_weather_sim.scenario.effects import Effect, apply_effects
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.sensor.profile import load_profile

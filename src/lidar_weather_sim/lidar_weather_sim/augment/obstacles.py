@@ -40,7 +40,7 @@ from lidar_weather_sim.augment.cast import ObstacleCaster
 from lidar_weather_sim.augment.epw import EPW_MATCH, lead_car, match_to_lead, rear_mask
 from lidar_weather_sim.augment.kinds import check_kind_fits, kind_ranges, parse_kinds
 from lidar_weather_sim.augment.occlusion import merge_obstacles
-from lidar_weather_sim.replay.surroundings import ActorBox, road_level
+from lidar_weather_sim.replay import ActorBox, road_level
 from lidar_weather_sim.io.bags import BagWriter, read_messages
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.sensor.profile import SensorProfile

@@ -3,7 +3,7 @@
 into real spray frames.
 
 Every frame of the recording is re-simulated from its recorded poses twice with the same
-draws (:class:`~lidar_weather_sim.replay.resimulator.Resimulator`): with the scenario alone and with the
+draws (:class:`~lidar_weather_sim.replay.Resimulator`): with the scenario alone and with the
 effects. Then, per beam (channel and azimuth column of the profile):
 
 - returns the effects create (weather, cover, spray and noise labels in the effect run)
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
-from lidar_weather_sim.replay.beams import beam_keys, nearest_returns
+from lidar_weather_sim.replay import beam_keys, nearest_returns
 
 
 def augment_frame(real: np.ndarray, base: np.ndarray, effect: np.ndarray, columns: int,

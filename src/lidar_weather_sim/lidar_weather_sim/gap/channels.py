@@ -40,7 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_weather_sim.gap.signatures import SAME_SURFACE_M
-from lidar_weather_sim.replay.beams import paired_beams
+from lidar_weather_sim.replay import paired_beams
 
 MIN_SIMULATED_PER_FRAME = 10.0
 MAX_MEASURED_SHARE = 0.05

@@ -14,7 +14,7 @@ from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.compare import bev_metrics, build_comparison
 from lidar_weather_sim.gap.parallel import SearchSource, Workers
 from lidar_weather_sim.gap.report import format_params, write_compare, write_gap
-from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
+from lidar_weather_sim.gap.signatures import GapResimulator, measured_signature
 from lidar_weather_sim.gap.search import GapSearch
 from lidar_weather_sim.gap.split import DataSplit, split_beside
 from lidar_weather_sim.io.recording import Recording

@@ -28,7 +28,6 @@ import numpy as np
 from scipy.stats import wasserstein_distance
 
 from lidar_weather_sim.core.frame_parameters import FEATURES
-from lidar_weather_sim.gap.resim import channel_count, frame_contexts
 from lidar_weather_sim.gap.signatures import (
     ECHOES,
     EPW_EDGES,
@@ -36,6 +35,8 @@ from lidar_weather_sim.gap.signatures import (
     ZONES,
     Signature,
     bray_curtis,
+    channel_count,
+    frame_contexts,
     gap_terms,
     gap_value,
 )

@@ -2,7 +2,7 @@
 
 :class:`GapEvaluator` holds the search's budgets and frames (:func:`lidar_weather_sim.gap.split.split_frames`), the
 measured signatures of its three parts (screen, fit, heldout) and the re-simulation
-(:class:`~lidar_weather_sim.gap.resim.GapResimulator`). :meth:`GapEvaluator.gap` is the cost every round
+(:class:`~lidar_weather_sim.gap.signatures.GapResimulator`). :meth:`GapEvaluator.gap` is the cost every round
 minimises: :func:`~lidar_weather_sim.gap.signatures.gap_value` of the measured against the simulated
 frames, with the sensor family plus the paired-beam terms (:meth:`GapEvaluator.paired_terms`). A batch of
 evaluations runs in this process or on the workers it is given (:mod:`lidar_weather_sim.gap.parallel`).
@@ -28,14 +28,15 @@ from scipy.optimize import minimize_scalar
 
 from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
 from lidar_weather_sim.gap.read_off import read_off_effects
-from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
 from lidar_weather_sim.gap.return_modes import recorded_return_mode
 from lidar_weather_sim.gap.signatures import (
     ELEVATION_SHIFT_SCALE_DEG,
     INTENSITY_SHIFT_SCALE_BYTES,
     RANGE_SHIFT_SCALE_M,
+    GapResimulator,
     channel_shift_term,
     gap_value,
+    measured_signature,
     paired_residuals,
     systematic_bray_curtis,
 )

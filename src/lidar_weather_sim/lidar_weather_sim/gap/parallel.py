@@ -3,7 +3,7 @@
 Each worker process builds the search once from a :class:`SearchSource` (the recording's path,
 the scenario as data, the profile, topic and budgets: a few hundred bytes per task) and keeps it
 for the next task of the same search; the driver sends only effect lists (:class:`Workers`). Re-simulation
-uses common random numbers (:mod:`lidar_weather_sim.replay.resimulator`), so a gap computed on a worker is the
+uses common random numbers (:mod:`lidar_weather_sim.replay`), so a gap computed on a worker is the
 gap the driver would compute: the diagnosis does not depend on where it ran. The recording must
 be readable at the same path on every worker.
 """
@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from lidar_weather_sim.core.engine import Engine
-from lidar_weather_sim.gap.resim import GapResimulator
+from lidar_weather_sim.gap.signatures import GapResimulator
 from lidar_weather_sim.gap.search import GapSearch
 from lidar_weather_sim.gap.split import DataSplit
 from lidar_weather_sim.io.recording import Recording

@@ -15,7 +15,7 @@ import numpy as np
 
 from lidar_weather_sim.gap.channels import MIN_ORIGIN_M, beam_origin, dead_channels, elevation_offsets, weak_channels
 from lidar_weather_sim.gap.ghost import cover_returns, ghost_rate
-from lidar_weather_sim.gap.resim import GapResimulator
+from lidar_weather_sim.gap.signatures import GapResimulator
 from lidar_weather_sim.scenario.effects import EFFECTS, Effect, format_channel_values
 
 GHOST_REDRAWS = (1, 2, 3, 4)  # the model draws averaged for each count of the ghost rate read off the data

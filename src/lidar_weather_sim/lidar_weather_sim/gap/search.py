@@ -7,7 +7,7 @@
    frames for every decision (:func:`lidar_weather_sim.gap.split.split_frames`).
 2. The gap is :func:`lidar_weather_sim.gap.signatures.gap_value` between the measured frames
    and the same frames re-simulated from the recorded poses (:mod:`lidar_weather_sim.gap.evaluation`,
-   :mod:`lidar_weather_sim.gap.resim`).
+   :mod:`lidar_weather_sim.gap.signatures`).
 3. Read-off round (:meth:`GapSearch.read_off_round`). With the sensor family,
    the effects read off the recording (:mod:`lidar_weather_sim.gap.read_off`: dead and weak channels,
    elevation offsets, the beams' origin at the value the points' elevations show, the near-field ghost at the
@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidar_weather_sim.gap.evaluation import GapEvaluator
-from lidar_weather_sim.gap.resim import GapResimulator
+from lidar_weather_sim.gap.signatures import GapResimulator
 from lidar_weather_sim.scenario.effects import EFFECTS, Effect, conflicts, spray_candidates
 
 

@@ -29,12 +29,15 @@ near field (:mod:`lidar_weather_sim.core.frame_parameters`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from lidar_weather_sim.core.frame_parameters import FEATURES, frame_features
-from lidar_weather_sim.replay.beams import paired_beams
-from lidar_weather_sim.replay.surroundings import ActorBox
+from lidar_weather_sim.io.recording import Recording
+from lidar_weather_sim.replay import ActorBox, Resimulator, paired_beams, road_level
+from lidar_weather_sim.scenario.effects import Effect
+from lidar_weather_sim.scenario.schema import Scenario
 
 ZONES = ("cover", "near", "body", "wake", "road", "far")
 COVER_M, NEAR_M = 0.5, 5.0
@@ -362,3 +365,59 @@ def channel_shift_term(measured: np.ndarray, simulated: np.ndarray, scale: float
     excess = np.maximum(np.abs(own_m - own_s) - SHIFT_NOISE_SE * np.sqrt(var_m + var_s), 0.0) / scale
     weights = n_m[judged] / n_m[judged].sum()
     return float(np.sum(weights * np.minimum(excess[judged], 1.0)))
+
+
+# -- the gap's view of a recording and its re-simulation: every frame zoned and summed into a Signature ---
+
+
+def frame_contexts(recording: Recording, scenario: Scenario | None) -> list[FrameContext]:
+    """Zoning context of every frame: the road level and the recorded vehicles (sizes from the
+    scenario's actors, else a mid-size car)."""
+    road_z = road_level(recording)
+    sizes = {a.id: a.size for a in scenario.actors} if scenario is not None else {}
+    out = []
+    for frame in recording.frames:
+        boxes = []
+        to_sensor = recording.sensor_from_fixed(frame) if recording.has_poses else None
+        if to_sensor is not None:
+            for actor_id, pose in recording.actor_poses(recording.time_s(frame.stamp_ns)).items():
+                size = sizes.get(actor_id)
+                dims = (size.length_m, size.width_m, size.height_m) if size else ()
+                boxes.append(ActorBox(actor_id, to_sensor @ pose, *dims))
+        out.append(FrameContext(road_z, tuple(boxes)))
+    return out
+
+
+def channel_count(recording: Recording) -> int:
+    """The channels a recording's points name (the highest channel index + 1)."""
+    return int(max(int(f.points["channel"].max(initial=0)) for f in recording.frames)) + 1
+
+
+def measured_signature(recording: Recording, indices, contexts: list[FrameContext], channels: int,
+                       keep: Callable[[np.ndarray], np.ndarray] | None = None) -> Signature:  # fmt: skip
+    """The recording's frames ``indices`` as a :class:`Signature`; ``keep(points)`` (a boolean mask, e.g. the
+    azimuth sectors of a :class:`~lidar_weather_sim.gap.split.DataSplit`) selects the points counted."""
+    sig = Signature(channels)
+    for i in indices:
+        points = recording.frames[i].points
+        sig.add(points if keep is None else points[keep(points)], contexts[i])
+    return sig
+
+
+class GapResimulator(Resimulator):
+    """A :class:`~lidar_weather_sim.replay.Resimulator` whose frames are zoned with the recording's
+    contexts (:func:`frame_contexts`) and summed into signatures."""
+
+    def __init__(self, recording: Recording, scenario: Scenario, profile: str | None = None,
+                 backend: str | None = None, atmosphere_model: str | None = None) -> None:  # fmt: skip
+        super().__init__(recording, scenario, profile, backend, atmosphere_model)
+        self.contexts = frame_contexts(recording, scenario)
+
+    def signature(self, effects: list[Effect], indices, keep: Callable[[np.ndarray], np.ndarray] | None = None,
+                  frames: list[np.ndarray] | None = None) -> Signature:  # fmt: skip
+        """The :class:`Signature` of the frames ``indices`` simulated with ``effects`` (or of ``frames``, those
+        frames already simulated; only the points ``keep(points)`` selects, when given)."""
+        sig = Signature(self.channels)
+        for i, points in zip(sorted(indices), self.frames(effects, indices) if frames is None else frames):
+            sig.add(points if keep is None else points[keep(points)], self.contexts[i])
+        return sig

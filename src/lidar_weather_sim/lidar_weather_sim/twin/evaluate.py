@@ -2,7 +2,7 @@
 
 The recording's held-out part (frames, or the held-out sectors' points of every frame; see
 :mod:`lidar_weather_sim.gap.split`) is cast again from its recorded poses with the twin's scenario
-(:class:`~lidar_weather_sim.gap.resim.GapResimulator`, no effects) and compared with the measured held-out
+(:class:`~lidar_weather_sim.gap.signatures.GapResimulator`, no effects) and compared with the measured held-out
 points on the bird's-eye occupancy (:func:`lidar_weather_sim.gap.compare.bev_metrics`: Pearson of the
 0.5 m cell counts, Jaccard and Hamming distances of the occupied cells) and the point counts.
 """
@@ -10,7 +10,7 @@ points on the bird's-eye occupancy (:func:`lidar_weather_sim.gap.compare.bev_met
 from __future__ import annotations
 
 from lidar_weather_sim.gap.compare import bev_metrics
-from lidar_weather_sim.gap.resim import GapResimulator, measured_signature
+from lidar_weather_sim.gap.signatures import GapResimulator, measured_signature
 from lidar_weather_sim.gap.split import DataSplit
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.schema import Scenario

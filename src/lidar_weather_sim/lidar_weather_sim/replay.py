@@ -1,4 +1,6 @@
-"""Re-simulation of a recording: every chosen frame cast again from its recorded sensor poses.
+"""Re-simulation of a recording: every chosen frame cast again from its recorded sensor poses; with what the gap
+search and the augmentation share about a recording: the road level, the vehicles around the sensor as boxes
+(sensor frame, REP-103, m) and the beam keys that pair the returns of two clouds of one sensor.
 
 The scene is built once from the scenario (roads, static meshes, actor bodies); each
 call to :meth:`Resimulator.frames` patches the scenario with a list of effects
@@ -14,7 +16,7 @@ numbers), so two effect lists are compared on the same draws.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -93,3 +95,58 @@ class Resimulator:
             out.append(self.sim.cast_frame(index, start, self.poses, batch_s=POSE_STEP_S).points)
             self.casts += 1
         return out
+
+
+# -- what a recording shows around the sensor ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ActorBox:
+    """A vehicle in the sensor frame: ``pose`` body-to-sensor 4x4 (body origin: centre of the
+    footprint on the road, x forward), size in m (default: a mid-size car)."""
+
+    actor_id: int
+    pose: np.ndarray
+    length_m: float = 4.7
+    width_m: float = 1.85
+    height_m: float = 1.45
+
+
+def road_level(recording: Recording, max_frames: int = 50) -> float:
+    """z of the road in the sensor frame (m): the road is the lowest surface around, so the 2nd
+    percentile of the z of the returns 5-60 m away, over up to ``max_frames`` frames."""
+    step = max(1, len(recording.frames) // max_frames)
+    z = []
+    for frame in recording.frames[::step]:
+        p = frame.points
+        keep = (p["distance"] >= 5.0) & (p["distance"] <= 60.0)
+        z.append(p["z"][keep].astype(np.float64))
+    z = np.concatenate(z) if z else np.zeros(0)
+    return float(np.percentile(z, 2.0)) if len(z) else -1.0e3  # no returns: no road zone
+
+
+# -- beams of a cloud by channel and azimuth column ----------------------------------------------------------
+
+
+def beam_keys(points: np.ndarray, columns: int) -> np.ndarray:
+    """One integer per point naming its beam: channel x columns + azimuth column."""
+    col = np.floor((points["azimuth"].astype(np.float64) + np.pi) / (2.0 * np.pi) * columns).astype(np.int64)
+    return points["channel"].astype(np.int64) * columns + np.clip(col, 0, columns - 1)
+
+
+def nearest_returns(points: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """(beam keys, index into ``points``) of each beam's nearest return, sorted by key."""
+    keys = beam_keys(points, columns)
+    order = np.lexsort((points["distance"], keys))
+    keys = keys[order]
+    first = np.ones(len(keys), bool)
+    first[1:] = keys[1:] != keys[:-1]
+    return keys[first], order[first]
+
+
+def paired_beams(a: np.ndarray, b: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices into ``a`` and into ``b`` of each beam's nearest return, over the beams both frames return on."""
+    ka, ia = nearest_returns(a, columns)
+    kb, ib = nearest_returns(b, columns)
+    _, ja, jb = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
+    return ia[ja], ib[jb]
