@@ -11,6 +11,7 @@ own packages' source files (wherever they are imported from):
 
     python scripts/code_walk.py run highway_clear --frames 1 --out /tmp/walk_run --overwrite
     python scripts/code_walk.py gap --scenario highway_clear MEASURED_BAG --out /tmp/walk_gap
+    python scripts/code_walk.py --pairs run ...   (also list every distinct jump back)
 """
 
 from __future__ import annotations
@@ -62,14 +63,19 @@ def _short(path: str) -> str:
 
 
 def main() -> int:
-    status, places, jumps = walk(sys.argv[1:])
+    pairs_wanted = "--pairs" in sys.argv[1:2]
+    argv = sys.argv[2:] if pairs_wanted else sys.argv[1:]
+    status, places, jumps = walk(argv)
     files = Counter(f for f, _ in places)
     pairs = set(jumps)
-    print(f"lidar-weather-sim {' '.join(sys.argv[1:])}: exit {status}, {len(places)} places in {len(files)} files, "
+    print(f"lidar-weather-sim {' '.join(argv)}: exit {status}, {len(places)} places in {len(files)} files, "
           f"{len(jumps)} jumps back ({len(pairs)} distinct file pairs)")  # fmt: skip
     back_into = Counter(to for _, to in pairs)
     for path, count in sorted(files.items(), key=lambda kv: (-back_into[kv[0]], kv[0])):
         print(f"  {count:4d} places, jumped back into from {back_into[path]:3d} files: {_short(path)}")
+    if pairs_wanted:
+        for source, target in sorted(pairs):
+            print(f"  jump back: {_short(source)} -> {_short(target)}")
     return 0 if status in (0, None) else 1
 
 

@@ -53,11 +53,13 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
     recording = Recording.load(measured, topic)
     resim = GapResimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
     report = (lambda text: progress(text, resim.casts)) if progress else None
-    source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
-                          tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None,
-                          atmosphere_model)  # fmt: skip
     with Engine(scheduler, workers) as engine:
-        remote = None if engine.serial else Workers(engine, source)
+        remote = None
+        if not engine.serial:  # each worker builds the search again from this
+            source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
+                                  tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None,
+                                  atmosphere_model)  # fmt: skip
+            remote = Workers(engine, source)
         search = GapSearch(resim, progress=report, workers=remote, split=split, **budgets)
         diagnosis = search.run()
     patched = apply_effects(scenario, diagnosis.effects, atmosphere_model)
