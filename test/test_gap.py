@@ -1,7 +1,7 @@
 """Reality-gap workflow: make-measured hides effects, gap names them, fits them and shrinks the gap; compare.
 
 The diagnosis tests run on 60 highway_clear scala4 frames with the command's default budgets
-(lidar_weather_sim.gap.budgets: 30 calibration, 30 held-out, 6 screening frames); each checks that exactly the hidden effects are named,
+(lidar_weather_sim.gap: 30 calibration, 30 held-out, 6 screening frames); each checks that exactly the hidden effects are named,
 that the main parameter comes back within 15 % and that the held-out gap at least halves.
 """
 
@@ -213,7 +213,7 @@ def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hi
 @pytest.mark.validation
 def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
     """Spray gives beams several echoes: a driver set to ``last`` (the profile: ``all``) is named - read off the
-    points' return_type codes (gap.return_modes) - and the re-simulation with it closes the gap."""
+    points' return_type codes (gap.read_off) - and the re-simulation with it closes the gap."""
     spray = load_scenario("highway_spray")
     make_measured(spray, [parse_effect("sensor.return_mode:mode=last")], tmp_path / "measured", frames=24)
     result = run_gap(tmp_path / "measured", spray, tmp_path / "gap", families=("sensor",), fit_frames=8,

@@ -192,21 +192,22 @@ def test_bad_input_exits_2_and_writes_nothing(highway_bag, tmp_path, capsys):
 
 
 def test_gap_reads_the_split_beside_the_twin_scenario(highway_bag, single_frame_twin, monkeypatch, capsys, tmp_path):
-    """`gap BAG --scenario DIR/scenario.yaml` hands DIR/split.yaml to the search (a shipped scenario: no split)."""
+    """`gap BAG --scenario DIR/scenario.yaml` fits and scores on DIR/split.yaml (a shipped scenario: no split),
+    and says which file it used."""
     import lidar_weather_sim.gap.command as command
 
-    seen = []
+    twin_file = single_frame_twin / "scenario.yaml"
+    scenario, split, split_file = command.scenario_and_split(str(twin_file), None)
+    assert split == split_beside(twin_file) and split.kind == "sectors" and split_file == single_frame_twin / "split.yaml"
+    assert scenario.name == load_scenario(twin_file).name
+    assert command.scenario_and_split("highway_clear", None)[1:] == (None, None)
 
     def fake_run_gap(measured, scenario, out, **kwargs):
-        seen.append(kwargs["split"])
-        return {"gap_before": 0.2, "gap_after": 0.1, "effects": [],
+        return {"gap_before": 0.2, "gap_after": 0.1, "effects": [], "found": "no effect",
+                "split": {"kind": "sectors", "file": str(split_file)},
                 "heldout_bev": {"before": {"pearson": 0.5}, "after": {"pearson": 0.6}}}  # fmt: skip
 
     monkeypatch.setattr(command, "run_gap", fake_run_gap)
-    assert cli_main(["gap", str(highway_bag), "--scenario", str(single_frame_twin / "scenario.yaml"),
-                     "--out", str(tmp_path / "gap")]) == 0  # fmt: skip
-    assert seen[-1] == split_beside(single_frame_twin / "scenario.yaml") and seen[-1].kind == "sectors"
+    assert cli_main(["gap", str(highway_bag), "--scenario", str(twin_file), "--out", str(tmp_path / "gap")]) == 0
     captured = capsys.readouterr()
-    assert "using the sectors split" in captured.err and "Pearson 0.500 -> 0.600" in captured.out
-    assert cli_main(["gap", str(highway_bag), "--scenario", "highway_clear", "--out", str(tmp_path / "gap2")]) == 0
-    assert seen[-1] is None
+    assert f"used the sectors split of {split_file}" in captured.err and "Pearson 0.500 -> 0.600" in captured.out

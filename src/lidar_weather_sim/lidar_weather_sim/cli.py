@@ -21,7 +21,7 @@ from lidar_weather_sim.core.argtypes import (
     workers_int,
 )
 from lidar_weather_sim.core.names import ATMOSPHERE_MODELS, RETURN_MODES, TOPIC_POINTS
-from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES
+from lidar_weather_sim.gap import FIT_FRAMES, HELDOUT_FRAMES
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -282,27 +282,24 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _cmd_gap(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from lidar_weather_sim.gap.command import found_effects, run_gap, scenario_split
-    from lidar_weather_sim.scenario.schema import load_scenario, scenario_path
+    from lidar_weather_sim.gap.command import run_gap
 
-    split = scenario_split(args.scenario)  # a twin's directory: fit and score on its split
-    if split is not None:
-        print(f"lidar-weather-sim gap: note: using the {split.kind} split of "
-              f"{scenario_path(args.scenario).parent / 'split.yaml'} (fit on calibration, score on held-out)",
-              file=sys.stderr)  # fmt: skip
     with tqdm(unit="frame", desc="gap: frames cast") as bar:
 
         def progress(text: str, casts: int) -> None:
             bar.update(casts - bar.n)
             bar.set_postfix_str(text[:60])
 
-        result = run_gap(args.measured, load_scenario(args.scenario), args.out, profile=args.profile, topic=args.topic,
+        result = run_gap(args.measured, args.scenario, args.out, profile=args.profile, topic=args.topic,
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
                          scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")),
-                         split=split, atmosphere_model=args.atmosphere_model)  # fmt: skip
-    bev = result.get("heldout_bev")
+                         atmosphere_model=args.atmosphere_model)  # fmt: skip
+    split, bev = result["split"], result.get("heldout_bev")
+    if split.get("file"):  # a twin's directory: fitted on its calibration part, scored on its held-out part
+        print(f"lidar-weather-sim gap: note: used the {split['kind']} split of {split['file']} (fit on calibration, "
+              f"score on held-out)", file=sys.stderr)  # fmt: skip
     pearson = f", held-out bird's-eye Pearson {bev['before']['pearson']:.3f} -> {bev['after']['pearson']:.3f}" if bev else ""
-    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {found_effects(result)}{pearson}; "
+    print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {result['found']}{pearson}; "
           f"wrote {args.out}/gap.json")  # fmt: skip
     return 0
 

@@ -457,7 +457,7 @@ def test_the_return_mode_is_read_off_the_codes_the_simulator_writes(mode):
     """highway_spray's OS1-128 frames (beams with two echoes): each mode's return_type codes name it; a cloud
     without the field, or with UNKNOWN codes, names none; the real recording's importer writes STRONGEST."""
     from lidar_weather_sim.core.points import ReturnType
-    from lidar_weather_sim.gap.return_modes import recorded_return_mode
+    from lidar_weather_sim.gap.read_off import recorded_return_mode
     from lidar_weather_sim.scenario.schema import load_scenario
     from lidar_weather_sim.scenario.world import World
     from lidar_weather_sim.sim.simulator import LidarSimulator

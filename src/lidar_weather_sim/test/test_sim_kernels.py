@@ -8,6 +8,7 @@ import pytest
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.geometry import quaternion_matrices
 from lidar_weather_sim.core.points import POINT_DTYPE, Label
+from lidar_weather_sim.core.scratch import Scratch
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
 from lidar_weather_sim.scene.raycast import SceneCaster, available_backends
@@ -474,5 +475,5 @@ def test_padded_mitsuba_casts_equal_unpadded():
 @pytest.mark.parametrize("n", [10, 5000])
 def test_range_noise_is_numpys_normal_stream(n):
     """Drawn by numpy or numba (many draws): the values of ``rng.normal(0, sigma, n)``."""
-    noise = range_noise(np.random.default_rng([1, 2, 3]), 0.01, n, workers.Scratch())
+    noise = range_noise(np.random.default_rng([1, 2, 3]), 0.01, n, Scratch())
     np.testing.assert_array_equal(noise, np.random.default_rng([1, 2, 3]).normal(0.0, 0.01, n))

@@ -13,13 +13,13 @@ import yaml
 from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.gap.compare import bev_metrics, build_comparison
 from lidar_weather_sim.gap.parallel import SearchSource, Workers
-from lidar_weather_sim.gap.report import format_params, write_compare, write_gap
+from lidar_weather_sim.gap.report import write_compare, write_gap
 from lidar_weather_sim.gap.signatures import GapResimulator, measured_signature
 from lidar_weather_sim.gap.search import GapSearch
-from lidar_weather_sim.gap.split import DataSplit, split_beside
+from lidar_weather_sim.gap.split import SPLIT_FILE, DataSplit, split_beside
 from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.effects import apply_effects
-from lidar_weather_sim.scenario.schema import Scenario, scenario_path
+from lidar_weather_sim.scenario.schema import Scenario, load_scenario, scenario_path
 
 
 def compare(measured: str | Path, simulated: str | Path, out: str | Path, scenario: Scenario | None = None,
@@ -30,17 +30,25 @@ def compare(measured: str | Path, simulated: str | Path, out: str | Path, scenar
     return write_compare(Path(out), comparison, str(measured), str(simulated))
 
 
-def scenario_split(scenario: str) -> DataSplit | None:
-    """The calibration / held-out split beside a scenario (name or YAML path): a twin directory's split.yaml, which
-    :func:`run_gap` then fits and scores on; None without one."""
-    return split_beside(scenario_path(scenario))
+def scenario_and_split(scenario: Scenario | str | Path, split: DataSplit | None) -> tuple[Scenario, DataSplit | None, Path | None]:
+    """The scenario (loaded if given by name or YAML path) and the split to use: ``split`` if given, else the
+    split.yaml beside a scenario file (a twin's directory), with that file's path (None otherwise)."""
+    if isinstance(scenario, Scenario):
+        return scenario, split, None
+    path = scenario_path(scenario)
+    beside = split_beside(path) if split is None else None
+    return load_scenario(scenario), beside or split, path.parent / SPLIT_FILE if beside else None
 
 
-def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profile: str | None = None,
+def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Path, *, profile: str | None = None,
             topic: str | None = None, progress: Callable[[str, int], None] | None = None,
             scheduler: str | None = None, workers: int = 0, split: DataSplit | None = None,
             atmosphere_model: str | None = None, **budgets) -> dict:  # fmt: skip
     """Diagnose ``measured`` against ``scenario`` and write the gap files to ``out``; returns gap.json's content.
+
+    ``scenario``: a scenario, or its name or YAML path; given by name or path and without ``split``, a twin
+    directory's split.yaml beside it decides the calibration and held-out parts (gap.json's ``split`` then names
+    the file).
 
     ``progress(message, frames cast so far)`` is called as the search goes; ``budgets`` are
     :class:`~lidar_weather_sim.gap.search.GapSearch` keywords (fit_frames, heldout_frames, families, ...);
@@ -50,9 +58,9 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
     cluster at ``scheduler`` (:mod:`lidar_weather_sim.gap.parallel`; the result is the same).
     ``atmosphere_model`` (``fitted`` | ``physical``): the atmosphere region's model the fog, rain and snow
     effects are searched and fitted with (None: the scenario's, else the region's default)."""
+    scenario, split, split_file = scenario_and_split(scenario, split)
     recording = Recording.load(measured, topic)
     resim = GapResimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
-    report = (lambda text: progress(text, resim.casts)) if progress else None
     with Engine(scheduler, workers) as engine:
         remote = None
         if not engine.serial:  # each worker builds the search again from this
@@ -60,7 +68,7 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
                                   tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None,
                                   atmosphere_model)  # fmt: skip
             remote = Workers(engine, source)
-        search = GapSearch(resim, progress=report, workers=remote, split=split, **budgets)
+        search = GapSearch(resim, progress=progress, workers=remote, split=split, **budgets)
         diagnosis = search.run()
     patched = apply_effects(scenario, diagnosis.effects, atmosphere_model)
     patched = patched.model_copy(update={"name": f"{scenario.name}_patched",
@@ -76,12 +84,9 @@ def run_gap(measured: str | Path, scenario: Scenario, out: str | Path, *, profil
         held, keep = diagnosis.heldout_indices, search.point_mask("heldout")
         measured_held = measured_signature(recording, held, resim.contexts, resim.channels, keep)
         result["split"]["kind"] = split.kind
+        result["split"]["file"] = str(split_file) if split_file else None
         result["heldout_bev"] = {"before": bev_metrics(measured_held, resim.signature([], held, keep)),
                                  "after": bev_metrics(measured_held, resim.signature(diagnosis.effects, held, keep))}  # fmt: skip
         (Path(out) / "gap.json").write_text(json.dumps(result, indent=1))
     return result
 
-
-def found_effects(result: dict) -> str:
-    """The effects of a gap.json content (:func:`run_gap`) as ``name (key=value, ...), ...``, or "no effect"."""
-    return ", ".join(f"{e['name']} ({format_params(e['params'])})" for e in result["effects"]) or "no effect"

@@ -26,9 +26,8 @@ from typing import Callable, Protocol
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from lidar_weather_sim.gap.budgets import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
-from lidar_weather_sim.gap.read_off import read_off_effects
-from lidar_weather_sim.gap.return_modes import recorded_return_mode
+from lidar_weather_sim.gap import FIT_FRAMES, HELDOUT_FRAMES, SCREEN_FRAMES
+from lidar_weather_sim.gap.read_off import read_off_effects, recorded_return_mode
 from lidar_weather_sim.gap.signatures import (
     ELEVATION_SHIFT_SCALE_DEG,
     INTENSITY_SHIFT_SCALE_BYTES,
@@ -72,12 +71,13 @@ class GapEvaluator:
     def __init__(self, resim: GapResimulator, fit_frames: int = FIT_FRAMES, heldout_frames: int = HELDOUT_FRAMES,
                  screen_frames: int = SCREEN_FRAMES,
                  grid: int | None = None, refine: int = 2, min_gain: float = MIN_GAIN, min_abs_gain: float = MIN_ABS_GAIN,
-                 progress: Callable[[str], None] | None = None, workers: EvaluationWorkers | None = None,
+                 progress: Callable[[str, int], None] | None = None, workers: EvaluationWorkers | None = None,
                  families: tuple[str, ...] = ("weather",), split: DataSplit | None = None) -> None:  # fmt: skip
         """``families``: the effect families searched (:data:`~lidar_weather_sim.scenario.effects.FAMILIES`;
         ``sensor`` adds the unit's own departures, for recordings of real sensors). ``split``: a twin's
         calibration / held-out split (else even / odd frames). ``workers``: where each round's evaluations run
-        (:mod:`lidar_weather_sim.gap.parallel`); without, in this process."""
+        (:mod:`lidar_weather_sim.gap.parallel`); without, in this process. ``progress(message, frames cast so
+        far)`` is told each step of the search."""
         unknown = sorted(set(families) - set(FAMILIES))
         if unknown or not families:
             raise ValueError(f"gap: effect families {list(families)}: choose from {', '.join(FAMILIES)}")
@@ -89,12 +89,17 @@ class GapEvaluator:
         self.refine = refine
         self.min_gain = min_gain
         self.min_abs_gain = min_abs_gain
-        self.progress = progress or (lambda text: None)
+        self._progress = progress
         rec = resim.recording
         self.fit_idx, self.held_idx = split_frames(len(rec.frames), fit_frames, heldout_frames, split)
         self.screen_idx = self.fit_idx[:: max(1, len(self.fit_idx) // max(screen_frames, 1))][:screen_frames]
         self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.point_mask(name))
                           for name, idx in self._splits().items()}  # fmt: skip
+
+    def progress(self, text: str) -> None:
+        """Tell the caller's ``progress`` (if any) ``text`` and the frames cast so far."""
+        if self._progress is not None:
+            self._progress(text, self.resim.casts)
 
     @functools.cached_property
     def data_candidates(self) -> list[Effect]:

@@ -140,6 +140,8 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
                      "gap_after": c.heldout_gap} for c, before_gap in diagnosis.accepted],  # fmt: skip
         "rejected": [{"name": c.effect.name, "gap_after": c.heldout_gap, "params": params(c.effect)}
                      for c in diagnosis.rejected],  # fmt: skip
+        "found": ", ".join(f"{c.effect.name} ({format_params(params(c.effect))})" for c, _ in diagnosis.accepted)
+                 or "no effect",  # fmt: skip
         "patched_scenario": "patched_scenario.yaml",
         "all_frames": {"frames": measured.frames, "gap_before": gap_value(measured, before),
                        "gap_after": gap_value(measured, after)},  # fmt: skip

@@ -17,7 +17,7 @@
    which they no longer earn the margin. One that does not earn it is tried again in the screening rounds.
    Dead channels are proven by the data (:meth:`~lidar_weather_sim.gap.evaluation.GapEvaluator.earns_margin`):
    accepted and kept unless they make the gap worse. So is the return mode the points' ``return_type`` codes
-   name (:mod:`lidar_weather_sim.gap.return_modes`): a recording that says its mode is not searched for one
+   name (:mod:`lidar_weather_sim.gap.read_off`): a recording that says its mode is not searched for one
    (two modes can give the same points).
    Screening round (:meth:`GapSearch.screen_round`): every candidate effect
    the model knows (:data:`lidar_weather_sim.scenario.effects.EFFECTS`; spray once per vehicle of the

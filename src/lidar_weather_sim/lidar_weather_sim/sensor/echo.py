@@ -46,6 +46,7 @@ import numpy as np
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.points import ReturnType
+from lidar_weather_sim.core.scratch import allocator
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold
 
 
@@ -124,7 +125,7 @@ def detect_echoes(
     Candidates with zero amplitude or non-finite range are ignored. ``segments``
     (starts, counts): the candidates are only these runs of the arrays, grouped by beam
     in beam order, as the simulator's kernels leave them (None: all of the arrays).
-    With ``scratch`` (:class:`lidar_weather_sim.core.workers.Scratch`) the echoes are views
+    With ``scratch`` (:class:`lidar_weather_sim.core.scratch.Scratch`) the echoes are views
     of its arrays, valid until its next use.
     """
     beam = np.ascontiguousarray(beam, np.int64)
@@ -406,7 +407,7 @@ def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=N
     beam = candidates.beam
     n = len(beam)
     cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
-    new = workers.allocator(scratch)
+    new = allocator(scratch)
     dtypes = (np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)
     out = EchoBuffers(*(new(f"echo_{k}", cap, dtype) for k, dtype in enumerate(dtypes)))
     if segments is None:

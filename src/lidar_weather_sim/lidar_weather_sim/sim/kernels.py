@@ -20,6 +20,7 @@ import numpy as np
 
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.points import ReturnType
+from lidar_weather_sim.core.scratch import allocator
 from lidar_weather_sim.scene.raycast import TriangleTables
 from lidar_weather_sim.sensor.echo import Candidates, beam_groups
 from lidar_weather_sim.sensor.radiometry import intensity_byte, overlap_at, peak_amplitude_at, surface_reflectance_at
@@ -129,7 +130,7 @@ def occluded_candidates(surface, scatterers, n_beams, n_sub, scratch=None):
     sc_beam = np.ascontiguousarray(scatterers[0], np.int64)
     order, first = beam_groups(sc_beam, n_beams)
     size = n_beams * n_sub + len(sc_beam)
-    new = workers.allocator(scratch)
+    new = allocator(scratch)
     out = Candidates(new("occ_beam", size, np.int64), new("occ_range", size, np.float64),
                      new("occ_amp", size, np.float64), new("occ_label", size, np.uint8),
                      new("occ_obj", size, np.uint32))  # fmt: skip
@@ -210,7 +211,7 @@ def world_rays(directions, rotation, translation, want64, scratch=None):
     float64 directions (C*B*S, 3) if ``want64`` (else an empty array)."""
     n_cols, n_beams, n_sub = directions.shape[:3]
     m = n_cols * n_beams * n_sub
-    new = workers.allocator(scratch)
+    new = allocator(scratch)
     o32 = new("origins32", (3, m), np.float32).T
     d32 = new("directions32", (3, m), np.float32).T
     d64 = np.empty((m if want64 else 0, 3))
@@ -261,7 +262,7 @@ def surface_returns(hits, static, directions, rotation, reflectivity, retro, mat
     n_cols, n_beams, n_sub = directions.shape[:3]
     m = n_cols * n_beams * n_sub
     size = m if compact else 0
-    new = workers.allocator(scratch if compact else None)
+    new = allocator(scratch if compact else None)
     out = Candidates(new("cand_beam", size, np.int64), new("cand_range", m, np.float64),
                      new("cand_amp", m, np.float64), new("cand_label", size, np.uint8),
                      new("cand_obj", size, np.uint32))  # fmt: skip

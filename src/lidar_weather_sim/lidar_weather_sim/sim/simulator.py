@@ -45,6 +45,7 @@ import numpy as np
 from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.geometry import quaternion_matrices
 from lidar_weather_sim.core.points import Label, empty_points, fill_polar, point_dtype
+from lidar_weather_sim.core.scratch import Scratch
 from lidar_weather_sim.core.seeding import Reseedable
 from lidar_weather_sim.regions.base import RayBatch, Region, RegionEffect, combine, region_entropy, region_rng
 from lidar_weather_sim.sensor.echo import Echoes, detect_echoes, select_returns
@@ -168,8 +169,8 @@ class LidarSimulator:
             self._actor_label[actor_id] = label
         self._frame: _FrameAccumulator | None = None
         self._last_time_s: float | None = None
-        self._scratch = workers.Scratch()  # per-batch temporaries of the detection stages, reused
-        self._ray_scratch = workers.Scratch()  # the rays' (cast while the previous batch's detection runs)
+        self._scratch = Scratch()  # per-batch temporaries of the detection stages, reused
+        self._ray_scratch = Scratch()  # the rays' (cast while the previous batch's detection runs)
         self._detection: Future | None = None  # the last batch's detection, running in the background
         self._noise = Reseedable()  # the receiver's noise streams (region_rng's), seeded per batch
         self._region_time_s: float | None = None  # simulated time the regions were last stepped to

@@ -40,6 +40,7 @@ import numba
 import numpy as np
 
 from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.scratch import Scratch, allocator
 from lidar_weather_sim.scene.mesh import TriangleMesh
 
 from .backend import MeshCaster, default_backend, make_caster
@@ -160,7 +161,7 @@ class SceneCaster:
         self._static = _Part.build(static, self.backend)
         self._actors = {int(k): _Part.build(m, self.backend) for k, m in actors.items()}
         self._pad = self.backend in _PAD_BACKENDS
-        self._scratch = workers.Scratch()
+        self._scratch = Scratch()
 
     @property
     def actor_ids(self) -> list[int]:
@@ -215,7 +216,7 @@ class SceneCaster:
         best, tri = self._cast_part(self._static, o, d, "static")
         best = np.ascontiguousarray(best, dtype=np.float32)
         tri = np.ascontiguousarray(tri, dtype=np.int64)
-        new = workers.allocator(self._scratch if reuse else None)
+        new = allocator(self._scratch if reuse else None)
         normal, material, object_id, hit_actor, origin_box, axis, half_angle = _static_pass(
             best, tri, np.float32(max_range_m), o, d, self._static, bool(actor_poses) and len(o) > 0, gather, new
         )
