@@ -13,7 +13,9 @@ returns a :class:`RegionEffect`:
   of the sub-ray, a label and an object id;
 - ``reflectance_scale`` (N, S): multiplies the reflectance of scene hits
   (wet asphalt), ``range_offset_m`` (N, S): moves scene hits along the ray
-  (snow cover raises the road: negative offsets).
+  (snow cover raises the road: negative offsets);
+- ``volume``: volume returns (:class:`VolumeTerm`), a medium's waveform read per beam from a table
+  (:mod:`lidar_weather_sim.sensor.volume_tables`), cut at the beam's hard target.
 
 Regions advance in simulated time with ``step(t0_s, t1_s)`` and draw all
 randomness from the generator they are given, seeded from (seed, frame,
@@ -45,6 +47,7 @@ import numpy as np
 
 from lidar_weather_sim.core.config import ConfigError, ConfigModel, validate
 from lidar_weather_sim.core.registry import Registry
+from lidar_weather_sim.sensor.volume_tables import VolumeTable
 
 ENTRY_POINT_GROUP = "lidar_weather_sim.regions"
 
@@ -130,12 +133,25 @@ class Scatterers:
 
 
 @dataclass
+class VolumeTerm:
+    """A volume return on the beams of a batch: ``table``'s waveform (noise units, the whole beam: it holds the
+    overlap, 1/r^2 and the medium's own extinction) times ``scale`` (N,) on each beam (0: none), cut at ``hit_m``
+    (N,) m along the beam (None: the central sub-ray's scene hit, moved by the range offset). The echo stage
+    multiplies ``scale`` by the central sub-ray's two-way transmission (e.g. a dirty cover)."""
+
+    table: VolumeTable
+    scale: np.ndarray
+    hit_m: np.ndarray | None = None
+
+
+@dataclass
 class RegionEffect:
     transmission: np.ndarray | None = None
     extinction_per_m: np.ndarray | None = None
     scatterers: Scatterers | None = None
     reflectance_scale: np.ndarray | None = None
     range_offset_m: np.ndarray | None = None
+    volume: list[VolumeTerm] | None = None
 
 
 @runtime_checkable
@@ -192,4 +208,5 @@ def combine(effects: list[RegionEffect], shape: tuple[int, int]) -> RegionEffect
         if e.range_offset_m is not None:
             out.range_offset_m = out.range_offset_m + e.range_offset_m
     out.scatterers = Scatterers.concatenate([e.scatterers for e in effects])
+    out.volume = [term for e in effects for term in (e.volume or [])] or None
     return out

@@ -48,6 +48,7 @@ from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.points import ReturnType
 from lidar_weather_sim.core.scratch import allocator
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold
+from lidar_weather_sim.sensor.volume_tables import Volume, empty_volume, fill_volume, volume_window
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,7 @@ def detect_echoes(
     max_echoes: int,
     segments: tuple[np.ndarray, np.ndarray] | None = None,
     scratch=None,
+    volume: Volume | None = None,
 ) -> Echoes:
     """Echoes of candidate returns of the beams of a batch (fastest when grouped by beam).
 
@@ -126,8 +128,16 @@ def detect_echoes(
     (starts, counts): the candidates are only these runs of the arrays, grouped by beam
     in beam order, as the simulator's kernels leave them (None: all of the arrays).
     With ``scratch`` (:class:`lidar_weather_sim.core.scratch.Scratch`) the echoes are views
-    of its arrays, valid until its next use.
+    of its arrays, valid until its next use. ``volume``
+    (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`, its grid step s / 8 of this pulse): volume
+    returns added to the waveforms of the beams that carry them (a beam index of the candidates is its row),
+    those beams detected even without candidates.
     """
+    sigma = float(fwhm_m) * FWHM_TO_SIGMA
+    if volume is not None:
+        beam, range_m, amplitude, label, object_id = _with_volume_beams(
+            (beam, range_m, amplitude, label, object_id), segments, volume, sigma, int(max_echoes))
+        segments = None
     beam = np.ascontiguousarray(beam, np.int64)
     if segments is None and not _ascending(beam):
         order = _beam_order(beam)
@@ -139,9 +149,24 @@ def detect_echoes(
         np.ascontiguousarray(label, np.uint8),
         np.ascontiguousarray(object_id, np.uint32),
     )
-    detector = Detector(float(threshold.level), float(fwhm_m) * FWHM_TO_SIGMA, float(resolution_m), int(max_echoes))
-    out = _detect(candidates, detector, scratch, segments)
+    detector = Detector(float(threshold.level), sigma, float(resolution_m), int(max_echoes))
+    out = _detect(candidates, detector, scratch, segments, volume)
     return Echoes(*out)
+
+
+def _with_volume_beams(candidates: tuple, segments, volume: Volume, sigma: float, max_echoes: int) -> tuple:
+    """The candidates (of the runs ``segments``, if given) and ``max_echoes`` empty ones (zero amplitude) on every
+    beam carrying a volume layer: each such beam is detected, with room for its echoes."""
+    if volume.dx != sigma / 8.0:
+        raise ValueError(f"volume tables on a grid of {volume.dx} m, the echo stage samples every {sigma / 8.0} m")
+    if segments is not None:
+        runs = [slice(int(a), int(a + c)) for a, c in zip(*segments)]
+        candidates = tuple(np.concatenate([x[run] for run in runs]) for x in candidates)
+    carriers = np.flatnonzero(((volume.table >= 0) & (volume.scale > 0)).any(axis=1))
+    empty = (np.repeat(carriers, max_echoes), np.full(len(carriers) * max_echoes, np.nan),
+             np.zeros(len(carriers) * max_echoes), np.zeros(len(carriers) * max_echoes, np.uint8),
+             np.zeros(len(carriers) * max_echoes, np.uint32))  # fmt: skip
+    return tuple(np.concatenate([np.asarray(x), e.astype(np.asarray(x).dtype)]) for x, e in zip(candidates, empty))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -293,19 +318,9 @@ def _cluster_echoes(pulses, c0, c1, thr, s, out, out0, room, buf):
     """Echoes of the overlapping ``pulses`` c0..c1 (two or more; threshold ``thr``, pulse width
     ``s`` m), their range, amplitude, EPW, label and object id written into ``out``
     (:class:`EchoBuffers`) from out0 on; returns how many (<= room). ``buf``: scratch for the
-    samples (grown if too short).
-
-    The waveform is sampled every s / 8 m; an echo runs from the first sample above the
-    threshold to the last (crossings interpolated linearly between samples); its peak amplitude is
-    its first highest sample, its range the vertex of the parabola through that sample and its two
-    neighbours (the waveform's maximum to < 5 % of a sample step; the highest sample alone is up to
-    half a step off, on a grid whose offset depends on the cluster). Samples are estimated
-    (:func:`_fill_estimates`); the exact value
-    (:func:`_sample`) is computed only where the estimate's error bound leaves the comparison
-    with the threshold open, at the crossings and for the samples that may be the highest:
-    the echoes are those of the exact samples, bit for bit."""
-    r, a, reach, lab, obj = pulses
-    out_r, out_a, out_w, out_l, out_o = out.range_m, out.amplitude, out.epw_m, out.label, out.object_id
+    samples (grown if too short). The waveform is sampled by :func:`_run_echoes` on a grid from the
+    cluster's own start, over the window where it may exceed the threshold."""
+    r, a, reach = pulses.range_m, pulses.amplitude, pulses.reach
     dx = s / 8.0
     lo = 1e300
     hi = -1e300
@@ -330,9 +345,56 @@ def _cluster_echoes(pulses, c0, c1, thr, s, out, out0, room, buf):
     n = min(int((r_max + bound - lo) / dx) + 3, steps) - first
     if n <= 0:
         return 0
+    return _run_echoes(pulses, c0, c1, thr, s, (lo, first, n), _NO_VOLUME, out, out0, room, buf)
+
+
+class VolumeSamples(NamedTuple):
+    """A beam's volume (:mod:`lidar_weather_sim.sensor.volume_tables`) at the samples of a window and one on
+    each side (index j + 1 for the window's sample j), with the label of its largest layer there; empty: none."""
+
+    value: np.ndarray  # (n + 2,) noise units
+    label: np.ndarray  # (n + 2,) uint8
+
+
+_NO_VOLUME = VolumeSamples(np.zeros(0), np.zeros(0, np.uint8))
+
+
+@numba.njit(cache=True, inline="always")
+def _exact(r, a, c0, c1, s, x, volume, j):
+    """The waveform at the window's sample j, at range ``x`` (m): pulses c0..c1 summed in order, then the volume's
+    sample when there is one."""
+    w = _sample(r, a, c0, c1, s, x)
+    if len(volume.value):
+        w += volume.value[j + 1]
+    return w
+
+
+@numba.njit(cache=True, inline="always")
+def _run_echoes(pulses, c0, c1, thr, s, window, volume, out, out0, room, buf):
+    """Echoes of the waveform of ``pulses`` c0..c1 plus ``volume`` (:class:`VolumeSamples`) sampled every s / 8 m
+    at ``lo + (first + j) dx``, j < n (``window`` = (lo, first, n)), written into ``out`` (:class:`EchoBuffers`)
+    from out0 on; returns how many (<= room). ``buf``: scratch for the samples (grown if too short).
+
+    An echo runs from the first sample above the
+    threshold to the last (crossings interpolated linearly between samples); its peak amplitude is
+    its first highest sample, its range the vertex of the parabola through that sample and its two
+    neighbours (the waveform's maximum to < 5 % of a sample step; the highest sample alone is up to
+    half a step off, on a grid whose offset depends on the cluster); its label and object id those of
+    the largest contributor at that sample (the volume: its layer's label, object 0). Samples are estimated
+    (:func:`_fill_estimates`, plus the volume, exact by definition); the exact value
+    (:func:`_exact`) is computed only where the estimate's error bound leaves the comparison
+    with the threshold open, at the crossings and for the samples that may be the highest:
+    the echoes are those of the exact samples, bit for bit."""
+    r, a, reach, lab, obj = pulses
+    out_r, out_a, out_w, out_l, out_o = out.range_m, out.amplitude, out.epw_m, out.label, out.object_id
+    lo, first, n = window
+    dx = s / 8.0
     if n > len(buf):
         buf = np.empty(n)
     tol, eps = _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf)
+    if len(volume.value):
+        for j in range(n):
+            buf[j] += volume.value[j + 1]
     up, down = 1.0 + tol, 1.0 - tol  # the exact sample lies in [est * down, est * up + eps]
     written = 0
     inside = False
@@ -344,14 +406,14 @@ def _cluster_echoes(pulses, c0, c1, thr, s, out, out0, room, buf):
         elif est * up + eps < thr:
             over = False
         else:
-            over = _sample(r, a, c0, c1, s, lo + (first + j) * dx) > thr
+            over = _exact(r, a, c0, c1, s, lo + (first + j) * dx, volume, j) > thr
         if over and not inside:
             inside = True
             ks = j
         elif not over and inside:
             inside = False
-            w_in = _sample(r, a, c0, c1, s, lo + (first + ks) * dx)
-            prev = _sample(r, a, c0, c1, s, lo + (first + ks - 1) * dx) if ks > 0 else 0.0
+            w_in = _exact(r, a, c0, c1, s, lo + (first + ks) * dx, volume, ks)
+            prev = _exact(r, a, c0, c1, s, lo + (first + ks - 1) * dx, volume, ks - 1) if ks > 0 else 0.0
             x = lo + (first + ks) * dx
             start = x - dx * (w_in - thr) / (w_in - prev)  # linear interpolation of the crossing
             peak = 0.0
@@ -359,23 +421,25 @@ def _cluster_echoes(pulses, c0, c1, thr, s, out, out0, room, buf):
                 peak = max(peak, buf[m])
             best_w = -1.0
             best_x = 0.0
+            best_m = ks
             for m in range(ks, j):  # the first highest exact sample among those that may be highest
                 if buf[m] * up + eps >= peak * down:
                     x = lo + (first + m) * dx
-                    w = _sample(r, a, c0, c1, s, x)
+                    w = _exact(r, a, c0, c1, s, x, volume, m)
                     if w > best_w:
                         best_w = w
                         best_x = x
+                        best_m = m
             # the maximum between the samples: the parabola through the highest one and its neighbours
-            w_lo = _sample(r, a, c0, c1, s, best_x - dx)
-            w_hi = _sample(r, a, c0, c1, s, best_x + dx)
+            w_lo = _exact(r, a, c0, c1, s, best_x - dx, volume, best_m - 1)
+            w_hi = _exact(r, a, c0, c1, s, best_x + dx, volume, best_m + 1)
             curvature = w_lo - 2.0 * best_w + w_hi
             peak_x = best_x
             if curvature < 0.0:
                 peak_x = best_x + dx * min(max(0.5 * (w_lo - w_hi) / curvature, -0.5), 0.5)
             x = lo + (first + j) * dx
-            w = _sample(r, a, c0, c1, s, x)
-            prev = _sample(r, a, c0, c1, s, lo + (first + j - 1) * dx)
+            w = _exact(r, a, c0, c1, s, x, volume, j)
+            prev = _exact(r, a, c0, c1, s, lo + (first + j - 1) * dx, volume, j - 1)
             end = x - dx * (thr - w) / (prev - w)
             best_i = c0  # label of the strongest contributor at the peak
             best_c = -1.0
@@ -388,25 +452,34 @@ def _cluster_echoes(pulses, c0, c1, thr, s, out, out0, room, buf):
             out_r[out0 + written] = peak_x
             out_a[out0 + written] = best_w
             out_w[out0 + written] = end - start
-            out_l[out0 + written] = lab[best_i]
-            out_o[out0 + written] = obj[best_i]
+            if len(volume.value) and volume.value[best_m + 1] > best_c:
+                out_l[out0 + written] = volume.label[best_m + 1]
+                out_o[out0 + written] = 0
+            else:
+                out_l[out0 + written] = lab[best_i]
+                out_o[out0 + written] = obj[best_i]
             written += 1
             if written == room:
                 return written
     return written
 
 
+_EMPTY_VOLUME = empty_volume()
+
 #: Candidates per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.core.workers`):
 #: chunks are cut where the beam changes, every beam is computed the same way.
 CHUNK_CANDIDATES = 8192
 
 
-def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=None):
+def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=None, volume: Volume | None = None):
     """The arrays of :class:`Echoes` of ``candidates`` (grouped by beam; only the runs ``segments``
-    (starts, counts) if given), each chunk's written from its first candidate's index on."""
+    (starts, counts) if given) with the beams' ``volume`` layers (None: none), each chunk's written from its
+    first candidate's index on."""
+    volume = _EMPTY_VOLUME if volume is None else volume
     beam = candidates.beam
     n = len(beam)
-    cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates
+    cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates (volume beams: see
+    # _with_volume_beams)
     new = allocator(scratch)
     dtypes = (np.int64, np.uint8, np.float64, np.float64, np.float64, np.uint8, np.uint32)
     out = EchoBuffers(*(new(f"echo_{k}", cap, dtype) for k, dtype in enumerate(dtypes)))
@@ -418,7 +491,7 @@ def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=N
     else:
         starts, ends = segments[0], segments[0] + segments[1]
     counts = np.array(workers.run_chunks(
-        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out),
+        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out, volume),
         len(starts),
     ), np.int64)  # fmt: skip
     return (*out, (starts, counts))
@@ -443,9 +516,10 @@ def _beam_starts(beam, cuts):
 
 
 @numba.njit(cache=True, nogil=True)
-def _detect_run(candidates, detector, lo, hi, out):
+def _detect_run(candidates, detector, lo, hi, out, volume):
     """Echoes of the beams of ``candidates`` lo..hi (whole beams), written into ``out``
-    (:class:`EchoBuffers`) from index lo on; returns how many."""
+    (:class:`EchoBuffers`) from index lo on; returns how many. A beam with layers in ``volume``
+    (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`) goes through :func:`_volume_echoes`."""
     beam, r, a, lab, obj = candidates
     thr, s, resolution, max_echoes = detector
     eb, ee, er, ea, ew, el, eo = out
@@ -458,6 +532,7 @@ def _detect_run(candidates, detector, lo, hi, out):
     reach = np.empty(size)  # _reach of each merged pulse of the beam
     pulses = Pulses(mr, ma, reach, ml, mo)
     buf = np.empty(ESTIMATE_SAMPLES)  # waveform samples of a cluster
+    samples = VolumeSamples(np.empty(0), np.empty(0, np.uint8))  # a volume beam's, grown when needed
     isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
     n_isolated = 0
     count = lo
@@ -467,6 +542,18 @@ def _detect_run(candidates, detector, lo, hi, out):
         while j < hi and beam[j] == beam[i]:
             j += 1
         m = _sort_and_merge(r, a, lab, obj, i, j, resolution, idx, mr, ma, ml, mo)
+        v0, v1, v_bound = volume_window(volume, beam[i])
+        if v1 > v0:
+            for q in range(m):
+                reach[q] = _reach(ma[q], thr, s)
+            found, samples = _volume_echoes(pulses, m, detector, (volume, beam[i], v0, v1, v_bound), out, count,
+                                            buf, samples)  # fmt: skip
+            for k in range(found):
+                eb[count + k] = beam[i]
+                ee[count + k] = k + 1
+            count += found
+            i = j
+            continue
         if m > 1:
             for q in range(m):
                 reach[q] = _reach(ma[q], thr, s)
@@ -496,6 +583,75 @@ def _detect_run(candidates, detector, lo, hi, out):
         k = isolated[q]
         ew[k] = 2.0 * s * np.sqrt(2.0 * np.log(ew[k]))
     return count - lo
+
+
+@numba.njit(cache=True, inline="always")
+def _volume_echoes(pulses, m, detector, beam_volume, out, out0, buf, samples):
+    """Echoes of one beam's merged ``pulses`` (m, their reach set) plus its volume, written into ``out`` from out0
+    on; returns (how many, ``samples`` grown if they had to be). ``beam_volume``: (the
+    :class:`~lidar_weather_sim.sensor.volume_tables.Volume`, the beam, the samples [v0, v1) where its volume may be
+    non-zero, a bound on its value).
+
+    Clusters of pulses (as in :func:`_detect_run`) that end before the volume's window or start after it are
+    found as on a beam without a volume; the volume's window and the clusters reaching into it are one waveform,
+    sampled on the grid of the volume's tables (``k dx`` from the sensor) by :func:`_run_echoes`."""
+    r, a, reach, lab, obj = pulses
+    thr, s, resolution, max_echoes = detector
+    volume, b, v0, v1, v_bound = beam_volume
+    dx = s / 8.0
+    v_lo, v_hi = v0 * dx, (v1 - 1) * dx
+    found = 0
+    c0 = 0
+    done = False
+    while (c0 < m or not done) and found < max_echoes:
+        c1 = c0
+        c_lo, c_hi = 1e300, 1e300
+        if c0 < m:
+            c1 = c0 + 1
+            while c1 < m and r[c1] - r[c1 - 1] < reach[c1 - 1] + reach[c1]:
+                c1 += 1
+            c_lo, c_hi = 1e300, -1e300
+            for q in range(c0, c1):
+                c_lo, c_hi = min(c_lo, r[q] - reach[q]), max(c_hi, r[q] + reach[q])
+        if done or c_hi < v_lo:  # a cluster on its own
+            if c1 - c0 > 1:
+                got = _cluster_echoes(pulses, c0, c1, thr, s, out, out0 + found, max_echoes - found, buf)
+            else:
+                got = 0
+                if a[c0] > thr:
+                    k = out0 + found
+                    out.range_m[k], out.amplitude[k], out.label[k], out.object_id[k] = r[c0], a[c0], lab[c0], obj[c0]
+                    out.epw_m[k] = 2.0 * s * np.sqrt(2.0 * np.log(a[c0] / thr))
+                    got = 1
+        else:  # the volume, with the pulses reaching into its window
+            w_lo, w_hi = v_lo, v_hi
+            if c_lo <= v_hi:
+                while c1 < m and r[c1] - reach[c1] <= max(w_hi, c_hi):
+                    c_hi = max(c_hi, r[c1] + reach[c1])
+                    c1 += 1
+            else:
+                c1 = c0
+            total, r_min, r_max = 0.0, 1e300, -1e300
+            for q in range(c0, c1):
+                total += a[q]
+                r_min, r_max = min(r_min, r[q]), max(r_max, r[q])
+            if total > thr:  # where the pulses alone may exceed the threshold (see _cluster_echoes)
+                bound = s * (np.sqrt(2.0 * np.log(total / thr)) + 1e-6)
+                w_lo, w_hi = min(w_lo, r_min - bound), max(w_hi, r_max + bound)
+            got = 0
+            if total + v_bound > thr:
+                first = int(np.floor(w_lo / dx)) - 1
+                n = int(np.ceil(w_hi / dx)) + 2 - first
+                if n + 2 > len(samples.value):
+                    samples = VolumeSamples(np.empty(n + 2), np.empty(n + 2, np.uint8))
+                fill_volume(volume, b, first - 1, n + 2, samples.value, samples.label)
+                got = _run_echoes(pulses, c0, c1, thr, s, (0.0, first, n),
+                                  VolumeSamples(samples.value[: n + 2], samples.label[: n + 2]),
+                                  out, out0 + found, max_echoes - found, buf)  # fmt: skip
+            done = True
+        found += got
+        c0 = c1
+    return found, samples
 
 
 _STRONGEST, _LAST, _FIRST, _DUAL = (RETURN_MODES.index(m) for m in ("strongest", "last", "first", "dual"))

@@ -53,6 +53,7 @@ from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.radiometry import Threshold, dark_level, overlap_factor, peak_amplitude
 from lidar_weather_sim.sensor.response import SensorResponse, apply_response
 from lidar_weather_sim.sensor.scan import ScanPattern
+from lidar_weather_sim.sensor.volume_tables import Volume, stack_volume
 from lidar_weather_sim.sim.kernels import (
     KeptEchoes,
     ScanTables,
@@ -342,7 +343,7 @@ class LidarSimulator:
         candidates, segments = self._candidates(hits, directions, rotation, ray_batch, effect)
         candidates, segments = self._add_false_alarms(candidates, segments, len(columns) * directions.shape[1],
                                                       acc.index, int(columns[0]))  # fmt: skip
-        echoes = self._echoes(candidates, segments)
+        echoes = self._echoes(candidates, segments, _volume(ray_batch, effect))
         self._points(echoes, self._returns(echoes), columns, directions.shape[1], acc, int(columns[0]))
         acc.rays += directions.shape[0] * directions.shape[1] * directions.shape[2]
 
@@ -408,8 +409,9 @@ class LidarSimulator:
             effects = [apply(k) for k in range(len(self.regions))]
         return ray_batch, combine(effects, shape)
 
-    def _echoes(self, candidates, segments) -> Echoes:
-        """The threshold decision on each beam's waveform (:func:`~lidar_weather_sim.sensor.echo.detect_echoes`)."""
+    def _echoes(self, candidates, segments, volume: Volume | None = None) -> Echoes:
+        """The threshold decision on each beam's waveform (:func:`~lidar_weather_sim.sensor.echo.detect_echoes`),
+        with the beams' ``volume`` returns (None: none)."""
         profile = self.profile
         return detect_echoes(
             *candidates,
@@ -419,6 +421,7 @@ class LidarSimulator:
             max_echoes=profile.detection.max_echoes,
             segments=segments,
             scratch=self._scratch,
+            volume=volume,
         )
 
     def _returns(self, echoes: Echoes) -> np.ndarray:
@@ -534,6 +537,27 @@ class LidarSimulator:
             stamp = np.round(pattern.column_time_s * 1e9).astype(np.uint32)
             self._geo = (cos_az, sin_az, np.arctan2(sin_az, cos_az), np.cos(el), np.sin(el), el, stamp)
         return self._geo
+
+
+def _volume(rays: RayBatch | None, effect: RegionEffect | None) -> Volume | None:
+    """The volume returns of ``effect`` on the batch's beams as the echo kernel reads them (None: none): each
+    term cut at its hit (default: the central sub-ray's scene hit moved by the range offset, inf on a miss) and
+    scaled by the central sub-ray's two-way transmission."""
+    if effect is None or not effect.volume:
+        return None
+    core = int(np.argmax(rays.weights))
+    distance = rays.distance[:, core]
+    scene_hit = np.where(np.isfinite(distance), distance + effect.range_offset_m[:, core], np.inf)
+    two_way = effect.transmission[:, core] ** 2
+    tables = list({id(term.table): term.table for term in effect.volume}.values())
+    index = {id(table): k for k, table in enumerate(tables)}
+    layers = [(index[id(term.table)], two_way * term.scale, scene_hit if term.hit_m is None else term.hit_m)
+              for term in effect.volume]  # fmt: skip
+    n = len(distance)
+    table = np.stack([np.where(scale > 0, k, -1) for k, scale, _ in layers], axis=1)
+    scale = np.stack([np.broadcast_to(scale, n) for _, scale, _ in layers], axis=1)
+    hit_m = np.stack([np.broadcast_to(hit, n) for _, _, hit in layers], axis=1)
+    return stack_volume(tables, table, scale, hit_m)
 
 
 def _poses(poses: PoseSource, times: np.ndarray, actor_times: list[float]):

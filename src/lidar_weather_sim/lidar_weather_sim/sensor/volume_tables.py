@@ -1,0 +1,233 @@
+"""Volume returns as tables on the echo stage's sampling grid: what a beam inside a medium (fog, the drops too
+small to be seen one by one) receives from it, built once per medium and read per beam.
+
+The grid is the one :mod:`lidar_weather_sim.sensor.echo` samples a waveform on: ``dx = s / 8`` (``s`` the pulse's
+Gaussian sigma in range, m), sample k at range ``k dx`` (m along the beam, from the sensor), from k = -REACH (the
+pulses of the nearest cells reach in front of the sensor, as the echo stage's pulses do): index i of the arrays is
+sample i - REACH. Cell k is [(k - 1/2) dx, (k + 1/2) dx]. A table holds, for one medium seen by one beam's optics:
+
+- ``density[k]``: the medium's return per cell (noise units): the integral over the cell of a density of range
+  (noise units per m, e.g. ``C pi beta O(r) exp(-2 alpha r) / r^2`` of
+  :class:`lidar_weather_sim.regions.volume_return.VolumeReturn`) by 8-point Gauss-Legendre (exact to < 1e-6
+  where 1/r^2 rises near the sensor), then the receiver's AC coupling
+  (:func:`lidar_weather_sim.sensor.ac_coupling.highpass_slabs` over the cells, clipped at 0 as there);
+- ``wave[k]``: the waveform, the density convolved with the unit-peak Gaussian pulse on the grid
+  (``sum_k' density[k'] exp(-((k - k') / 8)^2 / 2)`` over ``|k - k'| <= REACH``, 6 s: what it leaves out is
+  below 1e-8 of the sum); 0 outside the support;
+- ``cut[i, o]``: the waveform of the density in front of the cell boundary ``(K - 1/2) dx``, K = ``cut_first`` + i,
+  at samples ``K - REACH + o`` (o < 2 REACH). Farther in front the truncated waveform is ``wave``, farther behind it
+  is 0. A beam whose hard target is at R reads its volume truncated at R as the quadratic interpolation in R of
+  the rows of the boundary in front of R and the two behind it (the truncated waveform is smooth in R: its
+  derivative is the density at R times the pulse; linear interpolation was off by 6e-3 a sigma behind R);
+- ``label[k]`` (uint8) and ``support`` = [k0, k1) (samples): where ``wave`` exceeds ``floor`` (noise units);
+  the volume is 0 elsewhere.
+
+The high-pass is causal, so truncating the filtered density at a hit is the filtered truncated density: the
+rows hold both. :class:`Volume` stacks the tables of a batch with each beam's hit and scale for the echo kernel,
+which reads them with :func:`volume_window` and :func:`fill_volume`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
+
+#: Samples per pulse sigma on the grid (the echo stage's, :func:`lidar_weather_sim.sensor.echo._cluster_echoes`).
+SAMPLES_PER_SIGMA = 8
+#: Samples (6 sigma) the pulse reaches on each side of a cell.
+REACH = 6 * SAMPLES_PER_SIGMA
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(8)
+_KERNEL = np.exp(-0.5 * (np.arange(-REACH, REACH + 1) / SAMPLES_PER_SIGMA) ** 2)  # the pulse at k dx, k = -REACH..REACH
+
+
+def grid_step(sigma_m: float) -> float:
+    """The grid's step dx (m) for a pulse of Gaussian sigma ``sigma_m`` (m), as the echo stage computes it."""
+    return float(sigma_m) / 8.0
+
+
+@dataclass(frozen=True)
+class VolumeTable:
+    """One medium's volume return seen by one beam's optics on the grid of step ``dx_m`` (module doc)."""
+
+    dx_m: float
+    density: np.ndarray  # (n,) noise units per cell, after the high-pass (index i: cell i - REACH)
+    wave: np.ndarray  # (n,) noise units, 0 outside the support (index i: sample i - REACH)
+    cut: np.ndarray  # (m, 2 REACH) noise units
+    cut_first: int  # the boundary row of cut[0] (sample)
+    label: np.ndarray  # (n,) uint8
+    support: tuple[int, int]  # [k0, k1) samples
+
+    @property
+    def range_m(self) -> np.ndarray:
+        """The range (m) of each sample of ``wave``."""
+        return (np.arange(len(self.wave)) - REACH) * self.dx_m
+
+    def truncated(self, hit_m: float) -> np.ndarray:
+        """The waveform (n,) at :attr:`range_m` of the medium in front of a hard target at ``hit_m`` (m; inf:
+        none), as the echo stage reads it (a reference for tests and plots: the kernel reads the same arrays)."""
+        volume = stack_volume([self], np.zeros((1, 1), np.int64), np.ones((1, 1)), np.array([[hit_m]]))
+        values, labels = np.zeros(len(self.wave)), np.zeros(len(self.wave), np.uint8)
+        fill_volume(volume, 0, -REACH, len(self.wave), values, labels)
+        return values
+
+
+def build_table(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: float, r_max_m: float,
+                label: int | np.ndarray, start_m: float = 0.0, tau_m: float = 0.0, floor: float = 0.0) -> VolumeTable:  # fmt: skip
+    """The table of a medium whose return density along the beam is ``density_fn(r)`` (noise units per m at ranges
+    r, m), from ``start_m`` (m; the overlap's start or the nearest range the LIDAR equation knows) to ``r_max_m``;
+    pulse sigma ``sigma_m`` (m), AC coupling time constant ``tau_m`` (m; 0: DC), support where the waveform
+    exceeds ``floor`` (noise units), ``label`` of every cell (one, or (n,) per cell)."""
+    dx = grid_step(sigma_m)
+    n = int(np.ceil(r_max_m / dx)) + 1 + 2 * REACH
+    k = np.arange(n) - REACH
+    lower = np.clip((k - 0.5) * dx, start_m, r_max_m)
+    upper = np.clip((k + 0.5) * dx, start_m, r_max_m)
+    half = 0.5 * (upper - lower)
+    nodes = (lower + half)[:, None] + half[:, None] * _NODES[None, :]
+    density = np.where(half > 0, density_fn(nodes.ravel()).reshape(nodes.shape) @ _WEIGHTS * half, 0.0)
+    if tau_m > 0:
+        inside = half > 0
+        density[inside] = highpass_slabs(density[inside], lower[inside], upper[inside],
+                                         np.zeros(int(inside.sum()), np.int64), tau_m)  # fmt: skip
+    wave = np.convolve(density, _KERNEL)[REACH : REACH + n]
+    above = np.flatnonzero(wave > floor)
+    i0, i1 = (int(above[0]), int(above[-1]) + 1) if len(above) else (0, 0)
+    wave[:i0] = 0.0
+    wave[i1:] = 0.0
+    k0, k1 = i0 - REACH, i1 - REACH
+    cut_first = max(k0 - REACH + 1, 0)
+    rows = np.arange(cut_first, k1 + REACH + 2) if k1 > k0 else np.zeros(0, np.int64)
+    return VolumeTable(dx, density, wave, _cut_rows(density, rows), cut_first,
+                       np.broadcast_to(np.asarray(label, np.uint8), (n,)).copy(), (k0, k1))  # fmt: skip
+
+
+def _cut_rows(density: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``cut[i, o] = sum_{k < K} density(k) kernel(K - REACH + o - k)`` for K = rows[i] (module doc; density(k) is
+    ``density[k + REACH]``): cell K - q reaches samples o <= 2 REACH - q of the row."""
+    padded = np.concatenate([np.zeros(REACH), density, np.zeros(REACH + 2)])  # density(k) at k + 2 REACH
+    cut = np.zeros((len(rows), 2 * REACH))
+    for q in range(1, 2 * REACH + 1):
+        width = min(2 * REACH, 2 * REACH + 1 - q)
+        cut[:, :width] += padded[rows + 2 * REACH - q][:, None] * _KERNEL[q : q + width][None, :]
+    return cut
+
+
+class Volume(NamedTuple):
+    """The volume layers of a batch's beams as the echo kernel reads them: T tables (padded to one length), and
+    per beam (N) and layer (L) the table (-1: none), the scale (two-way transmission the table leaves out, e.g.
+    a dirty cover's) and the range of the hard target that cuts it (m; inf: none)."""
+
+    wave: np.ndarray  # (T, n)
+    cut: np.ndarray  # (T, m, 2 REACH)
+    cut_first: np.ndarray  # (T,) int64
+    support: np.ndarray  # (T, 2) int64
+    peak: np.ndarray  # (T,) the highest sample of wave
+    label: np.ndarray  # (T, n) uint8
+    dx: float  # m, the grid's step
+    table: np.ndarray  # (N, L) int64
+    scale: np.ndarray  # (N, L)
+    hit_m: np.ndarray  # (N, L)
+
+
+def stack_volume(tables: list[VolumeTable], table: np.ndarray, scale: np.ndarray, hit_m: np.ndarray) -> Volume:
+    """:class:`Volume` of ``tables`` (one grid step) with per beam and layer ``table`` (index into ``tables``, -1:
+    none), ``scale`` and ``hit_m`` (m), each (N, L)."""
+    steps = {t.dx_m for t in tables}
+    if len(steps) > 1:
+        raise ValueError(f"volume tables on different grids: steps {sorted(steps)} m")
+    n = max(len(t.wave) for t in tables)
+    m = max(len(t.cut) for t in tables)
+    wave, label = np.zeros((len(tables), n)), np.zeros((len(tables), n), np.uint8)
+    cut = np.zeros((len(tables), max(m, 1), 2 * REACH))
+    for i, t in enumerate(tables):
+        wave[i, : len(t.wave)] = t.wave
+        label[i, : len(t.label)] = t.label
+        cut[i, : len(t.cut)] = t.cut
+    return Volume(wave, cut, np.array([t.cut_first for t in tables], np.int64),
+                  np.array([t.support for t in tables], np.int64).reshape(-1, 2),
+                  np.array([t.wave.max(initial=0.0) for t in tables]), label, float(steps.pop()),
+                  np.ascontiguousarray(table, np.int64), np.ascontiguousarray(scale, np.float64),
+                  np.ascontiguousarray(hit_m, np.float64))  # fmt: skip
+
+
+def empty_volume(n_beams: int = 0) -> Volume:
+    """A :class:`Volume` without layers (what the echo kernel reads for a batch without volume returns)."""
+    return Volume(np.zeros((0, 1)), np.zeros((0, 1, 2 * REACH)), np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
+                  np.zeros(0), np.zeros((0, 1), np.uint8), 0.0, np.full((n_beams, 0), -1, np.int64),
+                  np.zeros((n_beams, 0)), np.zeros((n_beams, 0)))  # fmt: skip
+
+
+@numba.njit(cache=True, inline="always")
+def _cut_index(volume, t, hit_m):
+    """(K, f): the hit at ``hit_m`` (m) lies at fraction f between the cell boundaries of rows K and K + 1 of table t;
+    K = -1 when the hit is beyond the support's last row (no truncation)."""
+    u = hit_m / volume.dx + 0.5
+    if not u < volume.support[t, 1] + REACH:  # also inf, nan
+        return -1, 0.0
+    u = max(u, 0.0)
+    k = int(np.floor(u))
+    return k, u - k
+
+
+@numba.njit(cache=True, inline="always")
+def _row(volume, t, k, j):
+    """Table t's waveform at sample j (inside the support) in front of boundary row k."""
+    if j < k - REACH:
+        return volume.wave[t, j + REACH]
+    i = k - volume.cut_first[t]
+    if j >= k + REACH or i < 0 or i >= volume.cut.shape[1]:
+        return 0.0  # behind the cut, or a row whose samples all lie outside the support
+    return volume.cut[t, i, j - k + REACH]
+
+
+@numba.njit(cache=True, nogil=True)
+def volume_window(volume, b):
+    """[j0, j1): the samples where beam b's volume may be non-zero (j1 <= j0: none) and a bound on its value."""
+    j0, j1, bound = 1 << 62, -(1 << 62), 0.0
+    if b >= volume.table.shape[0]:
+        return j0, j1, bound
+    for layer in range(volume.table.shape[1]):
+        t = volume.table[b, layer]
+        scale = volume.scale[b, layer]
+        if t < 0 or not scale > 0.0:
+            continue
+        lo, hi = volume.support[t, 0], volume.support[t, 1]
+        k, _ = _cut_index(volume, t, volume.hit_m[b, layer])
+        if k >= 0:
+            hi = min(hi, k + 2 + REACH)
+        if hi > lo:
+            j0, j1 = min(j0, lo), max(j1, hi)
+            bound += scale * volume.peak[t]
+    return j0, j1, bound
+
+
+@numba.njit(cache=True, nogil=True)
+def fill_volume(volume, b, first, n, values, labels):
+    """Beam b's volume (the sum of its layers, each scaled and cut at its hit) at samples first..first + n into
+    values[:n], and the label of the layer contributing most at each into labels[:n]."""
+    values[:n] = 0.0
+    labels[:n] = 0
+    for layer in range(volume.table.shape[1]):
+        t = volume.table[b, layer]
+        scale = volume.scale[b, layer]
+        if t < 0 or not scale > 0.0:
+            continue
+        lo, hi = volume.support[t, 0], volume.support[t, 1]
+        k, f = _cut_index(volume, t, volume.hit_m[b, layer])
+        for i in range(max(lo - first, 0), min(hi - first, n)):
+            j = first + i
+            if k < 0:
+                v = scale * volume.wave[t, j + REACH]
+            else:
+                v = scale * (0.5 * (f - 1.0) * (f - 2.0) * _row(volume, t, k, j) - f * (f - 2.0) * _row(volume, t, k + 1, j)
+                             + 0.5 * f * (f - 1.0) * _row(volume, t, k + 2, j))
+            if v > values[i]:
+                labels[i] = volume.label[t, j + REACH]
+            values[i] += v
+    return values
