@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_trapezoid
 
+from lidar_weather_sim.regions.base import RegionEffect
 from lidar_weather_sim.regions.physical_air import PhysicalAir
 from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
 from lidar_weather_sim.sensor.echo import detect_echoes
 from lidar_weather_sim.sensor.profile import SensorProfile
-from lidar_weather_sim.sensor.radiometry import Threshold, peak_amplitude
+from lidar_weather_sim.sensor.radiometry import Threshold
+from lidar_weather_sim.sim.simulator import _volume
 from lidar_weather_sim.testing.fixtures import beams_along_x, receiver_variant
 
 
@@ -57,12 +59,14 @@ def test_slabs_lose_what_the_highpass_takes_from_them(tau):
 def first_echoes(profile: SensorProfile, visual_range_m: float, n_beams: int = 300):
     """(share of beams with an echo, median range m, median EPW m) of the first echo of fog alone (no hit)."""
     air = PhysicalAir(profile, visual_range_m, None)
-    sc = air.scatterers(beams_along_x(np.full(n_beams, np.inf)), np.random.default_rng(0))
-    amp = peak_amplitude(profile.detection.power_constant, 1.0 / 3.0, sc.reflectance, sc.range_m,
-                         np.exp(-2.0 * air.alpha * sc.range_m), 1.0)  # fmt: skip
-    e = detect_echoes(sc.beam, sc.range_m, amp, sc.label, sc.object_id, threshold=Threshold.under_sun(profile.detection),
-                      fwhm_m=profile.pulse.fwhm_m, resolution_m=profile.range.resolution_m, max_echoes=3)  # fmt: skip
-    rows = np.concatenate([np.arange(a, a + c) for a, c in zip(*e.runs)]).astype(np.int64)
+    rays = beams_along_x(np.full(n_beams, np.inf))
+    _, terms = air.scatterers(rays, np.random.default_rng(0))
+    effect = RegionEffect(transmission=np.ones(rays.shape), range_offset_m=np.zeros(rays.shape), volume=terms)
+    none = np.zeros(0)
+    e = detect_echoes(none.astype(np.int64), none, none, none.astype(np.uint8), none.astype(np.uint32),
+                      threshold=Threshold.under_sun(profile.detection), fwhm_m=profile.pulse.fwhm_m,
+                      resolution_m=profile.range.resolution_m, max_echoes=3, volume=_volume(rays, effect))  # fmt: skip
+    rows = np.concatenate([np.arange(a, a + c) for a, c in zip(*e.runs)] + [np.zeros(0, np.int64)]).astype(np.int64)
     first = rows[e.echo[rows] == 1]
     if not len(first):
         return 0.0, np.nan, np.nan

@@ -1,5 +1,6 @@
 """The physical atmosphere (regions.physical_air) on hand-made ray batches: seeded, in front of each hit,
-the drop counts the beam volume predicts, the volume return where the medium is dense enough."""
+the drop counts the beam volume predicts, the volume return as tables where the medium is dense enough and its
+near field's realisations as the droplets fluctuate."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ import pytest
 
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.physics.coefficients import medium
+from lidar_weather_sim.regions.air_volume import REALISATIONS
 from lidar_weather_sim.regions.physical_air import NEAR_M, PhysicalAir
+from lidar_weather_sim.sensor.volume_tables import REACH
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.testing.fixtures import beams_along_x as batch
 from lidar_weather_sim.testing.fixtures import receiver_variant
@@ -26,10 +29,10 @@ def test_extinction_is_the_media_at_the_profiles_wavelength():
 def test_rain_drops_are_seeded_in_front_of_the_hit_and_as_many_as_the_beam_volume_holds():
     air = PhysicalAir(SCALA4_CONE_DC, None, ("rain", 10.0))
     hits = np.where(np.arange(4000) % 2 == 0, 8.0, np.inf)
-    a = air.scatterers(batch(hits), np.random.default_rng(3))
-    b = air.scatterers(batch(hits), np.random.default_rng(3))
+    a, _ = air.scatterers(batch(hits), np.random.default_rng(3))
+    b, _ = air.scatterers(batch(hits), np.random.default_rng(3))
     np.testing.assert_array_equal(a.range_m, b.range_m)
-    drops = (a.label == Label.RAIN) & (a.occlusion > 0)  # the volume pulses of the small drops block nothing
+    drops = a.label == Label.RAIN
     assert (a.range_m[drops] < hits[a.beam[drops]]).all()
     # the drops placed one by one in front of an 8 m hit: the table's expectation, thinned by the overlap
     r = np.linspace(0.05, 8.0, 4000)
@@ -42,50 +45,68 @@ def test_rain_drops_are_seeded_in_front_of_the_hit_and_as_many_as_the_beam_volum
 
 def test_fog_gives_every_beam_its_volume_return_up_to_the_hit():
     air = PhysicalAir(SCALA4_CONE_DC, 50.0, None)
-    out = air.scatterers(batch(np.array([3.0, 40.0, np.inf])), np.random.default_rng(0))
-    assert set(out.label) == {Label.FOG} and out.bypass_overlap.all() and not out.occlusion.any()
-    per_beam = np.bincount(out.beam, minlength=3)
-    assert 0 < per_beam[0] < per_beam[1] <= per_beam[2]
-    assert out.range_m[out.beam == 0].max() < 3.0
-    # haze: the same slabs, each as strong as its backscatter (beta) is (beyond the near field, where the slabs
-    # do not fluctuate from beam to beam)
-    haze = PhysicalAir(SCALA4_CONE_DC, 5000.0, None).scatterers(batch(np.array([40.0])), np.random.default_rng(0))
-    fog = (out.beam == 1) & (out.range_m > NEAR_M)
-    common = np.isin(out.range_m[fog], haze.range_m)
-    ratio = haze.reflectance[np.isin(haze.range_m, out.range_m[fog])] / out.reflectance[fog][common]
-    assert len(ratio) > 10
-    np.testing.assert_allclose(ratio, medium("fog", 5000.0, 905.0).beta / medium("fog", 50.0, 905.0).beta, rtol=1e-9)
+    hits = np.array([3.0, 40.0, np.inf])
+    drops, terms = air.scatterers(batch(hits), np.random.default_rng(0))
+    assert drops is None and len(terms) == 2  # the mean beyond the near field, and a realisation of it per beam
+    far, near = terms
+    assert far.hit_m is None and near.hit_m is None  # cut at each beam's scene hit by the echo stage
+    assert len(near.tables) == REALISATIONS and near.choice.shape == (3,) and (far.scale == 1.0).all()
+    for table in (far.table, *near.tables):
+        assert set(np.unique(table.label)) == {Label.FOG}
+    # the volume in front of a 3 m hit: the realisation's waveform there, nothing 6 sigma behind it
+    table = near.tables[near.choice[0]]
+    r, cut = table.range_m, table.truncated(3.0)
+    assert (cut[r > 3.0 + 6.5 * air.volume.sigma_m] == 0.0).all() and cut[(r > 1.0) & (r < 2.5)].min() > 0.0
+    front = r < 3.0 - 7 * air.volume.sigma_m
+    np.testing.assert_allclose(cut[front], table.wave[front], rtol=1e-12)
+    # haze: the same density beyond the near field, as strong as its backscatter (beta) is, its extinction apart
+    thin = PhysicalAir(SCALA4_CONE_DC, 5000.0, None)
+    r = far.table.range_m
+    fog = (far.table.density > 0) & (r < 30.0)
+    assert fog.sum() > 100 and thin.air_volume.boundary_m == air.air_volume.boundary_m
+    ratio = thin.air_volume.far.density[fog] / far.table.density[fog] * np.exp(2.0 * (thin.alpha - air.alpha) * r[fog])
+    np.testing.assert_allclose(ratio, medium("fog", 5000.0, 905.0).beta / medium("fog", 50.0, 905.0).beta, rtol=1e-5)
 
 
 @pytest.mark.parametrize("profile, visual_range_m", [("scala4", 500.0), ("os1_128_2048", 100.0)])
 def test_near_field_fog_slabs_fluctuate_as_the_droplets_in_them(profile, visual_range_m):
-    """A near-field fog slab's pulse from beam to beam against droplets drawn one by one: a Poisson number in the
-    slab's beam volume, sizes from the distribution, their cross-sections summed (a reflectance pi sum / S seen
-    through O(r)). Each droplet takes the Mie cross-section of the nearest diameter of the medium's grid (the
-    grid the model integrates on: between its nodes the resonances are not resolved, and interpolating there
-    smooths them, lowering E[sigma^2] by ~20 %). Mean within 2 %, standard deviation within 10 %."""
+    """The near field's slabs from realisation to realisation, and from beam to beam, against droplets drawn one by
+    one: a Poisson number in the slab's beam volume, sizes from the distribution, their cross-sections summed (a
+    reflectance pi sum / S seen through O(r)). Each droplet takes the Mie cross-section of the nearest diameter of
+    the medium's grid (the grid the model integrates on: between its nodes the resonances are not resolved, and
+    interpolating there smooths them, lowering E[sigma^2] by ~20 %). Over the slabs from 2 to 4.5 m: mean within
+    2 %, standard deviation within 10 %, over the realisations and over 2000 beams' choices; the realisations'
+    tables hold their slabs' factors."""
     prof = receiver_variant(profile, ac_coupling_tau_m=0.0)  # the slabs before the receiver
     air = PhysicalAir(prof, visual_range_m, None)
-    n_beams = 4000
-    out = air.scatterers(batch(np.full(n_beams, np.inf)), np.random.default_rng(5))
-    centres, widths = air.volume.slabs(np.inf, spacing_m=air.volume.sigma_m, r_max_m=air.r_max)
-    k = int(np.argmin(np.abs(centres - 3.0)))
-    weight = 1.0 / 3.0
-    simulated = out.reflectance[out.range_m == centres[k]] * weight
-    assert len(simulated) == n_beams
+    bank = air.air_volume
+    n_beams = 2000
+    _, (_, near) = air.scatterers(batch(np.full(n_beams, np.inf)), np.random.default_rng(5))
+    edges, factors = bank.slab_edges, bank.factors
+    assert factors.shape == (REALISATIONS, len(edges) - 1) and edges[-1] <= NEAR_M + air.volume.sigma_m
     fog, rng = medium("fog", visual_range_m, prof.optics.wavelength_nm or 905.0), np.random.default_rng(6)
-    area = air.area(centres[k])
-    counts = rng.poisson(fog.number * area * widths[k], n_beams)
-    diameter, _ = fog.sample(int(counts.sum()), rng)
-    node = np.clip(np.searchsorted(fog.diameters, diameter), 1, len(fog.diameters) - 1)
-    node -= diameter - fog.diameters[node - 1] < fog.diameters[node] - diameter
-    sigma = fog.sigma_back[node]
-    summed = np.bincount(np.repeat(np.arange(n_beams), counts), weights=sigma, minlength=n_beams)
-    drawn = np.pi * summed / area * air.volume.overlap(np.array([centres[k]]))[0]
-    assert simulated.mean() == pytest.approx(drawn.mean(), rel=0.02)
-    assert simulated.std() == pytest.approx(drawn.std(), rel=0.10) and drawn.std() > 0.01 * drawn.mean()
-    far = out.range_m > NEAR_M  # beyond the near field: the expectation, the same in every beam
-    assert len(np.unique(out.reflectance[far & (out.range_m == out.range_m[far][0])])) == 1
+    ratios = []
+    for k in np.flatnonzero((edges[:-1] > 2.0) & (edges[1:] < 4.5)):
+        centre, width = 0.5 * (edges[k] + edges[k + 1]), edges[k + 1] - edges[k]
+        area, overlap = air.area(centre), air.volume.overlap(np.array([centre]))[0]
+        counts = rng.poisson(fog.number * area * width, 4000)
+        diameter, _ = fog.sample(int(counts.sum()), rng)
+        node = np.clip(np.searchsorted(fog.diameters, diameter), 1, len(fog.diameters) - 1)
+        node -= diameter - fog.diameters[node - 1] < fog.diameters[node] - diameter
+        summed = np.bincount(np.repeat(np.arange(4000), counts), weights=fog.sigma_back[node], minlength=4000)
+        drawn = np.pi * summed / area * overlap
+        mean = np.pi * fog.beta * width * overlap  # the slab's mean reflectance
+        banked, chosen = mean * factors[:, k], mean * factors[near.choice, k]
+        ratios.append([banked.mean() / drawn.mean(), banked.std() / drawn.std(), chosen.std() / drawn.std()])
+        assert drawn.std() > 0.01 * drawn.mean()
+    ratios = np.mean(ratios, axis=0)
+    assert len(ratios) and ratios[0] == pytest.approx(1.0, abs=0.02), ratios
+    np.testing.assert_allclose(ratios[1:], 1.0, atol=0.10)
+    # each realisation's cells are the mean's times its slab's factor (a cell inside slab k)
+    k = int(np.searchsorted(edges, 3.0)) - 1
+    cell = int(np.round(0.5 * (edges[k] + edges[k + 1]) / bank.far.dx_m)) + REACH
+    a, b = bank.near[0].density[cell], bank.near[1].density[cell]
+    assert a / b == pytest.approx(factors[0, k] / factors[1, k], rel=1e-9)
 
 
 def test_the_grid_interpolation_is_numpys_bit_for_bit():

@@ -211,9 +211,9 @@ class AtmosphereRegion:
 
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, s = batch.shape
-        scatterers = None
+        scatterers, volume = None, None
         if self.p.air and self.physical is not None:
-            scatterers = self.physical.scatterers(batch, rng)
+            scatterers, volume = self.physical.scatterers(batch, rng)
         elif self.p.air:
             parts = []
             for air in self.components:
@@ -233,6 +233,7 @@ class AtmosphereRegion:
             scatterers=scatterers,
             reflectance_scale=scale,
             range_offset_m=offset,
+            volume=volume or None,
         )
 
     def _path_scatterers(self, batch: RayBatch, rng: np.random.Generator, air: AirComponent) -> Scatterers | None:

@@ -137,11 +137,24 @@ class VolumeTerm:
     """A volume return on the beams of a batch: ``table``'s waveform (noise units, the whole beam: it holds the
     overlap, 1/r^2 and the medium's own extinction) times ``scale`` (N,) on each beam (0: none), cut at ``hit_m``
     (N,) m along the beam (None: the central sub-ray's scene hit, moved by the range offset). The echo stage
-    multiplies ``scale`` by the central sub-ray's two-way transmission (e.g. a dirty cover)."""
+    multiplies ``scale`` by the central sub-ray's two-way transmission (e.g. a dirty cover). ``table`` may be a
+    tuple of tables (e.g. realisations of a fluctuating medium), of which beam i reads ``table[choice[i]]``."""
 
-    table: VolumeTable
+    table: VolumeTable | tuple[VolumeTable, ...]
     scale: np.ndarray
     hit_m: np.ndarray | None = None
+    choice: np.ndarray | None = None  # (N,) index into ``table`` when it is a tuple
+
+    @property
+    def tables(self) -> tuple[VolumeTable, ...]:
+        """The term's tables (one, or the tuple)."""
+        return self.table if isinstance(self.table, tuple) else (self.table,)
+
+    def beam_table(self, n: int) -> np.ndarray:
+        """(n,) the index into :attr:`tables` that each beam reads."""
+        if self.choice is None:
+            return np.zeros(n, np.int64)
+        return np.asarray(self.choice, np.int64)
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""The atmosphere as physics per beam: the scatterers of region ``atmosphere`` with
+"""The atmosphere as physics per beam: the drops and the volume return of region ``atmosphere`` with
 ``model: physical``.
 
 The media are fog (its visual range) and one precipitation (rain or snow, mm/h) from
@@ -12,27 +12,27 @@ and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
 - **drops one by one** (rain drops, snow flakes): Poisson in the beam's volume ``S(r) dr`` in front of
   each beam's hit (the central sub-ray's), ``S(r) = pi (a + r tan(theta / 2))^2`` the beam's cross-section
   (exit radius ``a``, divergence theta the geometric mean of the profile's two): the drops that reach
-  ``NEAR_FRACTION`` of the threshold on their own (in full overlap, before extinction of the pulse's own
-  path beyond r) out to ``NEAR_M``, ``INDIVIDUAL_FRACTION`` beyond it; diameters from the distribution above
-  that size. The smaller drops join the volume: a beam holds a few drops in its first metres, so drops too
-  weak to be seen alone rarely meet in one pulse. A drop of differential backscatter cross-section sigma (m^2/sr) on a
-  sub-ray of weight w is a surface of reflectance ``pi sigma / (S(r) w)`` (its peak
-  ``C pi sigma / (S(r) r^2)`` before extinction and overlap), blocking its geometric cross-section's share
-  of that sub-ray;
-- **the volume**: fog and the drops too small to be seen one by one, as the echo stage's own pulses
-  (:class:`lidar_weather_sim.regions.volume_return.VolumeReturn`: one per slab of one pulse sigma, the slab
-  a surface of reflectance ``pi beta h``; at that spacing the pulses' sum is smooth to 1e-8) on the central
-  sub-ray in front of its hit; where the volume's waveform stays below ``VOLUME_FLOOR`` of the threshold
-  it is left out. In the near field (out to ``NEAR_M``) the fog's pulses fluctuate from beam to beam: a slab
-  holds a Poisson number of droplets, so its summed cross-section is compound Poisson, mean ``lam E[sigma]``,
-  variance ``lam E[sigma^2]`` (``lam`` the droplets in the slab's beam volume), drawn in its normal limit and
-  clipped at 0, as the reference does for its cells. A fog echo is flat-topped (metres wide): without this
-  every beam of a channel put its peak on the same spot, where the droplets' own fluctuation moves it by tens of
-  centimetres.
+  ``DETECTABLE_FRACTION`` of the threshold on their own (in full overlap, before extinction of the pulse's own
+  path beyond r); diameters from the distribution above that size. The smaller drops join the volume. A drop
+  of differential backscatter cross-section sigma (m^2/sr) on a sub-ray of weight w is a surface of reflectance
+  ``pi sigma / (S(r) w)`` (its peak ``C pi sigma / (S(r) r^2)`` before extinction and overlap), blocking its
+  geometric cross-section's share of that sub-ray;
+- **the volume**: fog and the drops too small to be placed, as the echo stage's volume tables
+  (:mod:`lidar_weather_sim.regions.air_volume`: the density ``C pi beta(r) O(r) exp(-2 alpha r) / r^2`` of
+  :class:`lidar_weather_sim.regions.volume_return.VolumeReturn`, AC-coupled, convolved with the pulse), built
+  once per weather state and read per beam up to its hit (the central sub-ray's scene hit); where its waveform
+  stays below ``VOLUME_FLOOR`` of the threshold it is left out. In the near field (out to ``NEAR_M``) the fog
+  fluctuates from beam to beam: a slab of one pulse sigma holds a Poisson number of droplets, so its summed
+  cross-section is compound Poisson, mean ``lam E[sigma]``, variance ``lam E[sigma^2]`` (``lam`` the droplets
+  in the slab's beam volume), drawn in its normal limit and clipped at 0, as the reference does for its cells;
+  a bank of such near fields is drawn once per weather state and each beam reads one of them. A fog echo is
+  flat-topped (metres wide): without this every beam of a channel put its peak on the same spot, where the
+  droplets' own fluctuation moves it by tens of centimetres. Drops do not dim the volume behind them (each
+  blocks ~1e-4 of the beam).
 
 The overlap O(r) is the profile's biaxial geometry (lens separation, receiver field of view, apertures) in its
 ``optics.overlap_model`` (:data:`lidar_weather_sim.physics.overlap.OVERLAP_MODELS`) where its optics give it,
-else the echo stage's smoothstep; it is part of each volume pulse's reflectance. A drop is seen with probability
+else the echo stage's smoothstep; it is part of the volume's density. A drop is seen with probability
 O(r) at full strength (``cone``: in the receiver's view or not), or, ``defocus``, always with the share of its
 light the field stop takes at its place on the beam's disc (``bypass_overlap``: the echo stage does not apply
 its own). The threshold is the dark one (no sun). This is the
@@ -46,23 +46,25 @@ from __future__ import annotations
 
 from functools import partial
 
+import zlib
+
 import numba
 import numpy as np
 
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.physics.coefficients import Medium, medium
 from lidar_weather_sim.physics.overlap import OVERLAP_MODELS, point_share
-from lidar_weather_sim.regions.base import RayBatch, Scatterers
+from lidar_weather_sim.regions.air_volume import AirVolume, air_volume, optics_overlap
+from lidar_weather_sim.regions.base import RayBatch, Scatterers, VolumeTerm
 from lidar_weather_sim.regions.volume_return import VolumeReturn
-from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M, dark_level
 
-NEAR_M = 5.0  # the near field (m), as the reference's
-NEAR_FRACTION = 0.01  # in the near field: drops reaching this share of the threshold alone are placed
-INDIVIDUAL_FRACTION = 0.05  # beyond NEAR_M: the same, as the reference
+NEAR_M = 5.0  # the near field (m), as the reference's: there the fog's droplets fluctuate from beam to beam
+DETECTABLE_FRACTION = 0.5  # drops reaching this share of the threshold alone are placed; the smaller join the volume
 VOLUME_FLOOR = 0.02  # the volume's waveform below this share of the threshold is left out
 DEFAULT_WAVELENGTH_NM = 905.0
 GRID_M = 0.02  # the range grid of the per-beam drop volumes (m)
+VOLUME_SEED = 0x766F6C  # with the weather state: the seed of the near field's realisations
 LABELS = {"fog": Label.FOG, "rain": Label.RAIN, "snow": Label.SNOW}
 
 
@@ -89,14 +91,16 @@ class PhysicalAir:
                               tx_radius_m=o.tx_aperture_radius_m, rx_radius_m=o.rx_aperture_radius_m)  # fmt: skip
             self._optics = (o.lens_separation_m, 1e-3 * o.receiver_fov_mrad, o.rx_aperture_radius_m)
         start = 0.0 if overlap is not None else o.overlap_start_m
-        self.volume = VolumeReturn(self.power, self.alpha, 1.0, profile.pulse.fwhm_m * FWHM_TO_SIGMA, start,
-                                   o.overlap_full_m, overlap)  # fmt: skip
+        sigma = profile.pulse.fwhm_m * FWHM_TO_SIGMA
+        self.volume = VolumeReturn(self.power, self.alpha, 1.0, sigma, start, o.overlap_full_m, overlap)
         self._grid = np.arange(max(start, MIN_RANGE_M), self.r_max + GRID_M, GRID_M)
         widening = overlap is not None and 1e-3 * o.receiver_fov_mrad >= self.divergence  # the view holds the beam
         self._full_overlap_m = _full_overlap_range(overlap, self._grid) if widening else np.inf
         if self.precip is not None:
             self._cum, self._d_min = self._drop_tables(self.precip)
-        self._volume_pulses = self._volume_table()
+        sampled = None if overlap is None else optics_overlap(o.overlap_model, self.r_max, **overlap.keywords)
+        self._sampled = VolumeReturn(self.power, self.alpha, 1.0, sigma, start, o.overlap_full_m, sampled)
+        self.air_volume = self._air_volume(float(self._grid[0]), (fog_visual_range_m, precipitation))
 
     # -- tables, built once --------------------------------------------------------------------------
     def area(self, r: np.ndarray) -> np.ndarray:
@@ -105,57 +109,55 @@ class PhysicalAir:
 
     def _drop_tables(self, m: Medium) -> tuple[np.ndarray, np.ndarray]:
         """On the range grid: the expected drops per beam from the start that are placed one by one (those that
-        reach their range's share of the threshold alone), and that size limit (distribution diameter, m)."""
+        reach DETECTABLE_FRACTION of the threshold alone, in full overlap), and that size limit (distribution
+        diameter, m)."""
         r = self._grid
         s = self.area(r)
         per_sigma = self.power * np.pi / (s * np.maximum(r, MIN_RANGE_M) ** 2) * np.exp(-2.0 * self.alpha * r)
         per_d2 = float(np.median(m.sigma_back / np.maximum(m.diameters, 1e-12) ** 2))  # geometric optics: constant
-        fraction = np.where(r <= NEAR_M, NEAR_FRACTION, INDIVIDUAL_FRACTION)
-        d_min = np.sqrt(fraction * self.threshold / np.maximum(per_sigma, 1e-300) / per_d2)
+        d_min = np.sqrt(DETECTABLE_FRACTION * self.threshold / np.maximum(per_sigma, 1e-300) / per_d2)
         f = m.number_above(d_min) * s
         return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(r))]), d_min
 
-    def _volume_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(centres m, reflectance per unit sub-ray weight, its standard deviation from beam to beam, label) of
-        the volume pulses of a beam without a hit, those that reach VOLUME_FLOOR of the threshold."""
-        centres, width = self.volume.slabs(np.inf, spacing_m=self.volume.sigma_m, r_max_m=self.r_max)
-        beta = np.zeros(len(centres))
-        labels = np.zeros(len(centres), np.uint8)
-        if self.precip is not None:  # the drops too small to be placed one by one
-            beta += self.precip.beta_below(np.interp(centres, self._grid, self._d_min))
-            labels[:] = LABELS[self.precip.kind]
+    def beta(self, range_m: np.ndarray) -> np.ndarray:
+        """The volume's backscatter (1/(m sr)) at ``range_m`` (m): the fog's and the drops' too small to be placed."""
+        beta = np.zeros(np.shape(range_m))
+        if self.precip is not None:
+            beta += self.precip.beta_below(np.interp(range_m, self._grid, self._d_min))
         if self.fog is not None:
             beta += self.fog.beta
-            labels[:] = LABELS["fog"]
-        level = self.volume.density(centres) * beta * np.sqrt(2.0 * np.pi) * self.volume.sigma_m  # waveform (smooth)
-        keep = level > VOLUME_FLOOR * self.threshold
-        overlap = self.volume.overlap(centres)
-        sd = np.zeros(len(centres))
-        if self.fog is not None:  # the near field's droplets: compound Poisson (module doc)
+        return beta
+
+    def _air_volume(self, start_m: float, weather: tuple) -> AirVolume:
+        """The volume's tables: its mean ``C pi beta(r) O(r) exp(-2 alpha r) / r^2`` and, with fog, the near field's
+        slabs of one pulse sigma, each fluctuating with the droplets in it (module doc), seeded by the weather."""
+        edges, rel_sd = np.zeros(0), np.zeros(0)
+        if self.fog is not None:
             f = self.fog
             mean_s2 = float(np.sum(0.5 * (f.density[1:] * f.sigma_back[1:] ** 2 + f.density[:-1] * f.sigma_back[:-1] ** 2)
                                    * np.diff(f.diameters)))  # number x E[sigma^2], per m^3  # fmt: skip
+            centres, width = self.volume.slabs(np.inf, spacing_m=self.volume.sigma_m, r_max_m=self.r_max)
             near = centres <= NEAR_M
-            area = self.area(centres[near])
-            # reflectance pi (summed sigma) / S: its sd pi sqrt(lam E[sigma^2]) / S, lam = number S h
-            sd[near] = np.pi * np.sqrt(mean_s2 * area * width[near]) / area * overlap[near]
-        # the slabs' extents, and the share of a reflectance the echo stage makes a peak of (the LIDAR equation
-        # without C, overlap and weight): the AC coupling filters the peaks' density, not the reflectance
-        r = np.maximum(centres, MIN_RANGE_M)
-        self._slab_edges = (centres - 0.5 * width)[keep], (centres + 0.5 * width)[keep]
-        self._slab_gain = (np.exp(-2.0 * self.alpha * r) / (r * r))[keep]
-        return centres[keep], (np.pi * beta * width * overlap)[keep], sd[keep], labels[keep]
+            centres, width = centres[near], width[near]
+            edges = np.append(centres - 0.5 * width, centres[-1] + 0.5 * width[-1]) if len(centres) else edges
+            # summed sigma over a slab's beam volume S h: mean beta S h, variance lam E[sigma^2] = mean_s2 S h
+            rel_sd = np.sqrt(mean_s2 / (self.area(centres) * width)) / self.beta(centres)
+        kind = "fog" if self.fog is not None or self.precip is None else self.precip.kind
+        return air_volume(lambda r: self._sampled.density(r) * self.beta(r), sigma_m=self.volume.sigma_m,
+                          r_max_m=self.r_max, start_m=start_m, tau_m=self.tau, floor=VOLUME_FLOOR * self.threshold,
+                          label=LABELS[kind], slab_edges=edges, rel_sd=rel_sd,
+                          seed=[VOLUME_SEED, zlib.crc32(repr(weather).encode())])  # fmt: skip
 
     # -- per batch -----------------------------------------------------------------------------------
-    def scatterers(self, batch: RayBatch, rng: np.random.Generator) -> Scatterers | None:
-        """Drops and volume pulses of the batch's beams in front of each beam's hit."""
+    def scatterers(self, batch: RayBatch, rng: np.random.Generator) -> tuple[Scatterers | None, list[VolumeTerm]]:
+        """The drops placed one by one in front of each beam's hit, and the volume's layers on the batch's beams."""
+        terms = self.air_volume.terms(batch.shape[0], rng)
+        if self.precip is None:
+            return None, terms
         w = np.asarray(batch.weights, dtype=np.float64)
         core = int(np.argmax(w))
         hit = np.where(np.isfinite(batch.distance[:, core]), batch.distance[:, core], self.r_max)
-        parts = [self._volume(hit, core, w[core], rng)]
-        if self.precip is not None:
-            parts.append(self._drops(hit, w, rng))
-        return Scatterers.concatenate(parts)
+        return self._drops(hit, w, rng), terms
 
     def _on_grid(self, x: np.ndarray, table: np.ndarray) -> np.ndarray:
         """``np.interp(x, self._grid, table)``, bit for bit, without its binary search (the grid is uniform)."""
@@ -171,26 +173,6 @@ class PhysicalAir:
         out = np.ones(len(range_m))
         out[near] = self.volume.overlap(range_m[near])
         return out
-
-    def _volume(self, hit: np.ndarray, core: int, weight: float, rng: np.random.Generator) -> Scatterers | None:
-        centres, refl, sd, labels = self._volume_pulses
-        if not len(centres):
-            return None
-        beam, k = np.nonzero(centres[None, :] < hit[:, None])
-        n = len(beam)
-        reflectance = refl[k]
-        varies = np.flatnonzero(sd[k] > 0)
-        if len(varies):
-            reflectance = reflectance.copy()
-            reflectance[varies] = np.maximum(refl[k[varies]] + sd[k[varies]] * rng.standard_normal(len(varies)), 0.0)
-        if self.tau > 0:
-            (lower, upper), gain = self._slab_edges, self._slab_gain[k]
-            reflectance = highpass_slabs(reflectance * gain, lower[k], upper[k], beam, self.tau) / gain
-            kept = reflectance > 0
-            beam, k, reflectance, n = beam[kept], k[kept], reflectance[kept], int(kept.sum())
-        return Scatterers(beam=beam, subray=np.full(n, core), range_m=centres[k], reflectance=reflectance / weight,
-                          occlusion=np.zeros(n), label=labels[k], object_id=np.zeros(n, np.uint32),
-                          bypass_overlap=np.ones(n, bool))  # fmt: skip
 
     def _drops(self, hit: np.ndarray, w: np.ndarray, rng: np.random.Generator) -> Scatterers | None:
         m, r = self.precip, self._grid

@@ -29,6 +29,7 @@ which reads them with :func:`volume_window` and :func:`fill_volume`.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -83,6 +84,15 @@ def build_table(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: floa
     r, m), from ``start_m`` (m; the overlap's start or the nearest range the LIDAR equation knows) to ``r_max_m``;
     pulse sigma ``sigma_m`` (m), AC coupling time constant ``tau_m`` (m; 0: DC), support where the waveform
     exceeds ``floor`` (noise units), ``label`` of every cell (one, or (n,) per cell)."""
+    density = cell_density(density_fn, sigma_m=sigma_m, r_max_m=r_max_m, start_m=start_m, tau_m=tau_m)
+    return table_of_cells(density, grid_step(sigma_m), label, floor)
+
+
+def cell_density(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: float, r_max_m: float,
+                 start_m: float = 0.0, tau_m: float = 0.0) -> np.ndarray:  # fmt: skip
+    """The cells' return (noise units; index i: cell i - REACH) of the density ``density_fn(r)`` (noise units per m)
+    on [``start_m``, ``r_max_m``] (m), after the AC coupling of time constant ``tau_m`` (m; 0: DC), on the grid of
+    pulse sigma ``sigma_m`` (m) (:func:`build_table`)."""
     dx = grid_step(sigma_m)
     n = int(np.ceil(r_max_m / dx)) + 1 + 2 * REACH
     k = np.arange(n) - REACH
@@ -95,6 +105,13 @@ def build_table(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: floa
         inside = half > 0
         density[inside] = highpass_slabs(density[inside], lower[inside], upper[inside],
                                          np.zeros(int(inside.sum()), np.int64), tau_m)  # fmt: skip
+    return density
+
+
+def table_of_cells(density: np.ndarray, dx_m: float, label: int | np.ndarray, floor: float = 0.0) -> VolumeTable:
+    """The table of the cells' return ``density`` (noise units, after the AC coupling; index i: cell i - REACH) on
+    the grid of step ``dx_m`` (m): waveform, cut rows and the support where the waveform exceeds ``floor``."""
+    n = len(density)
     wave = np.convolve(density, _KERNEL)[REACH : REACH + n]
     above = np.flatnonzero(wave > floor)
     i0, i1 = (int(above[0]), int(above[-1]) + 1) if len(above) else (0, 0)
@@ -103,7 +120,7 @@ def build_table(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: floa
     k0, k1 = i0 - REACH, i1 - REACH
     cut_first = max(k0 - REACH + 1, 0)
     rows = np.arange(cut_first, k1 + REACH + 2) if k1 > k0 else np.zeros(0, np.int64)
-    return VolumeTable(dx, density, wave, _cut_rows(density, rows), cut_first,
+    return VolumeTable(float(dx_m), density, wave, _cut_rows(density, rows), cut_first,
                        np.broadcast_to(np.asarray(label, np.uint8), (n,)).copy(), (k0, k1))  # fmt: skip
 
 
@@ -119,16 +136,20 @@ def _cut_rows(density: np.ndarray, rows: np.ndarray) -> np.ndarray:
 
 
 class Volume(NamedTuple):
-    """The volume layers of a batch's beams as the echo kernel reads them: T tables (padded to one length), and
-    per beam (N) and layer (L) the table (-1: none), the scale (two-way transmission the table leaves out, e.g.
-    a dirty cover's) and the range of the hard target that cuts it (m; inf: none)."""
+    """The volume layers of a batch's beams as the echo kernel reads them: T tables, each its support's samples
+    and its cut rows, one after the other; and per beam (N) and layer (L) the table (-1: none), the scale
+    (two-way transmission the table leaves out, e.g. a dirty cover's) and the range of the hard target that cuts
+    it (m; inf: none)."""
 
-    wave: np.ndarray  # (T, n)
-    cut: np.ndarray  # (T, m, 2 REACH)
-    cut_first: np.ndarray  # (T,) int64
+    wave: np.ndarray  # (W,) the tables' support samples: sample j of table t at origin[t] + j
+    label: np.ndarray  # (W,) uint8, as wave
+    origin: np.ndarray  # (T,) int64
+    cut: np.ndarray  # (M, 2 REACH) the tables' cut rows: boundary row k of table t at cut_origin[t] + k
+    cut_first: np.ndarray  # (T,) int64, the first boundary row
+    cut_end: np.ndarray  # (T,) int64, past the last boundary row
+    cut_origin: np.ndarray  # (T,) int64
     support: np.ndarray  # (T, 2) int64
     peak: np.ndarray  # (T,) the highest sample of wave
-    label: np.ndarray  # (T, n) uint8
     dx: float  # m, the grid's step
     table: np.ndarray  # (N, L) int64
     scale: np.ndarray  # (N, L)
@@ -137,29 +158,51 @@ class Volume(NamedTuple):
 
 def stack_volume(tables: list[VolumeTable], table: np.ndarray, scale: np.ndarray, hit_m: np.ndarray) -> Volume:
     """:class:`Volume` of ``tables`` (one grid step) with per beam and layer ``table`` (index into ``tables``, -1:
-    none), ``scale`` and ``hit_m`` (m), each (N, L)."""
+    none), ``scale`` and ``hit_m`` (m), each (N, L). The tables' stacked arrays are kept for the next batches of
+    the same tables (a region builds its tables once per weather state)."""
+    return Volume(*_stacked(tuple(tables)), np.ascontiguousarray(table, np.int64),
+                  np.ascontiguousarray(scale, np.float64), np.ascontiguousarray(hit_m, np.float64))  # fmt: skip
+
+
+_STACKS: dict[tuple[int, ...], tuple] = {}  # ids of the tables -> (the tables, their stacked arrays)
+_STACKS_KEPT = 8
+_STACKS_LOCK = threading.Lock()
+
+
+def _stacked(tables: tuple[VolumeTable, ...]) -> tuple:
+    """The fields of :class:`Volume` from ``wave`` to ``dx`` for ``tables``, stacked once: the last
+    ``_STACKS_KEPT`` stacks are kept, each holding its tables (so their ids stay theirs)."""
+    key = tuple(id(t) for t in tables)
+    kept = _STACKS.get(key)
+    if kept is not None:
+        return kept[1]
     steps = {t.dx_m for t in tables}
     if len(steps) > 1:
         raise ValueError(f"volume tables on different grids: steps {sorted(steps)} m")
-    n = max(len(t.wave) for t in tables)
-    m = max(len(t.cut) for t in tables)
-    wave, label = np.zeros((len(tables), n)), np.zeros((len(tables), n), np.uint8)
-    cut = np.zeros((len(tables), max(m, 1), 2 * REACH))
-    for i, t in enumerate(tables):
-        wave[i, : len(t.wave)] = t.wave
-        label[i, : len(t.label)] = t.label
-        cut[i, : len(t.cut)] = t.cut
-    return Volume(wave, cut, np.array([t.cut_first for t in tables], np.int64),
-                  np.array([t.support for t in tables], np.int64).reshape(-1, 2),
-                  np.array([t.wave.max(initial=0.0) for t in tables]), label, float(steps.pop()),
-                  np.ascontiguousarray(table, np.int64), np.ascontiguousarray(scale, np.float64),
-                  np.ascontiguousarray(hit_m, np.float64))  # fmt: skip
+    support = np.array([t.support for t in tables], np.int64).reshape(-1, 2)
+    width = np.maximum(support[:, 1] - support[:, 0], 0)
+    base = 1 + np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.int64)  # after a padding sample
+    rows = np.array([len(t.cut) for t in tables], np.int64)
+    cut_base = 1 + np.concatenate([[0], np.cumsum(rows)[:-1]]).astype(np.int64)
+    cut_first = np.array([t.cut_first for t in tables], np.int64)
+    part = [slice(k0 + REACH, k0 + REACH + w) for (k0, _), w in zip(support, width)]
+    stacked = (np.concatenate([[0.0]] + [t.wave[p] for t, p in zip(tables, part)]),
+               np.concatenate([np.zeros(1, np.uint8)] + [t.label[p] for t, p in zip(tables, part)]),
+               base - support[:, 0], np.concatenate([np.zeros((1, 2 * REACH))] + [t.cut for t in tables]),
+               cut_first, cut_first + rows, cut_base - cut_first, support,
+               np.array([t.wave.max(initial=0.0) for t in tables]), float(steps.pop()))  # fmt: skip
+    with _STACKS_LOCK:  # batches are detected on worker threads
+        while len(_STACKS) >= _STACKS_KEPT:
+            _STACKS.pop(next(iter(_STACKS)))
+        _STACKS[key] = (tables, stacked)
+    return stacked
 
 
 def empty_volume(n_beams: int = 0) -> Volume:
     """A :class:`Volume` without layers (what the echo kernel reads for a batch without volume returns)."""
-    return Volume(np.zeros((0, 1)), np.zeros((0, 1, 2 * REACH)), np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
-                  np.zeros(0), np.zeros((0, 1), np.uint8), 0.0, np.full((n_beams, 0), -1, np.int64),
+    none = np.zeros(0, np.int64)
+    return Volume(np.zeros(1), np.zeros(1, np.uint8), none, np.zeros((1, 2 * REACH)), none, none, none,
+                  np.zeros((0, 2), np.int64), np.zeros(0), 0.0, np.full((n_beams, 0), -1, np.int64),
                   np.zeros((n_beams, 0)), np.zeros((n_beams, 0)))  # fmt: skip
 
 
@@ -179,11 +222,10 @@ def _cut_index(volume, t, hit_m):
 def _row(volume, t, k, j):
     """Table t's waveform at sample j (inside the support) in front of boundary row k."""
     if j < k - REACH:
-        return volume.wave[t, j + REACH]
-    i = k - volume.cut_first[t]
-    if j >= k + REACH or i < 0 or i >= volume.cut.shape[1]:
+        return volume.wave[volume.origin[t] + j]
+    if j >= k + REACH or k < volume.cut_first[t] or k >= volume.cut_end[t]:
         return 0.0  # behind the cut, or a row whose samples all lie outside the support
-    return volume.cut[t, i, j - k + REACH]
+    return volume.cut[volume.cut_origin[t] + k, j - k + REACH]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -223,11 +265,11 @@ def fill_volume(volume, b, first, n, values, labels):
         for i in range(max(lo - first, 0), min(hi - first, n)):
             j = first + i
             if k < 0:
-                v = scale * volume.wave[t, j + REACH]
+                v = scale * volume.wave[volume.origin[t] + j]
             else:
                 v = scale * (0.5 * (f - 1.0) * (f - 2.0) * _row(volume, t, k, j) - f * (f - 2.0) * _row(volume, t, k + 1, j)
                              + 0.5 * f * (f - 1.0) * _row(volume, t, k + 2, j))
             if v > values[i]:
-                labels[i] = volume.label[t, j + REACH]
+                labels[i] = volume.label[volume.origin[t] + j]
             values[i] += v
     return values

@@ -541,19 +541,25 @@ class LidarSimulator:
 
 def _volume(rays: RayBatch | None, effect: RegionEffect | None) -> Volume | None:
     """The volume returns of ``effect`` on the batch's beams as the echo kernel reads them (None: none): each
-    term cut at its hit (default: the central sub-ray's scene hit moved by the range offset, inf on a miss) and
-    scaled by the central sub-ray's two-way transmission."""
+    term one layer (each beam its table of the term's), cut at its hit (default: the central sub-ray's scene hit
+    moved by the range offset, inf on a miss) and scaled by the central sub-ray's two-way transmission and the light
+    its scatterers leave (each as if in front of the whole volume: the cover's returns are; a drop blocks ~1e-4)."""
     if effect is None or not effect.volume:
         return None
     core = int(np.argmax(rays.weights))
     distance = rays.distance[:, core]
     scene_hit = np.where(np.isfinite(distance), distance + effect.range_offset_m[:, core], np.inf)
     two_way = effect.transmission[:, core] ** 2
-    tables = list({id(term.table): term.table for term in effect.volume}.values())
+    sc = effect.scatterers
+    if sc is not None:  # what the central sub-ray's scatterers leave of its light (the cover's returns lie in front)
+        on_core = (sc.subray == core) & (sc.occlusion > 0)
+        two_way = two_way.copy()
+        np.multiply.at(two_way, sc.beam[on_core], (1.0 - sc.occlusion[on_core]) ** 2)
+    tables = list({id(t): t for term in effect.volume for t in term.tables}.values())
     index = {id(table): k for k, table in enumerate(tables)}
-    layers = [(index[id(term.table)], two_way * term.scale, scene_hit if term.hit_m is None else term.hit_m)
-              for term in effect.volume]  # fmt: skip
     n = len(distance)
+    layers = [(np.array([index[id(t)] for t in term.tables])[term.beam_table(n)], two_way * term.scale,
+               scene_hit if term.hit_m is None else term.hit_m) for term in effect.volume]  # fmt: skip
     table = np.stack([np.where(scale > 0, k, -1) for k, scale, _ in layers], axis=1)
     scale = np.stack([np.broadcast_to(scale, n) for _, scale, _ in layers], axis=1)
     hit_m = np.stack([np.broadcast_to(hit, n) for _, _, hit in layers], axis=1)
