@@ -28,6 +28,8 @@ Fields are mapped by name, whatever the driver, so other layouts built from the 
   present (a missing ``epw`` is how the weather filters know EPW is unknown).
 - Points at the sensor origin (x = y = z = 0: organised clouds' placeholders for no return, as ouster-ros
   writes them) are dropped, as non-finite ones are by the decoder.
+- A cloud naming every base field of the project's layout passes unchanged (its own types and values; the
+  consumers check them).
 
 One :class:`CloudReader` per recording or subscription keeps what the first frame decided (the channel
 mapping, the intensity scale) and says in one line what it assumed, once, through its ``note`` callable.
@@ -90,9 +92,10 @@ def output_dtype(names: tuple[str, ...]) -> np.dtype:
 
 
 def is_project_layout(dtype: np.dtype) -> bool:
-    """True when ``dtype`` holds every base field of the project's layout with its type."""
-    names = dtype.names or ()
-    return all(n in names and dtype[n] == POINT_DTYPE_NO_EPW[n] for n in PROJECT_FIELDS)
+    """True when ``dtype`` names every base field of the project's layout. Such clouds pass as they are, in
+    whatever types they hold: the consumers check those types and values themselves (the weather filters name
+    a field out of range)."""
+    return set(PROJECT_FIELDS) <= set(dtype.names or ())
 
 
 def elevation_clusters(elevation: np.ndarray, gap_rad: float = CLUSTER_GAP_RAD) -> np.ndarray:
@@ -167,7 +170,7 @@ class CloudReader:
         first = self.driver is None
         if first:
             self.driver = driver_name(names)
-        if is_project_layout(points.dtype) and not _placeholders(points).any():
+        if is_project_layout(points.dtype):
             self._say()
             return ReadFrame(points, int(stamp_ns), 0)
         origin = _placeholders(points)
