@@ -313,6 +313,9 @@ def _cmd_twin(args: argparse.Namespace) -> int:
         raise FileExistsError(f"{args.out} exists and is not empty (use --overwrite)")
     inp = load_input(args.bag, args.topic, args.profile, args.frames, args.split, args.sector_deg)  # every check first
     r = build_twin(inp, args.out)
+    if not r["deskewed"] and inp.recording.layout.has_time:  # without a time field the reader said so already
+        print("lidar-weather-sim twin: note: point times are constant in some frame: KISS-ICP did not deskew",
+              file=sys.stderr)  # fmt: skip
     c, d = r["coverage"], r["point_to_mesh_m"]
     print(f"twin of {r['frames']} frames ({r['split']['kind']} split, poses: {r['poses']}, profile "
           f"{r['profile']['name']} {r['profile']['how']}): {r['mesh']['triangles']} triangles; within "

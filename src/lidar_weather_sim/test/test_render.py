@@ -140,7 +140,7 @@ def test_actors_from_tf_are_boxes_with_a_size_and_markers_without(tmp_path):
 
 
 def _error_lines(capsys) -> list[str]:
-    return [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    return [line for line in capsys.readouterr().err.splitlines() if line.strip() and not line.startswith("note: ")]
 
 
 def test_bad_input_exits_non_zero_with_one_line(tmp_path, capsys):

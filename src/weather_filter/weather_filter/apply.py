@@ -4,7 +4,8 @@ Every message of BAG is copied to BAG2 as it was stored (same topic, type, log t
 clouds of the cloud topic (unless given: /lidar/points, else the bag's only PointCloud2 topic): each is decoded, filtered with
 ``method`` (default: the node's, the learned filter, with the geometry-only ``fallback`` for clouds lacking
 its fields) and written in its place with the same header stamp, frame and log time; with ``removed_topic``
-the removed points are written there too. A cloud that cannot be decoded or filtered is left out of BAG2,
+the removed points are written there too. Clouds of any common driver are read into the project's point
+layout (:mod:`lidar_weather_sim.io.layouts`) and written in it. A cloud that cannot be decoded or filtered is left out of BAG2,
 counted and named in the report (the node skips it the same way). BAG2 is closed with its index whatever
 happens (:class:`lidar_weather_sim.io.bags.BagWriter`).
 """
@@ -17,9 +18,9 @@ from pathlib import Path
 
 from rosbags.serde import SerdeError
 
-from lidar_weather_sim.io.bags import BagError, BagWriter, read_raw, typestore
-from lidar_weather_sim.io.cloud_codec import CloudFormatError, decode_message
-from lidar_weather_sim.io.recording import cloud_topic
+from lidar_weather_sim.io.bags import BagError, BagWriter, cloud_topic, read_raw, typestore
+from lidar_weather_sim.io.cloud_codec import CloudFormatError
+from lidar_weather_sim.io.layouts import CloudReader
 from weather_filter.filter_methods import DEFAULT_METHOD, make_filter_with_fallback
 from weather_filter.points.base import MissingFieldsError
 from weather_filter.points.cloud_check import CloudFieldError
@@ -59,6 +60,7 @@ def apply_bag(bag: str | Path, out: str | Path, *, topic: str | None = None, met
     filt = make_filter_with_fallback(method, fallback)
     report = ApplyReport(topic)
     store = typestore()
+    reader = CloudReader(f"{bag} {topic}")
     with BagWriter(out, overwrite=overwrite) as writer:
         for index, (name, msgtype, log_time, data) in enumerate(read_raw(bag)):
             if name != topic:
@@ -67,13 +69,13 @@ def apply_bag(bag: str | Path, out: str | Path, *, topic: str | None = None, met
                 continue
             try:
                 msg = store.deserialize_cdr(data, msgtype)
-                points = decode_message(msg).points
+                frame = reader.read_message(msg)
+                points = frame.points
                 result = filt(points)
             except (SerdeError, CloudFormatError, CloudFieldError, MissingFieldsError, KeyError, ValueError) as exc:
                 report.skipped.append(f"message {index} at log time {log_time} ns: {exc}")
                 continue
-            stamp = msg.header.stamp
-            stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+            stamp_ns = frame.stamp_ns
             kept = points[~result.remove]
             writer.write_cloud(topic, kept, stamp_ns, msg.header.frame_id, log_time)
             if removed_topic:

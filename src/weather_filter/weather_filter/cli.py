@@ -140,7 +140,7 @@ def _stored_command(args: argparse.Namespace) -> str:
     argv = [args.command, *args.bags] if args.command == "train" else [args.command]
     for spec in args.sim:
         argv += ["--sim", spec]
-    if args.topic != TOPIC_POINTS:
+    if args.topic:
         argv += ["--topic", args.topic]
     if args.command == "train":
         if args.synthetic_frames:
@@ -311,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("bag", metavar="BAG", help="rosbag2 directory or .mcap file")
     ev.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS, metavar="METHOD",
                     help="filter (default %(default)s): " + "; ".join(f"{m}: {METHOD_HELP[m]}" for m in METHODS))  # fmt: skip
-    ev.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
+    ev.add_argument("--topic", help=f"PointCloud2 topic (default: {TOPIC_POINTS}, else the bag's only one)")
     ev.add_argument("--out", help="also write the JSON to this file")
     ev.add_argument("--fallback", default="dror", choices=GEOMETRY_METHODS,
                     help="geometry-only filter for clouds lacking the method's fields (default dror)")  # fmt: skip
@@ -335,7 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "models/obstacle_point_mlp_v1.joblib); augmentation-wide: an experiment on more runs "
                          "(obstacle.runs.AUGMENT_TRAIN_RUNS_WIDE)")  # fmt: skip
     tr.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
-    tr.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
+    tr.add_argument("--topic", help=f"PointCloud2 topic (default: {TOPIC_POINTS}, else the bag's only one)")
     tr.add_argument("--synthetic-frames", type=number_in(int, 0), default=0, help="add N constructed frames (weather_filter.synthetic)")
     tr.add_argument("--hidden", default="16", help="hidden layer sizes, comma-separated (default 16; paper 4: 10)")
     tr.add_argument("--spray-weight", type=number_in(float, 0, open_low=True), default=20.0, help="weight of spray points in the fit (default 20)")
@@ -354,7 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="simulate this run; its weather class comes from the scenario's weather block; repeatable")  # fmt: skip
     tw.add_argument("--preset", choices=["shipped"], help="add the runs of the shipped model (weather_class.KNN_TRAIN_SPECS)")
     tw.add_argument("--cache", help="directory of simulated bags (default .venv/cache/weather_filter)")
-    tw.add_argument("--topic", default=TOPIC_POINTS, help=f"PointCloud2 topic (default {TOPIC_POINTS})")
+    tw.add_argument("--topic", help=f"PointCloud2 topic (default: {TOPIC_POINTS}, else the bag's only one)")
     tw.add_argument("--k", type=number_in(int, 1), default=5, help="neighbours (default 5)")
     tw.add_argument("--out", help="model file (default: the packaged models/weather_knn_v<N>.joblib)")
     _engine_options(tw)

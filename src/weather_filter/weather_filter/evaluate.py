@@ -128,7 +128,7 @@ def evaluate_frames(filt: PointFilter, frames: Iterable[np.ndarray], method: str
     return out
 
 
-def evaluate_bag(bag: str, method: str, topic: str, fallback: str = "dror", **filter_params) -> dict:
+def evaluate_bag(bag: str, method: str, topic: str | None, fallback: str = "dror", **filter_params) -> dict:
     """Clouds lacking the fields of ``method`` are filtered by the geometry-only ``fallback`` (warning, and a
     ``fallback`` entry in the result naming it and how many frames it filtered)."""
     from lidar_weather_sim.io.bags import read_clouds

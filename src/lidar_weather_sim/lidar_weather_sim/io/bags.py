@@ -61,6 +61,7 @@ from lidar_weather_sim.io.cloud_codec import (
     build_message,
     decode_message,
 )
+from lidar_weather_sim.io.layouts import CloudReader
 from lidar_weather_sim.io.mcap_checks import check_summary, checksum_chunks, first_damage, seal
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
@@ -289,26 +290,49 @@ def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[
     return _raw(_open_bag(path), topics)
 
 
-def read_clouds(path: str | Path, topic: str = TOPIC_POINTS, nan_policy: NanPolicy = "drop") -> Iterator[CloudFrame]:
-    """Decoded PointCloud2 frames of ``topic``; non-finite points handled per ``nan_policy``."""
+def cloud_topic(path: str | Path, topic: str | None = None) -> str:
+    """``topic`` if given, else the bag's only PointCloud2 topic (``/lidar/points`` preferred)."""
     info = bag_info(path)
+    clouds = [t.name for t in info.topics if t.msgtype == POINTCLOUD2]
+    if topic is not None:
+        if topic not in clouds:
+            raise BagError(f"bag {info.path} has no PointCloud2 topic {topic} (PointCloud2 topics: "
+                           f"{', '.join(clouds) or 'none'})")  # fmt: skip
+        return topic
+    if TOPIC_POINTS in clouds:
+        return TOPIC_POINTS
+    if len(clouds) != 1:
+        raise BagError(f"bag {info.path}: {len(clouds)} PointCloud2 topics ({', '.join(clouds) or 'none'}); "
+                       "choose one with --topic")  # fmt: skip
+    return clouds[0]
+
+
+def read_clouds(path: str | Path, topic: str | None = None, nan_policy: NanPolicy = "drop",
+                reader: CloudReader | None = None) -> Iterator[CloudFrame]:  # fmt: skip
+    """PointCloud2 frames of ``topic`` (default: /lidar/points or the bag's only PointCloud2 topic, see
+    :func:`cloud_topic`) in the project's point layout, whatever driver wrote them
+    (:mod:`lidar_weather_sim.io.layouts`; ``reader`` default: one that notes its assumptions on stderr);
+    non-finite points handled per ``nan_policy``."""
+    info = bag_info(path)
+    topic = cloud_topic(path, topic) if topic is None else topic
     types = {t.name: t.msgtype for t in info.topics}
     if types.get(topic) != POINTCLOUD2:
         found = ", ".join(f"{name} ({msgtype})" for name, msgtype in types.items()) or "none"
         damaged = " in its readable part (the bag is damaged: no index; `lidar-weather-sim recover` it)" if info.damaged else ""
         raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}{damaged}; topics: {found}")
-    return _clouds(path, topic, nan_policy)
+    return _clouds(path, topic, nan_policy, reader or CloudReader(f"{path} {topic}"))
 
 
-def _clouds(path: str | Path, topic: str, nan_policy: NanPolicy) -> Iterator[CloudFrame]:
+def _clouds(path: str | Path, topic: str, nan_policy: NanPolicy, reader: CloudReader) -> Iterator[CloudFrame]:
     for index, item in enumerate(read_messages(path, [topic])):
         try:
             cloud = decode_message(item.msg, nan_policy)
+            stamp = item.msg.header.stamp
+            frame = reader.read(cloud.points, int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec))
         except CloudFormatError as err:
             raise BagError(f"bag {path}, topic {topic}, message {index}: {err}") from err
-        stamp = item.msg.header.stamp
-        stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-        yield CloudFrame(item.log_time_ns, stamp_ns, item.msg.header.frame_id, cloud.points, cloud.dropped_nonfinite)
+        yield CloudFrame(item.log_time_ns, frame.stamp_ns, item.msg.header.frame_id, frame.points,
+                         cloud.dropped_nonfinite + frame.placeholders)  # fmt: skip
 
 
 def _fields(msg: Any) -> list[tuple[str, int, int, int]]:

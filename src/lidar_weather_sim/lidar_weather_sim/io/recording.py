@@ -15,33 +15,18 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-from lidar_weather_sim.core.names import TOPIC_POINTS, TOPIC_TF, TOPIC_TF_STATIC, actor_frame
-from lidar_weather_sim.io.bags import POINTCLOUD2, BagError, CloudFrame, bag_info, read_clouds, read_messages
+from lidar_weather_sim.core.names import TOPIC_TF, TOPIC_TF_STATIC, actor_frame
+from lidar_weather_sim.io.bags import BagError, CloudFrame, bag_info, cloud_topic, read_clouds, read_messages
+from lidar_weather_sim.io.layouts import CloudReader, stderr_note
 from lidar_weather_sim.poses.sources import TfPoseSource, add_odometry, add_tf_message
 from lidar_weather_sim.poses.tf_buffer import TransformBuffer, TransformError
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 ACTOR_FRAME = re.compile(r"^actor_(\d+)$")
-
-
-def cloud_topic(path: str | Path, topic: str | None = None) -> str:
-    """``topic`` if given, else the bag's only PointCloud2 topic (``/lidar/points`` preferred)."""
-    info = bag_info(path)
-    clouds = [t.name for t in info.topics if t.msgtype == POINTCLOUD2]
-    if topic is not None:
-        if topic not in clouds:
-            raise BagError(f"bag {info.path} has no PointCloud2 topic {topic} (PointCloud2 topics: "
-                           f"{', '.join(clouds) or 'none'})")  # fmt: skip
-        return topic
-    if TOPIC_POINTS in clouds:
-        return TOPIC_POINTS
-    if len(clouds) != 1:
-        raise BagError(f"bag {info.path}: {len(clouds)} PointCloud2 topics ({', '.join(clouds) or 'none'}); "
-                       "choose one with --topic")  # fmt: skip
-    return clouds[0]
 
 
 @dataclass
@@ -55,13 +40,18 @@ class Recording:
     buffer: TransformBuffer = field(repr=False)
     fixed_frame: str | None  # root of the transform tree, None without /tf
     sensor_frame: str
+    layout: CloudReader = field(repr=False)  # the driver read and what was assumed (io/layouts.py)
 
     @classmethod
-    def load(cls, path: str | Path, topic: str | None = None) -> "Recording":
+    def load(cls, path: str | Path, topic: str | None = None,
+             note: Callable[[str], None] | None = stderr_note) -> "Recording":  # fmt: skip
+        """The bag's frames of ``topic`` (default: /lidar/points or the only PointCloud2 topic) in the project's
+        point layout, whatever driver wrote them; ``note`` gets the one line of what the reader assumed."""
         path = Path(path)
         topic = cloud_topic(path, topic)
         info = bag_info(path)
-        frames = sorted(read_clouds(path, topic), key=lambda f: f.stamp_ns)
+        layout = CloudReader(f"{path} {topic}", note)
+        frames = sorted(read_clouds(path, topic, reader=layout), key=lambda f: f.stamp_ns)
         if not frames:
             raise BagError(f"bag {path}: topic {topic} holds no clouds")
         span_s = max(info.duration_s, (frames[-1].stamp_ns - frames[0].stamp_ns) * 1e-9) + 10.0
@@ -74,7 +64,7 @@ class Recording:
                 add_tf_message(buffer, m.msg, static=m.topic == TOPIC_TF_STATIC)
         sensor = frames[0].frame_id
         start = min(info.start_ns, frames[0].stamp_ns)
-        return cls(path, topic, frames, start, buffer, _root(buffer, sensor), sensor)
+        return cls(path, topic, frames, start, buffer, _root(buffer, sensor), sensor, layout)
 
     # -- time ---------------------------------------------------------------------
     def time_s(self, stamp_ns: int) -> float:

@@ -27,7 +27,8 @@ from lidar_weather_sim.control.acc import AccConfig, AccState, ObstacleTrack, cl
 from lidar_weather_sim.core.config import ConfigError, validate
 from lidar_weather_sim.core.names import FRAME_BASE_LINK, TOPIC_CMD_SPEED, TOPIC_POINTS_FILTERED
 from lidar_weather_sim.io.cloud_codec import CloudFormatError
-from lidar_weather_sim.ros.conversions import msg_to_cloud, stamp_to_ns
+from lidar_weather_sim.io.layouts import CloudReader
+from lidar_weather_sim.ros.conversions import stamp_to_ns
 from lidar_weather_sim.ros.node_main import run_node
 
 
@@ -50,11 +51,12 @@ class EgoControllerNode(Node):
         self.create_subscription(PointCloud2, topic, self._on_cloud, qos_profile_sensor_data)
         self.commands = 0
         self._logged: set[str] = set()
+        self._reader = CloudReader(topic, self.get_logger().info)  # any driver's layout, said in one line
         self.get_logger().info(f"adaptive cruise on {topic} -> {TOPIC_CMD_SPEED}, set speed {self.cfg.cruise_speed_m_s} m/s")
 
     def _on_cloud(self, msg: PointCloud2) -> None:
         try:
-            points = msg_to_cloud(msg).points
+            points = self._reader.read_message(msg).points
             found = clusters(points, self.cfg)
         except (CloudFormatError, KeyError, ValueError) as exc:
             key = type(exc).__name__

@@ -157,6 +157,7 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
         "bag": str(rec.path), "topic": rec.topic, "frames": inp.frames,
         "profile": {"name": inp.profile_name, "how": inp.profile_how},
         "poses": poses.source,
+        "deskewed": poses.deskewed,
         "split": {"kind": split.kind, "calibration_frames": len(split.calibration_frames),
                   "heldout_frames": len(split.heldout_frames), "frames_used_for_mesh": used},
         "moving_points_removed": removed,

@@ -6,7 +6,11 @@
   ``KISSConfig``, not its CLI) registers the clouds in stamp order, deskewing each with its point times
   (normalised to 0-1); its pose of a frame is the sensor at the frame's last point time (KISS-ICP 1.x
   deskews to the end of the scan), at the middle for the first two frames (not deskewed: no motion yet). The first frame defines
-  ``map``. Between frames poses are interpolated (:class:`KeyframeTrack`).
+  ``map``. Between frames poses are interpolated (:class:`KeyframeTrack`). When any frame's point times are
+  all equal (a driver without per-point time) no frame is deskewed and each pose is the frame's stamp:
+  KISS-ICP's own normalisation would divide by a zero span and abort the process. Every frame is checked
+  before it is handed over (finite points, at least :data:`MIN_ICP_POINTS` within range) and every pose
+  after: a frame KISS-ICP cannot take is a ValueError naming it, never a native abort.
 - **identity**: a single frame without poses: ``map`` is its sensor frame.
 
 Units: s (simulated time, counted from the bag's start as :class:`~lidar_weather_sim.io.recording.Recording`
@@ -52,6 +56,7 @@ class TwinPoses:
 
     source: str  # "recorded", "kiss-icp" or "identity"
     track: object
+    deskewed: bool = True  # False: KISS-ICP took the frames as they were (point times constant)
 
     def frame_pose(self, time_s: float) -> np.ndarray:
         """4x4 sensor -> map at ``time_s`` (s)."""
@@ -78,10 +83,28 @@ def points_in_map(recording: Recording, index: int, poses: TwinPoses) -> tuple[n
     return np.einsum("nij,nj->ni", rotation[inverse], xyz) + translation[inverse], translation[inverse]
 
 
-def kiss_icp_track(recording: Recording, max_range_m: float = 100.0, voxel_size_m: float | None = None) -> KeyframeTrack:
+MIN_ICP_POINTS = 100  # points within KISS-ICP's range gate a frame needs
+
+
+def _icp_input(recording: Recording, index: int, min_range_m: float, max_range_m: float) -> np.ndarray:
+    """Frame ``index``'s points (N, 3) m, checked for KISS-ICP: finite, enough of them within range."""
+    p = recording.frames[index].points
+    xyz = np.stack([p["x"], p["y"], p["z"]], axis=-1).astype(np.float64)
+    if not np.isfinite(xyz).all():
+        raise ValueError(f"{recording.path}: frame {index} has non-finite x, y or z: not handed to KISS-ICP")
+    r = np.linalg.norm(xyz, axis=1)
+    inside = int(np.count_nonzero((r >= min_range_m) & (r <= max_range_m)))
+    if inside < MIN_ICP_POINTS:
+        raise ValueError(f"{recording.path}: frame {index} has {inside} points within {min_range_m:g}-{max_range_m:g} m, "
+                         f"fewer than the {MIN_ICP_POINTS} KISS-ICP needs to register it")  # fmt: skip
+    return xyz
+
+
+def kiss_icp_track(recording: Recording, max_range_m: float = 100.0,
+                   voxel_size_m: float | None = None) -> tuple[KeyframeTrack, bool]:  # fmt: skip
     """KISS-ICP odometry over every frame (stamp order): a :class:`KeyframeTrack` of the sensor at the end of
-    each frame's point times, the first frame's sensor frame as ``map``. ``voxel_size_m`` default: KISS-ICP's
-    (max range / 100)."""
+    each frame's point times (at the stamp when not deskewed), the first frame's sensor frame as ``map``, and
+    whether the frames were deskewed (module doc). ``voxel_size_m`` default: KISS-ICP's (max range / 100)."""
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
@@ -90,21 +113,24 @@ def kiss_icp_track(recording: Recording, max_range_m: float = 100.0, voxel_size_
     config.data.min_range = 0.5  # the vehicle's own body
     config.mapping.voxel_size = float(voxel_size_m or max_range_m / 100.0)
     config.registration.max_num_threads = 2
+    spans = [float(np.ptp(f.points["time_stamp"])) if len(f.points) else 0.0 for f in recording.frames]
+    config.data.deskew = deskew = min(spans, default=0.0) > 0
     odometry = KissICP(config)
     times, poses = [], []
     for i, frame in enumerate(recording.frames):
-        p = frame.points
-        xyz = np.stack([p["x"], p["y"], p["z"]], axis=-1).astype(np.float64)
+        xyz = _icp_input(recording, i, config.data.min_range, config.data.max_range)
         stamps = point_times_s(recording, i)
-        span = float(np.ptp(stamps)) if len(stamps) else 0.0
-        odometry.register_frame(xyz, (stamps - stamps.min()) / span if span > 0 else np.zeros(len(stamps)))  # 0-1
+        span = float(np.ptp(stamps))
+        odometry.register_frame(xyz, (stamps - stamps.min()) / span if deskew else np.zeros(len(stamps)))  # 0-1
         # KISS-ICP 1.x deskews to the scan's end with the last frame-to-frame motion, which is unknown (the
         # identity) for the first two frames: those stay raw and their poses are the scan's middle
-        deskewed = i >= 2
-        times.append((stamps.max() if deskewed else 0.5 * (stamps.min() + stamps.max())) if len(stamps)
-                     else recording.time_s(frame.stamp_ns))  # fmt: skip
-        poses.append(np.array(odometry.last_pose, dtype=np.float64))
-    return KeyframeTrack(np.array(times), np.array(poses))
+        at_end = deskew and i >= 2
+        times.append(stamps.max() if at_end else 0.5 * (stamps.min() + stamps.max()))
+        pose = np.array(odometry.last_pose, dtype=np.float64)
+        if not np.isfinite(pose).all():
+            raise ValueError(f"{recording.path}: KISS-ICP lost track at frame {i} (non-finite pose)")
+        poses.append(pose)
+    return KeyframeTrack(np.array(times), np.array(poses)), deskew
 
 
 def twin_poses(recording: Recording, max_range_m: float = 100.0) -> TwinPoses:
@@ -113,4 +139,5 @@ def twin_poses(recording: Recording, max_range_m: float = 100.0) -> TwinPoses:
         return TwinPoses("recorded", recording.pose_source())
     if len(recording.frames) == 1:
         return TwinPoses("identity", KeyframeTrack(np.zeros(1), np.eye(4)[None]))
-    return TwinPoses("kiss-icp", kiss_icp_track(recording, max_range_m))
+    track, deskewed = kiss_icp_track(recording, max_range_m)
+    return TwinPoses("kiss-icp", track, deskewed)

@@ -160,6 +160,8 @@ def reconstruct_mesh(xyz: np.ndarray, origins: np.ndarray, angular_step_rad: flo
     sectors, which Poisson's smooth surface spans from the calibration sectors around them."""
     import open3d as o3d
 
+    if not (np.isfinite(xyz).all() and np.isfinite(origins).all()):  # Open3D would abort or hang on them
+        raise ValueError("twin: non-finite points or sensor origins reached the mesh step")
     pts, org, _ = downsample(xyz, origins, settings.voxel_m)
     if len(pts) < 10:
         raise ValueError(f"twin: {len(pts)} static points after downsampling: too few to reconstruct a surface")

@@ -22,9 +22,9 @@ from typing import Iterator
 import numpy as np
 
 from lidar_weather_sim.core.names import TOPIC_TF, TOPIC_TF_STATIC, actor_frame
-from lidar_weather_sim.io.bags import BagError, bag_info, read_messages
-from lidar_weather_sim.io.cloud_codec import CloudFormatError, decode_message
-from lidar_weather_sim.io.recording import cloud_topic
+from lidar_weather_sim.io.bags import BagError, bag_info, cloud_topic, read_messages
+from lidar_weather_sim.io.cloud_codec import CloudFormatError
+from lidar_weather_sim.io.layouts import CloudReader
 from lidar_weather_sim.poses.sources import add_tf_message
 from lidar_weather_sim.poses.tf_buffer import TransformBuffer, TransformError
 
@@ -111,17 +111,17 @@ class FrameSource:
         return len(self.selection)
 
     def __iter__(self) -> Iterator[RenderFrame]:
+        reader = CloudReader(f"{self.path} {self.topic}")
         for index, item in enumerate(read_messages(self.path, [self.topic])):
             if index >= self.selection.stop:
                 break
             if index < self.selection.start:
                 continue
             try:
-                points = decode_message(item.msg, "drop").points
+                frame = reader.read_message(item.msg)
             except CloudFormatError as err:
                 raise BagError(f"bag {self.path}, topic {self.topic}, message {index}: {err}") from err
-            stamp = item.msg.header.stamp
-            stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+            points, stamp_ns = frame.points, frame.stamp_ns
             frame_id = item.msg.header.frame_id
             yield RenderFrame(index, stamp_ns, (stamp_ns - self.start_ns) * 1e-9, frame_id, points,
                               self.actors(frame_id, stamp_ns + _half_scan_ns(points)))  # fmt: skip

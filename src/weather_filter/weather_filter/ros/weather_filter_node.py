@@ -28,7 +28,8 @@ from sensor_msgs.msg import PointCloud2
 
 from lidar_weather_sim.core.names import TOPIC_POINTS, TOPIC_POINTS_FILTERED, TOPIC_POINTS_REMOVED
 from lidar_weather_sim.io.cloud_codec import CloudFormatError
-from lidar_weather_sim.ros.conversions import cloud_to_msg, msg_to_cloud, stamp_to_ns
+from lidar_weather_sim.io.layouts import CloudReader
+from lidar_weather_sim.ros.conversions import cloud_to_msg
 from lidar_weather_sim.ros.node_main import run_node
 from weather_filter.filter_methods import (
     DEFAULT_METHOD,
@@ -71,6 +72,7 @@ class WeatherFilterNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, TOPIC_POINTS, self._on_cloud, qos_profile_sensor_data)
         self.get_logger().info(f"filtering {TOPIC_POINTS} with '{method}' (fallback '{fallback}')")
+        self._reader = CloudReader(TOPIC_POINTS, self.get_logger().info)  # any driver's layout, said in one line
 
     def _load_weather_classifier(self):
         """The shipped per-frame KNN (weather_filter.weather_class), or None (logged) if it cannot load."""
@@ -106,10 +108,11 @@ class WeatherFilterNode(Node):
 
     def _on_cloud(self, msg: PointCloud2) -> None:
         try:
-            points = msg_to_cloud(msg).points
+            frame = self._reader.read_message(msg)
         except CloudFormatError as exc:
             self._skip(msg, f"malformed:{exc.cause}", f"skipped malformed cloud: {exc}")
             return
+        points = frame.points
         filt = self._filter
         missing = filt.missing_fields(points)
         if missing:
@@ -126,7 +129,7 @@ class WeatherFilterNode(Node):
         except Exception as exc:  # never crash on one frame
             self._skip(msg, f"error:{type(exc).__name__}", f"filter '{filt.name}' failed, frame skipped: {exc!r}")
             return
-        stamp_ns, frame_id = stamp_to_ns(msg.header.stamp), msg.header.frame_id
+        stamp_ns, frame_id = frame.stamp_ns, msg.header.frame_id
         self._pub_filtered.publish(cloud_to_msg(points[~result.remove], stamp_ns, frame_id)[0])
         self._pub_removed.publish(cloud_to_msg(points[result.remove], stamp_ns, frame_id)[0])
         self._pub_diag.publish(self._diagnostics(msg, points, result, filt.name))
