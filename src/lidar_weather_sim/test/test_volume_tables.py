@@ -8,51 +8,21 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.integrate import quad
 from scipy.signal import lfilter
 
-from lidar_weather_sim.physics.coefficients import medium
 from lidar_weather_sim.regions.volume_return import VolumeReturn
 from lidar_weather_sim.sensor.echo import detect_echoes
 from lidar_weather_sim.sensor.profile import load_profile
-from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M, Threshold
+from lidar_weather_sim.sensor.radiometry import MIN_RANGE_M, Threshold
 from lidar_weather_sim.sensor.volume_tables import REACH, build_table, stack_volume
+from lidar_weather_sim.testing.lidar_integral import lidar_integral, medium_return
 
 FOG = 3
-
-
-def medium_return(profile, kind: str, value: float) -> VolumeReturn:
-    m = medium(kind, value, profile.optics.wavelength_nm or 905.0)
-    return VolumeReturn(profile.detection.power_constant, m.alpha, m.beta, profile.pulse.fwhm_m * FWHM_TO_SIGMA,
-                        profile.optics.overlap_start_m, profile.optics.overlap_full_m)  # fmt: skip
 
 
 def table_of(profile, v: VolumeReturn, tau_m: float = 0.0, floor: float = 0.0):
     return build_table(v.density, sigma_m=v.sigma_m, r_max_m=float(profile.range.max_m), label=FOG,
                        start_m=max(v.overlap_start_m, MIN_RANGE_M), tau_m=tau_m, floor=floor)  # fmt: skip
-
-
-def reference(v: VolumeReturn, r: float, hit_m: float) -> float:
-    """The LIDAR integral of the medium in front of ``hit_m`` at range r, from the equation alone (smoothstep
-    overlap, 1/r^2, two-way extinction, Gaussian pulse), by adaptive quadrature."""
-
-    def integrand(x: float) -> float:
-        if x < v.overlap_start_m:
-            o = 0.0
-        elif x >= v.overlap_full_m:
-            o = 1.0
-        else:
-            u = (x - v.overlap_start_m) / (v.overlap_full_m - v.overlap_start_m)
-            o = u * u * (3 - 2 * u)
-        return o * np.exp(-2 * v.alpha * x) / x**2 * np.exp(-((r - x) ** 2) / (2 * v.sigma_m**2))
-
-    lo = max(v.overlap_start_m, MIN_RANGE_M, r - 10 * v.sigma_m)
-    hi = min(hit_m, r + 10 * v.sigma_m)
-    if hi <= lo:
-        return 0.0
-    breaks = [x for x in (r, v.overlap_full_m) if lo < x < hi]
-    value, _ = quad(integrand, lo, hi, points=breaks or None, limit=400, epsabs=0.0, epsrel=1e-10)
-    return v.power_constant * np.pi * v.beta * value
 
 
 @pytest.mark.parametrize("profile_name", ["scala4", "os1_128_2048"])
@@ -68,7 +38,7 @@ def test_table_is_the_lidar_equation_integral(profile_name, kind, value):
         if np.isfinite(hit):  # the samples around the cut
             k = np.concatenate([k, np.round(hit / dx).astype(int) + np.arange(-12, 13, 3)])
         got = table.truncated(hit)[k + REACH]
-        want = np.array([reference(v, j * dx, hit) for j in k])
+        want = np.array([lidar_integral(v, j * dx, hit) for j in k])
         np.testing.assert_allclose(got, want, rtol=2e-3, atol=1e-7 * want.max())
 
 

@@ -228,6 +228,18 @@ def _row(volume, t, k, j):
     return volume.cut[volume.cut_origin[t] + k, j - k + REACH]
 
 
+@numba.njit(cache=True, inline="always")
+def _layer(volume, b, layer):
+    """(table, scale, support start, support end, cut row K, fraction f) of beam b's layer (see :func:`_cut_index`);
+    table -1: the beam has no such layer (no table, or scale 0)."""
+    t = volume.table[b, layer]
+    scale = volume.scale[b, layer]
+    if t < 0 or not scale > 0.0:
+        return -1, 0.0, 0, 0, -1, 0.0
+    k, f = _cut_index(volume, t, volume.hit_m[b, layer])
+    return t, scale, volume.support[t, 0], volume.support[t, 1], k, f
+
+
 @numba.njit(cache=True, nogil=True)
 def volume_window(volume, b):
     """[j0, j1): the samples where beam b's volume may be non-zero (j1 <= j0: none) and a bound on its value."""
@@ -235,12 +247,9 @@ def volume_window(volume, b):
     if b >= volume.table.shape[0]:
         return j0, j1, bound
     for layer in range(volume.table.shape[1]):
-        t = volume.table[b, layer]
-        scale = volume.scale[b, layer]
-        if t < 0 or not scale > 0.0:
+        t, scale, lo, hi, k, _ = _layer(volume, b, layer)
+        if t < 0:
             continue
-        lo, hi = volume.support[t, 0], volume.support[t, 1]
-        k, _ = _cut_index(volume, t, volume.hit_m[b, layer])
         if k >= 0:
             hi = min(hi, k + 2 + REACH)
         if hi > lo:
@@ -256,12 +265,9 @@ def fill_volume(volume, b, first, n, values, labels):
     values[:n] = 0.0
     labels[:n] = 0
     for layer in range(volume.table.shape[1]):
-        t = volume.table[b, layer]
-        scale = volume.scale[b, layer]
-        if t < 0 or not scale > 0.0:
+        t, scale, lo, hi, k, f = _layer(volume, b, layer)
+        if t < 0:
             continue
-        lo, hi = volume.support[t, 0], volume.support[t, 1]
-        k, f = _cut_index(volume, t, volume.hit_m[b, layer])
         for i in range(max(lo - first, 0), min(hi - first, n)):
             j = first + i
             if k < 0:
