@@ -186,3 +186,26 @@ def test_single_return_mode_reports_one_echo_per_beam():
     out = FogSpread(rx, 40.0).apply(pts, np.random.default_rng(2))
     assert len(out) == len(pts)
     assert ((out["label"] == Label.FOG).mean()) == pytest.approx(1 - np.exp(-3.912 / 40 * 15), abs=0.05)
+
+
+def test_the_committed_draw_is_the_seeded_one_and_covers_every_generator_and_both_profiles():
+    import yaml
+
+    from lidar_weather_sim.core.paths import config_dir
+    from lidar_weather_sim.references.generators.draw import SEED, draw_cases
+
+    committed = yaml.safe_load((config_dir() / "generator_draw.yaml").read_text())
+    assert committed["seed"] == SEED and committed["cases"] == draw_cases(SEED)
+    cases = committed["cases"]
+    assert len(cases) >= 40
+    assert {c["generator"] for c in cases} == {"fog_loss", "fog_spread", "fog_shell", "precip_dsd"}
+    assert {c["profile"] for c in cases} == {"scala4", "os1_128_1024"}
+    bounds = {"atmosphere.fog": (40, 400), "atmosphere.rain": (2, 40), "atmosphere.snow": (0.5, 5)}
+    for c in cases:
+        lo, hi = bounds[c["effect"]]
+        assert lo <= c["value"] <= hi
+        assert c["cover"] is None or 0.6 <= c["cover"] <= 0.9
+    for effect in bounds:  # each effect alone and behind a dirty cover, on both profiles
+        for profile in ("scala4", "os1_128_1024"):
+            covers = {c["cover"] is None for c in cases if c["effect"] == effect and c["profile"] == profile}
+            assert covers == {True, False}
