@@ -209,3 +209,32 @@ def test_the_committed_draw_is_the_seeded_one_and_covers_every_generator_and_bot
         for profile in ("scala4", "os1_128_1024"):
             covers = {c["cover"] is None for c in cases if c["effect"] == effect and c["profile"] == profile}
             assert covers == {True, False}
+
+
+@pytest.mark.parametrize("hide, words", [(["atmosphere.rain:intensity=80"], "rate_mm_h: rain rate"),
+                                         (["atmosphere.fog:visual_range=20", "sensor.sun:irradiance=300"], "makes one of"),
+                                         (["atmosphere.rain:intensity=5", "atmosphere.snow:intensity=1"], "makes one of")])
+def test_make_measured_refuses_bad_parameters_in_one_line_with_exit_2(capsys, hide, words):
+    from lidar_weather_sim.cli import main
+
+    argv = ["make-measured", "highway_clear", "--generator", "precip_dsd", "--out", "/nonexistent"]
+    for h in hide:
+        argv += ["--hide", h]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err
+
+
+def test_fixed_transform_puts_the_weather_then_the_cover_on_each_frame(rx):
+    from types import SimpleNamespace
+
+    from lidar_weather_sim.references.measured import fixed_transform
+    from lidar_weather_sim.scenario.effects import parse_effect
+
+    pts = _beams(4000, np.linspace(2, 80, 4000), 200)
+    effects = [parse_effect("atmosphere.fog:visual_range=60"), parse_effect("cover.dirt:transmission=0.7")]
+    transform = fixed_transform(effects, "fog_shell", load_profile("scala4"), np.random.default_rng(1))
+    out = transform(SimpleNamespace(points=pts))
+    want = DirtyCover(rx, 0.7).apply(FogShell(rx, 60.0).apply(pts, np.random.default_rng(1)), None)
+    assert all(np.array_equal(out[f], want[f]) for f in pts.dtype.names)
+    assert fixed_transform([], "fog_loss", load_profile("scala4"), np.random.default_rng(1)) is None
