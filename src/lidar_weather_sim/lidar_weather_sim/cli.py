@@ -442,9 +442,12 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--with-actors", action="store_true",
                           help="with --on: also put the scenario's actors on the recording (returns behind them "
                                "removed), e.g. the car that throws spray on a real street")  # fmt: skip
-    measured.add_argument("--generator", choices=("fast", "reference", "hahner"), default="fast",
+    measured.add_argument("--generator", default="fast",
+                          choices=("fast", "reference", "hahner", "fog_loss", "fog_spread", "fog_shell", "precip_dsd"),
                           help="who makes fog, rain and snow: the simulator (fast, default), the independent drop-by-drop "
-                               "reference (references/droplets.py) or the simplified Hahner et al. 2021 fog (references/hahner.py)")
+                               "reference (references/droplets.py), the simplified Hahner et al. 2021 fog (references/hahner.py) "
+                               "or a generator fixed before use (references/generators/: fog_loss, fog_spread, fog_shell "
+                               "for fog, precip_dsd for rain or snow; each with cover.dirt as its own dirty cover)")
     measured.add_argument("--reference", dest="generator", action="store_const", const="reference",
                           help="same as --generator reference")
     measured.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, help="the simulator's atmosphere model "

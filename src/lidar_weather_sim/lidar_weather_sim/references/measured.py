@@ -22,7 +22,10 @@ topic only, and points without ``label`` and ``object_id`` (the 40-byte layout; 
   spray, road) by the simulator, and the weather's own returns through the cover's transmission
   (:func:`cover_two_way`);
 - ``hahner``: fog by the simplified extinction-plus-soft-echo generator (:mod:`lidar_weather_sim.references.hahner`,
-  after Hahner et al., ICCV 2021) on the clear frames; other effects by the simulator (no rain or snow).
+  after Hahner et al., ICCV 2021) on the clear frames; other effects by the simulator (no rain or snow);
+- ``fog_loss``, ``fog_spread``, ``fog_shell`` (fog) and ``precip_dsd`` (rain or snow): the generators fixed before
+  use (:mod:`lidar_weather_sim.references.generators`) on the clear frames, with ``cover.dirt`` as their own
+  dirty cover (a two-way transmission on every return, after the weather); they take no other effect.
 """
 
 from __future__ import annotations
@@ -49,7 +52,10 @@ class Nuisance:
     drop_fraction: float = 0.02
 
 
-GENERATORS = ("fast", "reference", "hahner")
+GENERATORS = ("fast", "reference", "hahner", "fog_loss", "fog_spread", "fog_shell", "precip_dsd")
+#: the effects each fixed generator makes (besides ``cover.dirt``)
+FIXED_WEATHER = {"fog_loss": ("atmosphere.fog",), "fog_spread": ("atmosphere.fog",),
+                 "fog_shell": ("atmosphere.fog",), "precip_dsd": ("atmosphere.rain", "atmosphere.snow")}
 
 
 def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator, ground_truth: bool = False) -> np.ndarray:
@@ -82,6 +88,11 @@ def weather_transform(scenario: Scenario, effects: list[Effect], generator: str,
     from lidar_weather_sim.references.droplets import Atmosphere
     from lidar_weather_sim.sensor.profile import load_profile
 
+    if generator in FIXED_WEATHER:
+        prof = load_profile(profile or scenario.sensor.profile)
+        if scenario.sensor.return_mode:
+            prof = prof.with_return_mode(scenario.sensor.return_mode)
+        return scenario, fixed_transform(effects, generator, prof, np.random.default_rng([seed & 0xFFFFFFFF, 0x666978]))
     atmosphere, rest = Atmosphere.split(effects)
     hidden = apply_effects(scenario, rest)
     prof = load_profile(profile or scenario.sensor.profile)
@@ -106,6 +117,42 @@ def weather_transform(scenario: Scenario, effects: list[Effect], generator: str,
         return hidden, None
     fog = HahnerFog(prof, atmosphere.fog_m, sun_irradiance_w_m2=sun)
     return hidden, lambda frame: fog.apply(frame.points, rng)
+
+
+def fixed_transform(effects: list[Effect], generator: str, profile, rng: np.random.Generator):
+    """``transform(frame) -> points`` of the fixed ``generator`` on ``profile``'s clouds: its weather, then
+    ``cover.dirt`` as its own dirty cover; None when ``effects`` is empty. Each frame draws from ``rng``."""
+    from lidar_weather_sim.references.generators.cover import DirtyCover
+    from lidar_weather_sim.references.generators.echoes import Receiver
+    from lidar_weather_sim.references.generators.fog_loss import FogLoss
+    from lidar_weather_sim.references.generators.fog_shell import FogShell
+    from lidar_weather_sim.references.generators.fog_spread import FogSpread
+    from lidar_weather_sim.references.generators.precip_dsd import PrecipDSD
+
+    made = FIXED_WEATHER[generator] + ("cover.dirt",)
+    other = [e.label() for e in effects if e.name not in made]
+    if other or len({e.name.split(".")[0] for e in effects}) < len(effects):
+        raise ValueError(f"the {generator} generator makes one of {', '.join(made[:-1])} and cover.dirt, not "
+                         f"{', '.join(e.label() for e in effects)}")  # fmt: skip
+    rx = Receiver.of(profile)
+    steps = []
+    for e in effects:
+        if e.name == "cover.dirt":
+            continue
+        kind = e.name.split(".")[1]
+        steps.append(PrecipDSD(rx, kind, e.value) if generator == "precip_dsd" else
+                     {"fog_loss": FogLoss, "fog_spread": FogSpread, "fog_shell": FogShell}[generator](rx, e.value))
+    steps += [DirtyCover(rx, e.value) for e in effects if e.name == "cover.dirt"]
+    if not steps:
+        return None
+
+    def transform(frame: Frame) -> np.ndarray:
+        points = frame.points
+        for step in steps:
+            points = step.apply(points, rng)
+        return points
+
+    return transform
 
 
 def make_measured(
