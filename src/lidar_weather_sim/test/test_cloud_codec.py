@@ -57,6 +57,23 @@ def test_every_field_round_trips(ground_truth):
         np.testing.assert_array_equal(decoded.points[name], points[name], err_msg=name)
 
 
+def test_the_same_points_give_the_same_bytes_whatever_their_padding_held():
+    """The bytes between fields (2 per point of the ground-truth layout) are written as 0, not as whatever memory
+    an ``np.empty`` array or a structured ``astype`` left there; the caller's field values are untouched."""
+    points = _random_points(500, True)
+    dirty = np.frombuffer(np.random.default_rng(3).bytes(points.nbytes), points.dtype).copy()
+    for name in points.dtype.names:
+        dirty[name] = points[name]
+    clean = np.zeros(len(points), points.dtype)
+    for name in points.dtype.names:
+        clean[name] = points[name]
+    assert dirty.tobytes() != clean.tobytes()
+    assert encode(dirty).data == encode(clean).data == clean.tobytes()
+    read_only = dirty.copy()
+    read_only.flags.writeable = False
+    assert encode(read_only).data == clean.tobytes()
+
+
 def test_nonfinite_points_are_dropped_and_counted_on_encode_and_decode():
     points = _random_points(10, True)
     points["x"][2] = np.nan

@@ -9,6 +9,8 @@ classes and rosbags' typestore classes both work (see :class:`MessageTypes`).
 
 from __future__ import annotations
 
+import functools
+
 import re
 from dataclasses import dataclass
 from typing import Any, Callable, Literal, Sequence
@@ -198,6 +200,31 @@ def decode_message(msg: Any, nan_policy: NanPolicy = "drop") -> DecodedCloud:
     )
 
 
+@functools.lru_cache(maxsize=32)
+def _padding_runs(dtype: np.dtype) -> tuple[tuple[int, int], ...]:
+    """The byte ranges [start, end) of a point of ``dtype`` that no field covers."""
+    covered = np.zeros(dtype.itemsize, bool)
+    for name in dtype.names:
+        field, offset = dtype.fields[name][:2]
+        covered[offset : offset + field.itemsize] = True
+    edges = np.flatnonzero(np.diff(np.concatenate([[True], covered, [True]]).astype(np.int8)))
+    return tuple((int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]))
+
+
+def _zero_padding(points: np.ndarray) -> np.ndarray:
+    """``points`` (contiguous) with the bytes between fields set to 0: an array made with ``np.empty`` (or a
+    structured ``astype``) holds whatever memory was there, and the same points must give the same bytes."""
+    runs = _padding_runs(points.dtype)
+    if not runs or not len(points):
+        return points
+    if not points.flags.writeable:
+        points = points.copy()
+    raw = points.view(np.uint8).reshape(len(points), points.dtype.itemsize)
+    for start, end in runs:
+        raw[:, start:end] = 0
+    return points
+
+
 def encode(points: np.ndarray, drop_nonfinite: bool = True) -> EncodedCloud:
     """Encode a structured array as an unorganised little-endian cloud body.
 
@@ -220,7 +247,7 @@ def encode(points: np.ndarray, drop_nonfinite: bool = True) -> EncodedCloud:
         dropped = int(bad.sum())
         if dropped:
             points = points[~bad]
-    points = np.ascontiguousarray(points)
+    points = _zero_padding(np.ascontiguousarray(points))
     return EncodedCloud(
         fields=fields_from_dtype(points.dtype),
         point_step=points.dtype.itemsize,
