@@ -290,6 +290,11 @@ def read_raw(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[
     return _raw(_open_bag(path), topics)
 
 
+def _damaged_part(info) -> str:
+    """What an error about a missing topic adds for a damaged bag (``info``: :func:`bag_info`'s)."""
+    return " in its readable part (the bag is damaged: no index; `lidar-weather-sim recover` it)" if info.damaged else ""
+
+
 def cloud_topic(path: str | Path, topic: str | None = None) -> str:
     """``topic`` if given, else the bag's only PointCloud2 topic (``/lidar/points`` preferred)."""
     info = bag_info(path)
@@ -301,6 +306,9 @@ def cloud_topic(path: str | Path, topic: str | None = None) -> str:
         return topic
     if TOPIC_POINTS in clouds:
         return TOPIC_POINTS
+    if not clouds:
+        found = ", ".join(f"{t.name} ({t.msgtype})" for t in info.topics) or "none"
+        raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic{_damaged_part(info)}; topics: {found}")
     if len(clouds) != 1:
         raise BagError(f"bag {info.path}: {len(clouds)} PointCloud2 topics ({', '.join(clouds) or 'none'}); "
                        "choose one with --topic")  # fmt: skip
@@ -318,8 +326,7 @@ def read_clouds(path: str | Path, topic: str | None = None, nan_policy: NanPolic
     types = {t.name: t.msgtype for t in info.topics}
     if types.get(topic) != POINTCLOUD2:
         found = ", ".join(f"{name} ({msgtype})" for name, msgtype in types.items()) or "none"
-        damaged = " in its readable part (the bag is damaged: no index; `lidar-weather-sim recover` it)" if info.damaged else ""
-        raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}{damaged}; topics: {found}")
+        raise BagError(f"bag {info.path} has no {POINTCLOUD2} topic {topic}{_damaged_part(info)}; topics: {found}")
     return _clouds(path, topic, nan_policy, reader or CloudReader(f"{path} {topic}"))
 
 
