@@ -254,7 +254,7 @@ def test_pulse_sigma_is_the_profiles(scala4):
                                                      ("atmosphere.snow:intensity=5", "scala4:cone:0", 4)])
 @pytest.mark.validation
 def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, tmp_path):
-    """The atmosphere region's ``model: physical`` against the reference, written apart from it, on the same clear
+    """The atmosphere region against the reference, written apart from it, on the same clear
     frames and seed: detections in 0-5 m within 10 %, all detections within 12 %, the 0-5 m range histogram (5 cm
     bins, mean over frames) with Pearson >= 0.85 (the target is 0.9; measured over 6 frames: fog 30 m 0.99,
     rain 10 mm/h 0.95, snow 5 mm/h 0.92). OS1-128 with 32 columns (every beam simulated by the reference) in thin
@@ -271,8 +271,7 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, 
     from lidar_weather_sim.references.measured import Nuisance
 
     base = load_scenario("highway_clear")
-    fast_scenario = base.model_copy(update={"regions": [*base.regions, "atmosphere"],
-                                            "region_params": {"atmosphere": {"model": "physical"}}})  # fmt: skip
+    fast_scenario = base.model_copy(update={"regions": [*base.regions, "atmosphere"]})
     quiet = Nuisance(extra_range_noise_m=0.0, drop_fraction=0.0)
     effect = [parse_effect(text) for text in hidden.split(";")]
     name, overlap, tau = (profile.split(":") + ["", ""])[:3]
@@ -298,7 +297,7 @@ def test_physical_fast_model_agrees_with_the_reference(hidden, profile, frames, 
 def test_gap_with_the_physical_model_names_the_generators_fog_and_fits_its_visual_range(generator, visual_range_m,
                                                                                        tmp_path):  # fmt: skip
     """Fog made by the reference or by the Hahner et al. generator (both written apart from the simulator):
-    `gap --atmosphere-model physical` names atmosphere.fog alone, its visual range within 25 %, and at least
+    `gap` names atmosphere.fog alone, its visual range within 25 %, and at least
     halves the held-out gap. The Hahner fog was named in none of the draw's 4 cases while scala4's receiver was
     DC-coupled with the cone overlap (its fog echo 12-16 m long, the generator's ~1.5 m) and the generator
     replaced hard returns as a single-return sensor does (docs/atmosphere_reference.md)."""
@@ -307,13 +306,11 @@ def test_gap_with_the_physical_model_names_the_generators_fog_and_fits_its_visua
     scenario = load_scenario("highway_clear")
     make_measured(scenario, [parse_effect(f"atmosphere.fog:visual_range={visual_range_m}")], tmp_path / "measured",
                   frames=24, generator=generator)  # fmt: skip
-    result = run_gap(tmp_path / "measured", scenario, tmp_path / "gap", atmosphere_model="physical", fit_frames=8,
+    result = run_gap(tmp_path / "measured", scenario, tmp_path / "gap", fit_frames=8,
                      heldout_frames=8, screen_frames=2)  # fmt: skip
     (fog,) = result["effects"]
     assert fog["name"] == "atmosphere.fog" and fog["params"]["visual_range"] == pytest.approx(visual_range_m, rel=0.25)
     assert result["gap_after"] <= 0.5 * result["gap_before"]
-    patched = yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text())
-    assert patched["region_params"]["atmosphere"]["model"] == "physical"  # what `run` then simulates
 
 
 def test_reference_fog_on_a_wide_beam_whose_near_field_is_all_bulk(tmp_path):

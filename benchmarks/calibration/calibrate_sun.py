@@ -7,9 +7,9 @@ mean irradiance of clear days (Fig. A3, 343 W/m^2) on the scene and fit the rise
 mean per W/m^2 so that the first-echo ratio day/night matches the thesis; the second-echo and
 EPW ratios are then predictions, printed next to the thesis' values.
 
-Checked against Tables 3-4 (2026-11-23): with the profile's sun_noise_per_w_m2 set to 0.015 /
-0.021 / 0.025 / 0.029 / 0.032 and the atmosphere refitted for each (``fit_atmosphere.py --profile
-P --out F``, then ``lidar-weather-sim reproduce rooftop --profile P --fit-file F --frames 30``),
+Checked against Tables 3-4 (2026-11-23, with the fitted atmosphere model since removed): with the profile's
+sun_noise_per_w_m2 set to 0.015 / 0.021 / 0.025 / 0.029 / 0.032 and the atmosphere refitted for each
+(``git show 2d63ebe:benchmarks/calibration/fit_atmosphere.py``),
 59 / 60 / 63 / 64 / 61 of their 80 means fall within +-1 sigma, against 62 for the shipped 0.0186
 and its fit: within the +-2 by which refits from different starts differ, with the same misses
 (street n_e2 at night, the street EPW under sun). So this Table 2 calibration stays.

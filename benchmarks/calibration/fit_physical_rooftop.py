@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Fit the physical-atmosphere rooftop runs' free states to paper 2.
+"""Fit the rooftop runs' free states to paper 2.
 
 The physical atmosphere (drop-size distributions, Mie at 905 nm, scala4's optics and receiver) has no
 per-sensor near-field fit. What paper 2 leaves open are the states of its scenes
@@ -13,16 +13,15 @@ per-sensor near-field fit. What paper 2 leaves open are the states of its scenes
   (``--columns all``) or on Table 2's day row alone (``--columns night``).
 
 Fixed, not fitted here: the slope of the sensor's sun noise (detection.sun_noise_per_w_m2, Table 2) and
-the asphalt's backscatter (street_gain of atmosphere_fit.yaml) - 2 numbers fitted before on clear weather,
-shared with the fitted model -, the geometry of config/rooftop.yaml. The fitted model
-(config/atmosphere_fit.yaml) has 36 (6 near-field numbers per class, 11 street numbers, street_gain).
+the asphalt's backscatter (street_gain of config/rooftop.yaml) - 2 numbers fitted before on clear weather -,
+the geometry of config/rooftop.yaml. The removed fitted atmosphere model had 36 (6 near-field numbers per
+class, 11 street numbers, street_gain; ``git show 2d63ebe:config/atmosphere_fit.yaml``).
 
 ``--columns night`` (default) fits on the night ("w/o") columns of Tables 3-4 plus Table 2 (both
 columns: the sun response is calibrated on it); the sun columns of Tables 3-4 are then predictions.
 ``--columns all`` fits on every column. Each class is a Nelder-Mead search on a fixed seed (common
-random numbers) with a robust form of fit_atmosphere.py's loss (below), on log parameters within physical bounds.
-Check a fit on another seed with ``lidar-weather-sim reproduce rooftop --atmosphere-model physical
---states FILE --frames 30``.
+random numbers) with a robust loss (below), on log parameters within physical bounds.
+Check a fit on another seed with ``lidar-weather-sim reproduce rooftop --states FILE --frames 30``.
 
 Usage: python benchmarks/calibration/fit_physical_rooftop.py [--columns night|all] [--frames 10] [--iters 80]
        [--classes clear,day,fog,rain,snow] [--start FILE] [--out FILE]
@@ -41,8 +40,7 @@ from provenance import written_by
 from scipy.optimize import minimize, minimize_scalar
 
 from lidar_weather_sim.experiments.reproduce import load_tables, rows_of, simulate
-from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states, states_path
-from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES
+from lidar_weather_sim.experiments.rooftop_states import WEATHER_CLASSES, RooftopStates, load_states, states_path
 
 SEED = 12345
 #: per class: (field path in the states, lower bound, upper bound); all searched on a log scale
@@ -78,7 +76,7 @@ def put(data: dict, path: str, value: float) -> None:
 
 
 def loss(z: np.ndarray) -> float:
-    """fit_atmosphere.py's loss made robust: each mean's excess over 0.8 sigma counts as log(1 + excess^2), so a
+    """The removed fitted model's loss (``git show 2d63ebe:benchmarks/calibration/fit_atmosphere.py``) made robust: each mean's excess over 0.8 sigma counts as log(1 + excess^2), so a
     mean no state reaches (Table 2's night n_e1, 257 against Table 3's 244 in the atmosphere alone, leaves ~13
     first echoes for a street of hundreds) pulls little on the others, yet every mean still pulls its way."""
     return float(np.sum(np.log1p(np.maximum(np.abs(z) - 0.8, 0.0) ** 2)) + 0.01 * np.sum(np.log1p(z**2)))
@@ -93,7 +91,7 @@ def residuals(states: RooftopStates, group: str, tables: dict, frames: int, colu
     for weather, sun in conditions:
         if sun and columns == "night" and weather != "clear":
             continue
-        cond = simulate(weather, sun, frames, seed=seed, atmosphere_model="physical", states=states)
+        cond = simulate(weather, sun, frames, seed=seed, states=states)
         for row in rows_of(cond, tables):
             if row["paper_mean"] is None or (sun and columns == "night" and row["region"] != "both"):
                 continue

@@ -1,7 +1,6 @@
 """Hashes of the clouds of the weather rows, to show a change left them bit-identical.
 
-Each row of ``weather_frame_time.py`` (highway_clear with 10 vehicles) on ``--profile``, for both atmosphere
-models, simulated for ``--frames`` frames at ``--seed`` on the Open3D backend: the row's point count and the
+Each row of ``weather_frame_time.py`` (highway_clear with 10 vehicles) on ``--profile``, simulated for ``--frames`` frames at ``--seed`` on the Open3D backend: the row's point count and the
 first 16 hex digits of the SHA-256 of its clouds' bytes. Run it before and after a change and diff the output.
 
     python benchmarks/performance/cloud_hashes.py [--profile scala4] [--rows "clear,fog 50m,rain 10,snow 5,target"]
@@ -30,18 +29,17 @@ def main() -> None:
     args = parser.parse_args()
     specs = row_specs("3l")
     base = ten_vehicles(load_scenario("highway_clear"))
-    for model in ("physical", "fitted"):
-        for name in args.rows.split(","):
-            world = World.build(variant(base, specs[name], model), args.profile)
-            sim = LidarSimulator.of_world(world, backend="open3d", seed=args.seed)
-            digest, t, frames, points = hashlib.sha256(), 0.0, 0, 0
-            while frames < args.frames:
-                t = round(t + 0.01, 9)
-                for frame in sim.advance(t, world.player):
-                    frames += 1
-                    points += len(frame.points)
-                    digest.update(frame.points.tobytes())
-            print(f"{args.profile} {model} {name}: {points} points {digest.hexdigest()[:16]}", flush=True)
+    for name in args.rows.split(","):
+        world = World.build(variant(base, specs[name]), args.profile)
+        sim = LidarSimulator.of_world(world, backend="open3d", seed=args.seed)
+        digest, t, frames, points = hashlib.sha256(), 0.0, 0, 0
+        while frames < args.frames:
+            t = round(t + 0.01, 9)
+            for frame in sim.advance(t, world.player):
+                frames += 1
+                points += len(frame.points)
+                digest.update(frame.points.tobytes())
+        print(f"{args.profile} {name}: {points} points {digest.hexdigest()[:16]}", flush=True)
 
 
 if __name__ == "__main__":

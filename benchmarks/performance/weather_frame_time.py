@@ -18,7 +18,7 @@ their sum exceeds the frame and ``other`` comes out negative. Per profile, a lea
 frame (all weather rows): how each grows with what is in the air.
 
     python benchmarks/performance/weather_frame_time.py [--profiles scala4,vlp16,hdl64e,os1_128_2048] [--frames N]
-        [--backend B] [--rows clear,target,...] [--step-s S] [--warmup-s S] [--atmosphere-model fitted|physical]
+        [--backend B] [--rows clear,target,...] [--step-s S] [--warmup-s S]
 """
 
 from __future__ import annotations
@@ -66,16 +66,13 @@ def row_specs(dirt: str) -> dict[str, dict]:
     }  # fmt: skip
 
 
-def variant(base, spec: dict, atmosphere_model: str = "fitted"):
-    """``base`` (highway_clear + 10 vehicles) with the row's weather, regions (the atmosphere region's
-    ``model``: ``atmosphere_model``) and spray emitter."""
+def variant(base, spec: dict):
+    """``base`` (highway_clear + 10 vehicles) with the row's weather, regions and spray emitter."""
     data = base.model_dump()
     for key, value in spec["weather"].items():
         data["weather"][key] = {**data["weather"].get(key, {}), **value}
     data["regions"] = spec["regions"]
     data["region_params"] = dict(spec.get("params", {}))
-    if "atmosphere" in spec["regions"]:
-        data["region_params"]["atmosphere"] = {**data["region_params"].get("atmosphere", {}), "model": atmosphere_model}
     for actor in data["actors"]:
         actor["emits_spray"] = bool(spec.get("emits")) and actor["id"] == LEAD
     return type(base).model_validate(data)
@@ -146,12 +143,12 @@ class Row:
 
 
 def bench_profile(profile: str, rows: list[str], specs: dict, backend: str, frames: int, warmup_s: float,
-                  step_s: float, atmosphere_model: str = "fitted") -> None:  # fmt: skip
+                  step_s: float) -> None:  # fmt: skip
     base = ten_vehicles(load_scenario("highway_clear"))
     clear_world = World.build(variant(base, specs["clear"]), profile)
     live = []
     for name in rows:
-        world = clear_world if name == "clear" else World.build(variant(base, specs[name], atmosphere_model), profile)
+        world = clear_world if name == "clear" else World.build(variant(base, specs[name]), profile)
         world._casters = getattr(clear_world, "_casters", {})  # one scene cast for all rows
         live.append(Row(name, world, backend, step_s))
     period = clear_world.profile.period_s
@@ -165,7 +162,7 @@ def bench_profile(profile: str, rows: list[str], specs: dict, backend: str, fram
     clear_ms = results["clear"]["ms"] if "clear" in results else float("nan")
     cols = [("profile", 13), ("row", 17), ("ms/frame", 9), ("min ms", 7), ("x clear", 7)] + \
            [(s, 10 if s == "candidates" else 9) for s in (*STAGES, "other")] + [("scatterers", 10), ("n points", 8)]  # fmt: skip
-    print(f"\n{profile}: atmosphere model {atmosphere_model}, {backend}, {1e3 * period:.0f} ms period, advance every {1e3 * step_s:.0f} ms, "
+    print(f"\n{profile}: {backend}, {1e3 * period:.0f} ms period, advance every {1e3 * step_s:.0f} ms, "
           f"median of {frames} frames after {warmup_s:g} s, {workers.THREADS} kernel threads")  # fmt: skip
     print(" ".join(f"{name:>{width}}" for name, width in cols))
     for name, r in results.items():
@@ -191,8 +188,6 @@ def main() -> None:
     ap.add_argument("--backend", help="raycast backend (default: the first available, the fastest)")
     ap.add_argument("--dirt", default="3l", help="cover sample of the dirty cover (config/cover/samples.yaml)")
     ap.add_argument("--rows", help="comma-separated rows (default: all)")
-    ap.add_argument("--atmosphere-model", choices=("fitted", "physical"), default="fitted",
-                    help="the atmosphere region's model in the fog, rain, snow and target rows")
     args = ap.parse_args()
     specs = row_specs(args.dirt)
     rows = args.rows.split(",") if args.rows else list(specs)
@@ -202,7 +197,7 @@ def main() -> None:
     backend = args.backend or available_backends()[0]
     print(versions())
     for profile in args.profiles.split(","):
-        bench_profile(profile, rows, specs, backend, args.frames, args.warmup_s, args.step_s, args.atmosphere_model)
+        bench_profile(profile, rows, specs, backend, args.frames, args.warmup_s, args.step_s)
 
 
 if __name__ == "__main__":

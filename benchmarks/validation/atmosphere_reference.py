@@ -1,11 +1,10 @@
-"""Fast atmosphere model vs the independent reference, per weather, on one profile.
+"""The atmosphere region vs the independent reference, per weather, on one profile.
 
     python benchmarks/validation/atmosphere_reference.py [--frames 10] [--profile scala4] [--weathers fog:30,rain:10]
-        [--fast-model fitted|physical] [--columns N]
+        [--columns N]
 
 For each weather, highway_clear is recorded twice with the same seed and no measurement nuisance:
-by the simulator's own atmosphere (make-measured, generator fast; its region's ``model``: ``--fast-model``) and
-by the reference
+by the simulator's own atmosphere (make-measured, generator fast) and by the reference
 (make-measured --reference). Printed per weather: detections per frame in 0-5 m and in total (fast /
 reference), the Pearson correlation of the mean per-frame range histograms in 0-5 m (5 cm bins, as the
 thesis' paper 2) and 0-100 m (1 m bins), and the EPW distribution (median and 10-90 % of 0-5 m echoes,
@@ -64,8 +63,6 @@ def main() -> None:
     parser.add_argument("--profile", default="scala4")
     parser.add_argument("--weathers", default=WEATHERS, help=f"kind:value,... (default {WEATHERS})")
     parser.add_argument("--seed", type=int, default=7)
-    parser.add_argument("--fast-model", choices=("fitted", "physical"), default="fitted",
-                        help="the atmosphere region's model in the fast runs")
     parser.add_argument("--columns", type=int, help="run the profile with this many columns (every beam sampled)")
     args = parser.parse_args()
     workdir = tempfile.TemporaryDirectory()
@@ -78,10 +75,6 @@ def main() -> None:
         profile.write_text(yaml.safe_dump(data, sort_keys=False))
         profile = str(profile)
     scenario = load_scenario("highway_clear")
-    if args.fast_model != "fitted":
-        scenario = scenario.model_copy(update={"regions": [*scenario.regions, "atmosphere"],
-                                               "region_params": {**scenario.region_params,
-                                                                 "atmosphere": {"model": args.fast_model}}})  # fmt: skip
     quiet = Nuisance(extra_range_noise_m=0.0, drop_fraction=0.0)
     print("| weather | 0-5 m per frame fast / ref | all per frame fast / ref | Pearson 0-5 m | Pearson 0-100 m "
           "| EPW 0-5 m fast | EPW 0-5 m ref | EPW all fast | EPW all ref | s ref |\n"

@@ -1,7 +1,7 @@
 """Gap-search generalisation baseline: `gap` on the seeded cases of config/gap_cases.yaml.
 
     python benchmarks/validation/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
-        [--atmosphere-model fitted|physical] [--fast-via-sim] [--reuse-bags] [--json F]
+        [--fast-via-sim] [--reuse-bags] [--json F]
 
 Cases come from lidar_weather_sim.references.cases.draw_cases (ranges and seed committed before anything ran on
 them). Per case a "measured" scala4 highway_clear bag of `measurement.frames` frames is made by its
@@ -11,7 +11,6 @@ the effects at the scenario's seed), reference = make-measured --reference, hahn
 of `lidar-weather-sim gap`) with the file's budgets. One row per case: the true effects and values, what
 gap named, exact-name hit, main parameter within 25 % (every true effect, only with an exact-name hit),
 phantom (a named effect not hidden), held-out gap before -> after, seconds. A summary per generator follows.
-``--atmosphere-model physical``: the search (and the fast cases) use the atmosphere region's physical model.
 """
 
 from __future__ import annotations
@@ -50,8 +49,6 @@ def main() -> None:
     parser.add_argument("--cases-file", help="default config/gap_cases.yaml")
     parser.add_argument("--out", help="keep bags and gap reports here (default: a temporary directory)")
     parser.add_argument("--json", help="write the rows to this JSON file")
-    parser.add_argument("--atmosphere-model", choices=("fitted", "physical"),
-                        help="the simulator's atmosphere model, for the search and the fast cases (default fitted)")
     parser.add_argument("--fast-via-sim", action="store_true",
                         help="make the fast cases by simulating the scenario with the effects (make-measured, at the "
                              "case's seed) instead of make-measured --on the clear base bag (a supplementary check)")
@@ -87,15 +84,13 @@ def main() -> None:
                 pass
             elif case.generator == "fast" and args.fast_via_sim:
                 make_measured(scenario, effects, bag, frames=m["frames"], seed=case.seed, profile=config["profile"],
-                              overwrite=True, atmosphere_model=args.atmosphere_model)  # fmt: skip
+                              overwrite=True)  # fmt: skip
             elif case.generator == "fast":
-                augment_recording(base, scenario, effects, bag, profile=config["profile"], overwrite=True,
-                                  atmosphere_model=args.atmosphere_model)  # fmt: skip
+                augment_recording(base, scenario, effects, bag, profile=config["profile"], overwrite=True)
             else:
                 make_measured(scenario, effects, bag, frames=m["frames"], seed=case.seed, profile=config["profile"],
                               generator=case.generator, overwrite=True)  # fmt: skip
-            result = run_gap(bag, scenario, work / f"gap_{case.index:02d}", profile=config["profile"],
-                             atmosphere_model=args.atmosphere_model, **budgets)  # fmt: skip
+            result = run_gap(bag, scenario, work / f"gap_{case.index:02d}", profile=config["profile"], **budgets)
             row = {"index": case.index, "generator": case.generator, "effects": list(case.effects),
                    **score(case, result, tolerance), "seconds": time.perf_counter() - start}  # fmt: skip
             rows.append(row)

@@ -7,7 +7,7 @@ frames (odd frames, as `gap` splits them), and per zone the returns per frame wi
 intensity. Terms below 0.01 in every column are left out; ``gap``: the weighted mean the search compares
 (without the sensor family's paired terms).
 
-    python benchmarks/validation/gap_terms.py BAG --scenario highway_clear [--profile scala4] [--atmosphere-model physical]
+    python benchmarks/validation/gap_terms.py BAG --scenario highway_clear [--profile scala4]
         --effects "atmosphere.fog:visual_range=62.5" --effects "atmosphere.fog:visual_range=1000" [--frames 10]
 
 A set is effects joined by ``,`` in make-measured's ``--hide`` syntax.
@@ -49,15 +49,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenario", required=True)
     ap.add_argument("--profile")
     ap.add_argument("--topic")
-    ap.add_argument("--atmosphere-model", choices=("fitted", "physical"))
     ap.add_argument("--effects", action="append", default=[], help="an effect set (repeatable)")
     ap.add_argument("--frames", type=int, default=10, help="held-out frames (as gap --heldout-frames)")
     args = ap.parse_args(argv)
     try:
         sets = {"nothing": []} | {text: [parse_effect(e) for e in text.split(",")] for text in args.effects}
         recording = Recording.load(args.bag, args.topic)
-        resim = GapResimulator(recording, load_scenario(args.scenario), args.profile,
-                            atmosphere_model=args.atmosphere_model)  # fmt: skip
+        resim = GapResimulator(recording, load_scenario(args.scenario), args.profile)
     except (ValueError, OSError) as exc:
         print(f"gap_terms: {exc}", file=sys.stderr)
         return 2

@@ -20,7 +20,7 @@ from lidar_weather_sim.core.argtypes import (
     seed_int,
     workers_int,
 )
-from lidar_weather_sim.core.names import ATMOSPHERE_MODELS, RETURN_MODES, TOPIC_POINTS
+from lidar_weather_sim.core.names import RETURN_MODES, TOPIC_POINTS
 from lidar_weather_sim.gap import FIT_FRAMES, HELDOUT_FRAMES
 
 
@@ -208,9 +208,6 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     from lidar_weather_sim.scenario.schema import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
-    if args.atmosphere_model and args.generator != "fast":
-        raise ValueError(f"--atmosphere-model chooses the simulator's atmosphere: the {args.generator} generator "
-                         "makes its own (use it with --generator fast)")  # fmt: skip
     if args.on and (args.generator != "fast" or args.labels or args.beams_per_frame):
         raise ValueError("--on puts the project's own effects on a recording: --reference / --generator, --labels "
                          "and --beams-per-frame apply only without --on")  # fmt: skip
@@ -226,16 +223,14 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
             raise ValueError("--on needs at least one --hide effect to put on top of the recording")
 
         frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
-                                   topic=args.topic, overwrite=args.overwrite,
-                                   atmosphere_model=args.atmosphere_model, with_actors=args.with_actors)  # fmt: skip
+                                   topic=args.topic, overwrite=args.overwrite, with_actors=args.with_actors)  # fmt: skip
         actors = " and the scenario's actors" if args.with_actors else ""
         print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)}{actors} on top to "
               f"{args.out}")  # fmt: skip
         return 0
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
                            profile=args.profile, overwrite=args.overwrite, generator=args.generator,
-                           ground_truth=args.labels, beams_per_frame=args.beams_per_frame,
-                           atmosphere_model=args.atmosphere_model)  # fmt: skip
+                           ground_truth=args.labels, beams_per_frame=args.beams_per_frame)  # fmt: skip
     hidden = ", ".join(e.label() for e in effects) or "nothing"
     hidden += "" if args.generator == "fast" else f" (weather by the {args.generator} generator)"
     lost = f", {report.dropped} dropped by the nuisance model" if report.dropped else ""
@@ -292,8 +287,7 @@ def _cmd_gap(args: argparse.Namespace) -> int:
 
         result = run_gap(args.measured, args.scenario, args.out, profile=args.profile, topic=args.topic,
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,
-                         scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")),
-                         atmosphere_model=args.atmosphere_model)  # fmt: skip
+                         scheduler=args.scheduler, workers=args.workers, families=tuple(args.effects.split(",")))  # fmt: skip
     split, bev = result["split"], result.get("heldout_bev")
     if split.get("file"):  # a twin's directory: fitted on its calibration part, scored on its held-out part
         print(f"lidar-weather-sim gap: note: used the {split['kind']} split of {split['file']} (fit on calibration, "
@@ -419,12 +413,8 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--out", default="rooftop_reproduction", help="output directory")
     reproduce.add_argument("--tables", help="thesis_tables.yaml (default ../shared/data beside the workspace)")
     reproduce.add_argument("--profile", help="sensor profile (name in config/sensors or YAML path) instead of scala4")
-    reproduce.add_argument("--fit-file", help="atmosphere parameters, e.g. from benchmarks/calibration/fit_atmosphere.py --out "
-                                              "(default config/atmosphere_fit.yaml)")
-    reproduce.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, default="fitted",
-                           help="the atmosphere region's model (physical: fog, rain and snow of --states from "
-                                "their drop-size distributions; default fitted)")
-    reproduce.add_argument("--states", help="physical model: the weather, street and window states per class, e.g. "
+    _removed(reproduce, "--fit-file", "--atmosphere-model")
+    reproduce.add_argument("--states", help="the weather, street and window states per class, e.g. "
                                             "from benchmarks/calibration/fit_physical_rooftop.py --out (default "
                                             "config/rooftop_physical.yaml)")
     reproduce.set_defaults(func=lambda a: __import__("lidar_weather_sim.experiments.reproduce", fromlist=["main"]).main(a))
@@ -450,8 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "for fog, precip_dsd for rain or snow; each with cover.dirt as its own dirty cover)")
     measured.add_argument("--reference", dest="generator", action="store_const", const="reference",
                           help="same as --generator reference")
-    measured.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, help="the simulator's atmosphere model "
-                          "for fog, rain and snow (generator fast; default: the scenario's, else fitted)")  # fmt: skip
+    _removed(measured, "--atmosphere-model")
     measured.add_argument("--labels", action="store_true", help="keep label and object_id (ground truth) in the points")
     measured.add_argument("--beams-per-frame", type=positive_int,
                           help="beams the reference simulates per frame (default: all of a profile with <= 4096 beams "
@@ -497,8 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
     gap.add_argument("--effects", default="weather", choices=["weather", "sensor", "weather,sensor"],
                      help="effect families to search: weather (default; the sun included), sensor (the unit's "
                           "intensity response, range bias and noise, ray drop: for real recordings) or both")  # fmt: skip
-    gap.add_argument("--atmosphere-model", choices=ATMOSPHERE_MODELS, help="the atmosphere region's model the fog, "
-                     "rain and snow effects are fitted with (default: the scenario's, else fitted)")  # fmt: skip
+    _removed(gap, "--atmosphere-model")
     gap_engine = gap.add_mutually_exclusive_group()
     gap_engine.add_argument("--workers", type=workers_int, default=0, help="run the search's evaluations on N local "
                             "Dask worker processes (default 0: in this process; the result is the same)")  # fmt: skip
@@ -604,6 +592,21 @@ def build_parser() -> argparse.ArgumentParser:
     ouster.add_argument("--overwrite", action="store_true", help="replace an existing bag and mesh")
     ouster.set_defaults(func=_cmd_import_ouster)
     return parser
+
+
+class _Removed(argparse.Action):
+    """A flag of the removed fitted atmosphere model: exit 2 with one line saying so."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog}: error: {option_string} was removed with the fitted atmosphere model: the atmosphere "
+              "is physical (drop-size distributions, Mie, the profile's optics)", file=sys.stderr)  # fmt: skip
+        sys.exit(2)
+
+
+def _removed(parser: argparse.ArgumentParser, *flags: str) -> None:
+    """Hidden ``flags`` that exit 2 with one line (:class:`_Removed`)."""
+    for flag in flags:
+        parser.add_argument(flag, nargs="?", action=_Removed, help=argparse.SUPPRESS)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -67,10 +67,9 @@ class Resimulator:
     """Casts a recording's frames again with ``scenario`` plus effects (see module doc)."""
 
     def __init__(self, recording: Recording, scenario: Scenario, profile: str | None = None,
-                 backend: str | None = None, atmosphere_model: str | None = None) -> None:  # fmt: skip
+                 backend: str | None = None) -> None:  # fmt: skip
         self.recording = recording
         self.scenario = scenario
-        self.atmosphere_model = atmosphere_model  # the atmosphere region's model in every re-simulation
         self.world = World.build(scenario, profile)
         self.poses = RecordedPoses(recording, self.world)
         self.sim = LidarSimulator.of_world(self.world, backend=backend, regions=[])
@@ -80,7 +79,7 @@ class Resimulator:
     def frames(self, effects: list[Effect], indices, redraw: int = 0) -> list[np.ndarray]:
         """Points of the recording's frames ``indices`` simulated with ``effects``; ``redraw`` > 0: another,
         independent draw of every random process (the scenario's seed + ``redraw``)."""
-        patched = apply_effects(self.scenario, effects, self.atmosphere_model)
+        patched = apply_effects(self.scenario, effects)
         if redraw:
             patched = patched.model_copy(update={"seed": patched.seed + redraw})
         world = replace(self.world, scenario=patched)

@@ -42,7 +42,7 @@ from spray_particles.kernels.fused import packet_radii
 from spray_particles.sensing.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
 from spray_particles.sensing.raycast import candidates, group_bounds, sphere_hits
 from spray_particles.model.system import EmittingVehicle, SprayParams, SpraySystem, SprayTunables
-from spray_particles.model.water import tyre_dimensions, water_film_mm
+from spray_particles.model.water import tyre_dimensions
 
 
 class SprayRegion:
@@ -89,11 +89,8 @@ class SprayRegion:
                                       c.tyre.ring_vertices)  # fmt: skip
             vehicles.append(EmittingVehicle(a.id, s.length_m, s.width_m, s.height_m, 0.15, emitter))
         weather = context.weather or Weather()
-        film = params.water_film_mm if params.water_film_mm is not None else weather.road.water_film_mm
-        if film is None:
-            rain = weather.precipitation.intensity_mm_h if weather.precipitation.type == "rain" else 0.0
-            film = float(water_film_mm(rain, weather.road.texture_depth_mm, c.water.drainage_length_m,
-                                       c.water.cross_slope, c.water.film_constant_k_s))  # fmt: skip
+        rain = weather.precipitation.intensity_mm_h if weather.precipitation.type == "rain" else 0.0
+        film = params.water_film_mm if params.water_film_mm is not None else weather.road.film_mm(rain)
         wind = (0.0, 0.0, 0.0)
         if weather.wind.speed_m_s > 0:  # blows from direction_deg (from north, clockwise)
             a = np.deg2rad(weather.wind.direction_deg)

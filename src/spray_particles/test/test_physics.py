@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from lidar_weather_sim.physics.road import FILM_CONSTANT_K_S, water_film_mm
+from lidar_weather_sim.regions.weather import Road
 from spray_particles.model import calibration
 from spray_particles.model.constants import load_constants
 from spray_particles.model.emitter import ring_emission, vehicle_emitter
@@ -15,7 +17,6 @@ from spray_particles.model.water import (
     mean_drop_diameter_m,
     tread_pickup_m3_s,
     tyre_dimensions,
-    water_film_mm,  # fmt: skip
 )
 
 C = load_constants()
@@ -34,8 +35,9 @@ def test_config_constants_are_the_fits_to_the_thesis_tables(thesis_tables):
     assert (C.emission.gain_per_mm_m_s, C.emission.threshold_speed_m_s) == pytest.approx((gain, v0), rel=1e-3)
     slope, v0 = calibration.fit_lateral_wind(spray)
     assert (C.lateral_wind.slope, C.lateral_wind.threshold_speed_m_s) == pytest.approx((slope, v0), rel=2e-3)
-    k_s = calibration.fit_film_constant(spray, 2.0, C.water.drainage_length_m, C.water.cross_slope)
-    assert C.water.film_constant_k_s == pytest.approx(k_s, rel=2e-3)
+    road = Road()
+    k_s = calibration.fit_film_constant(spray, 2.0, road.drainage_length_m, road.cross_slope)
+    assert FILM_CONSTANT_K_S == pytest.approx(k_s, rel=2e-3)
     assert C.particles.diameter_m == pytest.approx(spray["particle_diameter_mm"] * 1e-3)
     assert C.particles.mesh_diameter_m == pytest.approx(spray["mesh_diameter_cm"] * 1e-2)
     assert C.particles.single_scattering_albedo == spray["single_scattering_albedo_water"]
@@ -45,9 +47,8 @@ def test_config_constants_are_the_fits_to_the_thesis_tables(thesis_tables):
 
 
 def test_eq1_film_grows_with_rain_and_texture_and_hits_the_highway_value(thesis_tables):
-    w = C.water
-    h = water_film_mm(2.0, thesis_tables["spray"]["highway"]["params"]["T_s"], w.drainage_length_m, w.cross_slope,
-                      w.film_constant_k_s)  # fmt: skip
+    road = Road(texture_depth_mm=thesis_tables["spray"]["highway"]["params"]["T_s"])
+    h = road.film_mm(2.0)
     assert h == pytest.approx(thesis_tables["spray"]["highway"]["water_film_mm"][0], rel=2e-3)
     assert water_film_mm(8.0, 1.5, 11.25, 0.025, 1.0) / water_film_mm(2.0, 1.5, 11.25, 0.025, 1.0) == pytest.approx(2.0)
     assert water_film_mm(2.0, 1.644, 11.25, 0.025, 1.0) > water_film_mm(2.0, 0.208, 11.25, 0.025, 1.0)

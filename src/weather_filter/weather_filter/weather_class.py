@@ -20,7 +20,7 @@ mist in the runs) 0.86; v3 (with the isotropic part) 0.93
 
 The shipped model ``models/weather_knn_v<N>.joblib`` is trained on labelled
 simulation runs (:mod:`weather_filter.simdata`) whose class is the scenario's
-weather (``lidar_weather_sim.regions.atmosphere.classify``: rain or snow when it
+weather (:func:`spec_weather_class`: rain or snow when it
 precipitates, else fog below 1 km visual range, else clear; spray and cover dirt
 do not change it); ``weather-filter train-weather --sim ...`` (the ``command``
 stored in the model) reproduces it.
@@ -178,12 +178,17 @@ class FrameWeatherClassifier:
         return cls(bundle["model"], RegionFeatures(**bundle.get("region", {})))
 
 
-def spec_weather_class(spec) -> str:
-    """The weather class of a run's weather block (``regions_atmosphere.classify``)."""
-    from lidar_weather_sim.regions.atmosphere import classify
+#: Fog: visibility below 1 km (WMO).
+FOG_VISUAL_RANGE_LIMIT_M = 1000.0
 
+
+def spec_weather_class(spec) -> str:
+    """The weather class of a run's weather block: its precipitation (rain, snow), else fog below
+    :data:`FOG_VISUAL_RANGE_LIMIT_M` of visual range, else clear."""
     weather = spec.load_scenario().weather
-    return classify(weather.fog.visual_range_m, weather.precipitation.type)
+    if weather.precipitation.type in ("rain", "snow"):
+        return weather.precipitation.type
+    return "fog" if weather.fog.visual_range_m < FOG_VISUAL_RANGE_LIMIT_M else "clear"
 
 
 def run_features(specs: Iterable[str], cache_dir=None, topic: str | None = None, extractor=None):

@@ -24,12 +24,11 @@ from lidar_weather_sim.sensor.response import apply_response
 
 def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect], output: str | Path, *,
                       profile: str | None = None, topic: str | None = None, overwrite: bool = False,
-                      atmosphere_model: str | None = None, with_actors: bool = False) -> int:  # fmt: skip
-    """Write ``path`` with ``effects`` simulated on top of its frames to ``output`` (fog, rain and snow by the
-    atmosphere region's ``atmosphere_model``, None: the scenario's; ``with_actors``: the scenario's actors
-    too); returns the frames written."""
+                      with_actors: bool = False) -> int:  # fmt: skip
+    """Write ``path`` with ``effects`` simulated on top of its frames to ``output`` (``with_actors``: the
+    scenario's actors too); returns the frames written."""
     recording = Recording.load(path, topic)
-    resim = Resimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
+    resim = Resimulator(recording, scenario, profile)
     columns = resim.world.profile.scan.columns
     everything = range(len(recording.frames))
     weather = [e for e in effects if e.spec.family != "sensor"]

@@ -18,8 +18,6 @@ FRAME_LIDAR = "lidar"
 #: ``detection.return_mode``, a scenario's ``sensor.return_mode``, ``lidar-weather-sim run --return-mode`` and the
 #: node's ``return_mode`` parameter take these names; :func:`lidar_weather_sim.sensor.echo.select_returns` applies them.
 RETURN_MODES = ("strongest", "last", "dual", "first", "all")
-#: The atmosphere region's models (its ``model`` parameter; :mod:`lidar_weather_sim.regions.atmosphere`).
-ATMOSPHERE_MODELS = ("fitted", "physical")
 
 
 def actor_frame(actor_id: int) -> str:

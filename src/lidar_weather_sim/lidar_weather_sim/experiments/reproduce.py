@@ -1,7 +1,9 @@
 """``lidar-weather-sim reproduce rooftop``: the thesis' rooftop experiment (paper 2) in simulation.
 
 Simulates clear, rain, fog and snow, each with and without sun, on the rooftop
-scene (:mod:`lidar_weather_sim.experiments.rooftop`, scenario ``config/scenarios/rooftop_static.yaml``),
+scene (:mod:`lidar_weather_sim.experiments.rooftop`, scenario ``config/scenarios/rooftop_static.yaml``) with each
+weather class's state (weather, street, window) from ``config/rooftop_physical.yaml``
+(:mod:`lidar_weather_sim.experiments.rooftop_states`),
 computes the 12 per-frame parameters (:mod:`lidar_weather_sim.core.frame_parameters`) in the
 atmosphere (0-5 m) and street (33-37 m) regions and for both together, and
 compares them with the paper's Tables 2-4 (read from thesis_tables.yaml).
@@ -23,13 +25,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from lidar_weather_sim.core.config import load_yaml
-from lidar_weather_sim.experiments.rooftop import ATMOSPHERE_REGION_M, STREET_REGION_X_M, RooftopPose, bounded_lot_scene
-from lidar_weather_sim.experiments.rooftop_states import RooftopStates, load_states
+from lidar_weather_sim.experiments.rooftop import (ATMOSPHERE_REGION_M, STREET_REGION_X_M, RooftopPose,
+                                                   bounded_lot_scene, geometry)  # fmt: skip
+from lidar_weather_sim.experiments.rooftop_states import WEATHER_CLASSES, RooftopStates, load_states
 from lidar_weather_sim.core.frame_parameters import FEATURES, UNITS, frame_features, summarize
-from lidar_weather_sim.regions.atmosphere import WEATHER_CLASSES, FitFile, fit_path
 from lidar_weather_sim.regions.base import REGISTRY, RegionContext
-from lidar_weather_sim.regions.weather import Weather
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.scene import Scene
@@ -69,14 +69,14 @@ def default_tables_path() -> Path:
 LOT_MATERIAL = "asphalt_rooftop"
 
 
-def lot_scene(materials: MaterialTable | None = None, street_gain: float = 1.0) -> Scene:
+def lot_scene(materials: MaterialTable | None = None, street_gain: float | None = None) -> Scene:
     """The asphalt the sensor sees (config/rooftop.yaml ``lot``) at z = 0.
 
     Its material is ``asphalt_dry`` (albedo 0.12, paper 2) with a retro-reflective share chosen so
-    that its backscatter at 46 deg is ``street_gain`` times the Lambertian one: the paper's 0.12
-    is a broadband (solar) albedo [43], not the 905 nm backscatter, which the fit calibrates on
-    clear weather (``street_gain`` in config/atmosphere_fit.yaml).
+    that its backscatter at 46 deg is ``street_gain`` times the Lambertian one (None: config/rooftop.yaml's):
+    the paper's 0.12 is a broadband (solar) albedo [43], not the 905 nm backscatter.
     """
+    street_gain = geometry().street_gain if street_gain is None else street_gain
     from lidar_weather_sim.scene.mesh import Material
     from lidar_weather_sim.sensor.radiometry import RETRO_GAIN
 
@@ -89,15 +89,6 @@ def lot_scene(materials: MaterialTable | None = None, street_gain: float = 1.0) 
     return bounded_lot_scene(LOT_MATERIAL, materials)
 
 
-def reference_weather(weather_class: str, fit: FitFile) -> Weather:
-    """The weather block of the fit's reference conditions for a class."""
-    ref = fit.reference
-    precipitation = {"rain": ("rain", ref["rain_mm_h"]), "snow": ("snow", ref["snow_mm_h"])}.get(weather_class, ("dry", 0.0))
-    visual_range = ref["fog_visual_range_m"] if weather_class == "fog" else 1.0e5
-    return Weather.model_validate({"fog": {"visual_range_m": visual_range},
-                                   "precipitation": {"type": precipitation[0], "intensity_mm_h": precipitation[1]}})  # fmt: skip
-
-
 @dataclass
 class Condition:
     weather: str
@@ -106,42 +97,24 @@ class Condition:
     x: dict[str, np.ndarray]  # region -> all x distances (m) over the frames
 
 
-def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file: str | None = None,
-             scenario: str = "rooftop_static", overrides: dict | None = None,
-             profile: str | None = None, atmosphere_model: str = "fitted",
-             states: RooftopStates | None = None) -> Condition:  # fmt: skip
-    """Per-frame features of one condition; ``overrides`` replace atmosphere class parameters and
-    ``street_gain`` (fitting); ``profile`` (a name in config/sensors or a YAML path) replaces the
-    scenario's sensor, e.g. to see how its noise model acts on the 'with sun' rows; ``atmosphere_model``:
-    the atmosphere region's (``physical``: the weather, street and window of the class from ``states``,
-    default config/rooftop_physical.yaml, :mod:`lidar_weather_sim.experiments.rooftop_states`)."""
-    overrides = dict(overrides or {})
-    street_gain = overrides.pop("street_gain", None)
+def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, scenario: str = "rooftop_static",
+             profile: str | None = None, states: RooftopStates | None = None) -> Condition:  # fmt: skip
+    """Per-frame features of one condition: the weather, street and window of the class from ``states`` (default
+    config/rooftop_physical.yaml, :mod:`lidar_weather_sim.experiments.rooftop_states`); ``profile`` (a name in
+    config/sensors or a YAML path) replaces the scenario's sensor, e.g. to see how its noise model acts on the
+    'with sun' rows."""
     sc = load_scenario(scenario)
     profile = load_profile(profile or sc.sensor.profile)
-    fit = load_yaml(fit_file or fit_path(), FitFile)
-    scene = lot_scene(MaterialTable.default(), fit.street_gain if street_gain is None else street_gain)
-    if atmosphere_model == "physical":
-        states = states or load_states()
-        weather = states.weather(weather_class)
-    else:
-        weather = reference_weather(weather_class, fit)
-    context = RegionContext(profile, weather, scene.materials)
+    scene = lot_scene(MaterialTable.default())
+    states = states or load_states()
+    context = RegionContext(profile, states.weather(weather_class), scene.materials)
     regions = []
     for name in sc.regions:
         params = dict(sc.region_params.get(name, {}))
-        if name == "atmosphere":
-            params.update({"weather_class": weather_class, "model": atmosphere_model,
-                           **({"fit_file": str(fit_file)} if fit_file else {})})  # fmt: skip
-            region = REGISTRY.create(name, params, context)
-            if overrides:
-                region = _with_class_params(region, overrides)
-        else:
-            if name == "cover" and atmosphere_model == "physical":
-                params.update(states.cover_params(weather_class))
-            region = REGISTRY.create(name, params, context)
-        regions.append((name, region))
-    day = states.day_irradiance_w_m2 if atmosphere_model == "physical" else fit.day_irradiance_w_m2
+        if name == "cover":
+            params.update(states.cover_params(weather_class))
+        regions.append((name, REGISTRY.create(name, params, context)))
+    day = states.day_irradiance_w_m2
     sim = LidarSimulator(profile, scene, regions=regions, seed=seed, sun_irradiance_w_m2=day if sun else 0.0)
     pose = RooftopPose.for_profile(profile)
     out, t = [], 0.0
@@ -160,20 +133,6 @@ def simulate(weather_class: str, sun: bool, frames: int, seed: int = 0, fit_file
         for name, (lo, hi) in REGIONS.items():
             xs[name].append(x[(x >= lo) & (x < hi)])
     return Condition(weather_class, sun, rows, {k: np.concatenate(v) for k, v in xs.items()})
-
-
-def _with_class_params(region, overrides: dict):
-    """Rebuild an atmosphere region with some class parameters replaced (used by the fitting script)."""
-    from lidar_weather_sim.regions.atmosphere import AtmosphereRegion
-
-    c = region.c.model_copy(update=overrides)
-    region.c = c
-    (air,) = region.components  # one weather class: the rooftop's reference weathers
-    region.components = [region.component(c, air.rate_scale, air.label)]
-    mats = MaterialTable.default()
-    region._wet_scale = (mats["asphalt_wet"].reflectivity / mats["asphalt_dry"].reflectivity) ** c.wetness
-    assert isinstance(region, AtmosphereRegion)
-    return region
 
 
 def to_paper_units(region: str, feature: str, value: float) -> tuple[float, str]:
@@ -267,18 +226,13 @@ def plot(conditions: list[Condition], out_dir: Path) -> list[Path]:
 
 
 def reproduce_rooftop(out_dir: str | Path, frames: int = 30, seed: int = 0, tables_path: str | Path | None = None,
-                      fit_file: str | None = None, plots: bool = True, profile: str | None = None,
-                      atmosphere_model: str = "fitted", states_file: str | None = None) -> list[dict]:  # fmt: skip
+                      plots: bool = True, profile: str | None = None, states_file: str | None = None) -> list[dict]:  # fmt: skip
     """Run all 8 conditions; write rooftop.json, rooftop.md and the PNGs into ``out_dir``; return the rows.
-    ``fit_file``: atmosphere parameters (default config/atmosphere_fit.yaml); ``profile``: sensor
-    profile name or YAML path (default the scenario's scala4); ``atmosphere_model``: fitted or physical;
-    ``states_file``: the physical runs' weather, street and window states (default config/rooftop_physical.yaml)."""
-    if states_file and atmosphere_model != "physical":
-        raise ValueError(f"--states {states_file}: the states are the physical atmosphere's; add --atmosphere-model physical")
+    ``profile``: sensor profile name or YAML path (default the scenario's scala4); ``states_file``: the weather,
+    street and window states (default config/rooftop_physical.yaml)."""
     tables = load_tables(tables_path)
-    states = load_states(states_file) if atmosphere_model == "physical" else None
-    conditions = [simulate(w, sun, frames, seed, fit_file, profile=profile, atmosphere_model=atmosphere_model,
-                           states=states)
+    states = load_states(states_file)
+    conditions = [simulate(w, sun, frames, seed, profile=profile, states=states)
                   for w in WEATHER_CLASSES for sun in (False, True)]  # fmt: skip
     rows = [r for c in conditions for r in rows_of(c, tables)]
     out = Path(out_dir)  # created once the inputs have loaded: bad inputs leave nothing behind
@@ -296,8 +250,7 @@ def main(args) -> int:
 
     start = time.perf_counter()
     rows = reproduce_rooftop(args.out, frames=args.frames, seed=args.seed, tables_path=args.tables,
-                             fit_file=args.fit_file, profile=args.profile, atmosphere_model=args.atmosphere_model,
-                             states_file=args.states)  # fmt: skip
+                             profile=args.profile, states_file=args.states)  # fmt: skip
     print(markdown(rows))
     print(f"wrote {args.out}/rooftop.json, rooftop.md, rooftop_atmosphere.png, rooftop_street.png "
           f"in {time.perf_counter() - start:.1f} s")  # fmt: skip

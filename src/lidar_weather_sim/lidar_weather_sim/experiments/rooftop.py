@@ -38,6 +38,8 @@ class RooftopGeometry(ConfigModel):
     street_layer: int = Field(ge=0, description="Channel of the sensor profile whose central beam defines the incidence")
     street_layer_x_m: float = Field(gt=0, description="Horizontal distance where that beam meets the lot (m)")
     lot: LotExtent
+    street_gain: float = Field(gt=0, description="The lot's backscatter at the incidence over a Lambertian "
+                               "surface of its albedo (fixed, fitted on the clear-night street)")  # fmt: skip
 
     def height_m(self) -> float:
         return self.street_layer_x_m / np.tan(np.deg2rad(self.incidence_deg))

@@ -19,8 +19,8 @@ profile's optics) these states are the rooftop reproduction's free parameters, f
 
 The receiver's day mode (its automatic gain control, thesis line 1536: one state for every sunlit
 frame) is the profile's sun noise at ``day_irradiance_w_m2``, fitted on the sunlit rows or on Table 2's
-day row alone. Not free: the asphalt's 905 nm backscatter (``street_gain`` of
-``config/atmosphere_fit.yaml``, the clear-night street EPW) and the geometry (``config/rooftop.yaml``).
+day row alone. Not free: the asphalt's 905 nm backscatter (``street_gain``, fitted once on the clear-night street)
+and the geometry, both in ``config/rooftop.yaml``.
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ from lidar_weather_sim.core.config import ConfigModel, load_yaml
 from lidar_weather_sim.regions.weather import Weather
 
 WeatherClass = Literal["clear", "rain", "fog", "snow"]
+#: The weather classes of paper 2, in the order of its tables.
+WEATHER_CLASSES: tuple[str, ...] = get_args(WeatherClass)
 CLEAR_AIR_VISUAL_RANGE_M = 1.0e5
 
 
@@ -94,7 +96,7 @@ class RooftopStates(ConfigModel):
 
     @model_validator(mode="after")
     def _every_class(self) -> "RooftopStates":
-        missing = [w for w in get_args(WeatherClass) if w not in self.classes]
+        missing = [w for w in WEATHER_CLASSES if w not in self.classes]
         if missing:
             raise ValueError(f"classes: no state for {', '.join(missing)} (the rooftop runs all four)")
         return self

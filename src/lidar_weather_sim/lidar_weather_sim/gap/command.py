@@ -42,8 +42,7 @@ def scenario_and_split(scenario: Scenario | str | Path, split: DataSplit | None)
 
 def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Path, *, profile: str | None = None,
             topic: str | None = None, progress: Callable[[str, int], None] | None = None,
-            scheduler: str | None = None, workers: int = 0, split: DataSplit | None = None,
-            atmosphere_model: str | None = None, **budgets) -> dict:  # fmt: skip
+            scheduler: str | None = None, workers: int = 0, split: DataSplit | None = None, **budgets) -> dict:  # fmt: skip
     """Diagnose ``measured`` against ``scenario`` and write the gap files to ``out``; returns gap.json's content.
 
     ``scenario``: a scenario, or its name or YAML path; given by name or path and without ``split``, a twin
@@ -55,22 +54,19 @@ def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Pa
     ``split`` (a twin's split.yaml) decides the calibration and held-out parts, and gap.json then also holds
     the bird's-eye metrics of the held-out part before and after the effects (``heldout_bev``).
     ``workers`` / ``scheduler``: the search's evaluations on N local Dask worker processes or on the
-    cluster at ``scheduler`` (:mod:`lidar_weather_sim.gap.parallel`; the result is the same).
-    ``atmosphere_model`` (``fitted`` | ``physical``): the atmosphere region's model the fog, rain and snow
-    effects are searched and fitted with (None: the scenario's, else the region's default)."""
+    cluster at ``scheduler`` (:mod:`lidar_weather_sim.gap.parallel`; the result is the same)."""
     scenario, split, split_file = scenario_and_split(scenario, split)
     recording = Recording.load(measured, topic)
-    resim = GapResimulator(recording, scenario, profile, atmosphere_model=atmosphere_model)
+    resim = GapResimulator(recording, scenario, profile)
     with Engine(scheduler, workers) as engine:
         remote = None
         if not engine.serial:  # each worker builds the search again from this
             source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
-                                  tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None,
-                                  atmosphere_model)  # fmt: skip
+                                  tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None)  # fmt: skip
             remote = Workers(engine, source)
         search = GapSearch(resim, progress=progress, workers=remote, split=split, **budgets)
         diagnosis = search.run()
-    patched = apply_effects(scenario, diagnosis.effects, atmosphere_model)
+    patched = apply_effects(scenario, diagnosis.effects)
     patched = patched.model_copy(update={"name": f"{scenario.name}_patched",
                                          "description": f"{scenario.description} + effects found by gap".strip()})  # fmt: skip
     everything = range(len(recording.frames))

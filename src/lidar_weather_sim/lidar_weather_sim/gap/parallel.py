@@ -34,12 +34,10 @@ class SearchSource:
     topic: str | None
     budgets: tuple[tuple[str, object], ...]  # GapSearch keywords (fit_frames, heldout_frames, families, ...)
     split: str | None = None  # a twin's DataSplit as JSON (its to_dict), or None
-    atmosphere_model: str | None = None  # the atmosphere region's model (GapResimulator)
 
     def build(self) -> GapSearch:
         resim = GapResimulator(Recording.load(self.measured, self.topic),
-                               Scenario.model_validate(json.loads(self.scenario)), self.profile,
-                               atmosphere_model=self.atmosphere_model)  # fmt: skip
+                               Scenario.model_validate(json.loads(self.scenario)), self.profile)  # fmt: skip
         split = DataSplit.from_dict(json.loads(self.split)) if self.split else None
         return GapSearch(resim, split=split, **dict(self.budgets))
 

@@ -409,8 +409,8 @@ class GapResimulator(Resimulator):
     contexts (:func:`frame_contexts`) and summed into signatures."""
 
     def __init__(self, recording: Recording, scenario: Scenario, profile: str | None = None,
-                 backend: str | None = None, atmosphere_model: str | None = None) -> None:  # fmt: skip
-        super().__init__(recording, scenario, profile, backend, atmosphere_model)
+                 backend: str | None = None) -> None:  # fmt: skip
+        super().__init__(recording, scenario, profile, backend)
         self.contexts = frame_contexts(recording, scenario)
 
     def signature(self, effects: list[Effect], indices, keep: Callable[[np.ndarray], np.ndarray] | None = None,

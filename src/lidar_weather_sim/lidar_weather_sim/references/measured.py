@@ -78,11 +78,10 @@ def cover_two_way(scenario: Scenario, profile) -> np.ndarray | None:
 
 
 def weather_transform(scenario: Scenario, effects: list[Effect], generator: str, profile: str | None,
-                      seed: int, beams_per_frame: int | None = None, atmosphere_model: str | None = None):  # fmt: skip
-    """(scenario with the effects the simulator makes, ``transform(frame) -> points`` or None) of ``generator``;
-    ``atmosphere_model``: the atmosphere region's model when the simulator makes the weather (``fast``)."""
+                      seed: int, beams_per_frame: int | None = None):  # fmt: skip
+    """(scenario with the effects the simulator makes, ``transform(frame) -> points`` or None) of ``generator``."""
     if generator == "fast":
-        return apply_effects(scenario, effects, atmosphere_model), None
+        return apply_effects(scenario, effects), None
     if generator not in GENERATORS:
         raise ValueError(f"generator {generator!r}: one of {', '.join(GENERATORS)}")
     from lidar_weather_sim.references.droplets import Atmosphere
@@ -169,14 +168,11 @@ def make_measured(
     generator: str = "fast",
     ground_truth: bool = False,
     beams_per_frame: int | None = None,
-    atmosphere_model: str | None = None,
 ) -> RunReport:
     """Record ``scenario`` with ``effects`` hidden in it by ``generator`` (see module doc) and ``nuisance`` added
-    to ``output``; ``beams_per_frame``: the reference's sampled beams (default: all of a small profile);
-    ``atmosphere_model`` (``fitted`` | ``physical``): the simulator's, for the ``fast`` generator."""
+    to ``output``; ``beams_per_frame``: the reference's sampled beams (default: all of a small profile)."""
     run_seed = scenario.seed + nuisance.seed_offset if seed is None else seed
-    hidden, transform = weather_transform(scenario, effects, generator, profile, run_seed, beams_per_frame,
-                                          atmosphere_model)  # fmt: skip
+    hidden, transform = weather_transform(scenario, effects, generator, profile, run_seed, beams_per_frame)
     rng = np.random.default_rng([run_seed & 0xFFFFFFFF, 0x6D6561])  # "mea": the nuisance's own stream
 
     def measure(frame: Frame) -> np.ndarray | None:

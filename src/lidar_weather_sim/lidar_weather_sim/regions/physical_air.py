@@ -1,5 +1,4 @@
-"""The atmosphere as physics per beam: the drops and the volume return of region ``atmosphere`` with
-``model: physical``.
+"""The atmosphere as physics per beam: the drops and the volume return of region ``atmosphere``.
 
 The media are fog (its visual range) and one precipitation (rain or snow, mm/h) from
 :mod:`lidar_weather_sim.physics` at the profile's wavelength (``optics.wavelength_nm``; 905 nm for a
@@ -37,8 +36,7 @@ O(r) at full strength (``cone``: in the receiver's view or not), or, ``defocus``
 light the field stop takes at its place on the beam's disc (``bypass_overlap``: the echo stage does not apply
 its own). The threshold is the dark one (no sun). This is the
 model :mod:`lidar_weather_sim.references.droplets` computes slowly, drop by drop, with a geometric overlap and
-fog droplet statistics: the fast model is checked against it (``benchmarks/validation/atmosphere_reference.py
---fast-model physical``). Not modelled: multiple scattering, the fog's fluctuation beyond the near field
+fog droplet statistics: the fast model is checked against it (``benchmarks/validation/atmosphere_reference.py``). Not modelled: multiple scattering, the fog's fluctuation beyond the near field
 (the reference's quadrature there is smooth too).
 """
 
@@ -64,6 +62,8 @@ DETECTABLE_FRACTION = 0.5  # drops reaching this share of the threshold alone ar
 VOLUME_FLOOR = 0.02  # the volume's waveform below this share of the threshold is left out
 DEFAULT_WAVELENGTH_NM = 905.0
 GRID_M = 0.02  # the range grid of the per-beam drop volumes (m)
+MIN_EXIT_RADIUS_M = 1e-3  # a beam's exit radius at least (m): a profile of no aperture and no divergence has no
+# volume to hold drops (the shipped profiles' exits are 2-5 mm)
 VOLUME_SEED = 0x766F6C  # with the weather state: the seed of the near field's realisations
 LABELS = {"fog": Label.FOG, "rain": Label.RAIN, "snow": Label.SNOW}
 
@@ -82,7 +82,7 @@ class PhysicalAir:
         self.tau = float(det.ac_coupling_tau_m)
         self.r_max = float(profile.range.max_m)
         self.divergence = 1e-3 * float(np.sqrt(o.divergence_h_mrad * o.divergence_v_mrad))
-        self.exit_radius = float(o.tx_aperture_radius_m)
+        self.exit_radius = max(float(o.tx_aperture_radius_m), MIN_EXIT_RADIUS_M)
         overlap, self._optics = None, None  # (lens separation m, receiver FOV rad, aperture radius m)
         self.overlap_model = o.overlap_model
         if o.lens_separation_m is not None and o.receiver_fov_mrad is not None:

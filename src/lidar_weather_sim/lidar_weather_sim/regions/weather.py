@@ -2,7 +2,7 @@
 
 Follows OpenSCENARIO's Weather concepts in snake_case with SI unit suffixes (``fog.visual_range_m``,
 ``precipitation.intensity_mm_h``, ``sun.irradiance_w_m2`` - the thesis' unit, not OpenSCENARIO's
-lux, ``wind.speed_m_s``), plus the road surface (``road.water_film_mm``, ``road.texture_depth_mm``).
+lux, ``wind.speed_m_s``), plus the road surface (``road.water_film_mm``, ``road.texture_depth_mm``, eq. 1's drainage).
 A region given no weather (``RegionContext.weather`` None) reads ``Weather()``: clear, dry, calm.
 """
 
@@ -13,6 +13,7 @@ from typing import ClassVar, Literal
 from pydantic import Field, model_validator
 
 from lidar_weather_sim.core.config import ConfigModel
+from lidar_weather_sim.physics.road import water_film_mm
 
 
 class Fog(ConfigModel):
@@ -53,11 +54,21 @@ class Road(ConfigModel):
     each)."""
 
     water_film_mm: float | None = Field(
-        None, ge=0, le=10, description="Water film depth h on the road (mm); null: each reader's default "
-        "(atmosphere: the weather class's fitted wetness; spray: eq. 1 from the rain intensity)")
+        None, ge=0, le=10, description="Water film depth h on the road (mm); null: eq. 1's film of the rain "
+        "(0 when it does not rain)")
     texture_depth_mm: float = Field(1.5, gt=0, le=50, description="Mean texture depth T_s of the road (mm; thesis Table IV)")
+    drainage_length_m: float = Field(11.25, gt=0, le=100, description="Drainage length L_s of eq. 1 (m; 3 lanes of "
+                                     "3.75 m)")  # fmt: skip
+    cross_slope: float = Field(0.025, gt=0, le=1, description="Cross slope S_s of eq. 1 (m/m)")
     snow_depth_m: float | None = Field(None, ge=0, le=1, description="Snow cover on up-facing surfaces (m); "
-                                       "null: the atmosphere's fitted depth of the weather class")
+                                       "null: none")
+
+    def film_mm(self, rain_mm_h: float) -> float:
+        """The water film (mm): ``water_film_mm`` if given, else eq. 1's film of rain at ``rain_mm_h`` (mm/h) on
+        this road (:func:`lidar_weather_sim.physics.road.water_film_mm`)."""
+        if self.water_film_mm is not None:
+            return self.water_film_mm
+        return float(water_film_mm(rain_mm_h, self.texture_depth_mm, self.drainage_length_m, self.cross_slope))
 
 
 class Weather(ConfigModel):

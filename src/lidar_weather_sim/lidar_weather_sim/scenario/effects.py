@@ -48,7 +48,7 @@ recording shows and tries it.
 
 Each effect changes only itself: rain does not wet the road (``road_water_film_mm: 0``
 unless ``atmosphere.road_wet`` is applied too) and does not feed spray, and snow falls without
-covering the road (``weather.road.snow_depth_m: 0`` unless the scenario sets a snow cover: a scene
+covering the road (no snow cover unless the scenario's ``weather.road.snow_depth_m`` sets one: a scene
 state, not the snowfall), so the effects hidden in a recording are exactly the ones named.
 :func:`apply_effects` returns a new, validated :class:`~lidar_weather_sim.scenario.schema.Scenario`.
 """
@@ -270,11 +270,8 @@ def conflicts(effects: list[Effect]) -> str | None:
     return None
 
 
-def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: str | None = None) -> Scenario:
-    """``scenario`` with ``effects`` added (a new, validated Scenario; raises ValueError on conflicts).
-
-    ``atmosphere_model`` (``fitted`` | ``physical``): the ``model`` of the atmosphere region the effects
-    turn on (None: the scenario's own, else the region's default)."""
+def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
+    """``scenario`` with ``effects`` added (a new, validated Scenario; raises ValueError on conflicts)."""
     problem = conflicts(effects)
     if problem:
         raise ValueError(f"cannot apply {', '.join(e.label() for e in effects)}: {problem}")
@@ -293,10 +290,6 @@ def apply_effects(scenario: Scenario, effects: list[Effect], atmosphere_model: s
         atmo = region("atmosphere")
         atmo["air"] = bool(air)
         atmo.setdefault("road_water_film_mm", 0.0)
-        road = data["weather"]["road"]
-        road["snow_depth_m"] = 0.0 if road.get("snow_depth_m") is None else road["snow_depth_m"]
-        if atmosphere_model is not None:
-            atmo["model"] = atmosphere_model
     spray_actors = []
     for e in effects:
         if e.name == "sensor.dead_channels":

@@ -33,9 +33,6 @@ class Tyre(ConfigModel):
 
 
 class Water(ConfigModel):
-    film_constant_k_s: float = Field(gt=0)
-    drainage_length_m: float = Field(gt=0)
-    cross_slope: float = Field(gt=0)
     drop_size_k: float = Field(gt=0)
 
 

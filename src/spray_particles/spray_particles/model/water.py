@@ -1,23 +1,11 @@
-"""Water on the road and in the tread (thesis paper 3, eq. 1-3). SI units unless a name says otherwise."""
+"""Water in the tread (thesis paper 3, eq. 2-3; eq. 1, the road's film, is in
+:mod:`lidar_weather_sim.physics.road`). SI units unless a name says otherwise."""
 
 from __future__ import annotations
 
 import re
 
 import numpy as np
-
-
-def water_film_mm(rain_mm_h, texture_depth_mm, drainage_length_m, cross_slope, k_s):
-    """Eq. 1: water film thickness h (mm) = k_s T_s^0.3 (L_s I_R)^0.5 S_s^-0.3.
-
-    ``rain_mm_h`` rainfall intensity I_R (mm/h), ``texture_depth_mm`` T_s (0.208 mm smooth
-    concrete ... 1.644 mm porous asphalt), ``drainage_length_m`` L_s (m), ``cross_slope`` S_s
-    (m/m), ``k_s`` the constant (config/spray.yaml water.film_constant_k_s).
-    """
-    rain = np.asarray(rain_mm_h, dtype=np.float64)
-    if np.any(rain < 0) or np.any(np.asarray(cross_slope) <= 0):
-        raise ValueError(f"water film: need rain >= 0 and slope > 0, got rain {rain_mm_h}, slope {cross_slope}")
-    return k_s * np.power(texture_depth_mm, 0.3) * np.sqrt(drainage_length_m * rain) * np.power(cross_slope, -0.3)
 
 
 def tread_pickup_m3_s(film_mm, speed_m_s, grooves, groove_width_m, tread_height_m):
