@@ -14,7 +14,8 @@ from lidar_weather_sim.regions.volume_return import VolumeReturn
 from lidar_weather_sim.sensor.echo import detect_echoes
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.sensor.radiometry import MIN_RANGE_M, Threshold
-from lidar_weather_sim.sensor.volume_tables import REACH, build_table, stack_volume
+from lidar_weather_sim.sensor.volume_tables import (REACH, build_table, cell_density, cell_nodes, realised_density,
+                                                     stack_volume, tables_of_cells)  # fmt: skip
 from lidar_weather_sim.testing.lidar_integral import lidar_integral, medium_return
 
 FOG = 3
@@ -172,3 +173,46 @@ def test_a_far_target_behind_thin_fog_is_detected_as_without_a_volume():
     assert far.sum() == len(clear.range_m) == 2 and (~far).sum() >= 1
     for name in ("range_m", "amplitude", "epw_m", "label", "object_id"):
         np.testing.assert_array_equal(getattr(with_fog, name)[far], getattr(clear, name))
+
+
+def test_batched_tables_are_the_module_doc_sums():
+    """The cut rows (a recursion) and the waveform (from the cut rows) of a batch of tables against the module
+    doc's sums: the cells convolved with the pulse, and each row the cells in front of its boundary."""
+    rng = np.random.default_rng(1)
+    density = rng.random((3, 300)) * (rng.random((3, 300)) < 0.3)
+    density[2] = 0.0
+    kernel = np.exp(-0.5 * (np.arange(-REACH, REACH + 1) / 8.0) ** 2)
+    o = np.arange(2 * REACH)
+    for d, t in zip(density, tables_of_cells(density, 0.05, FOG, floor=0.5)):
+        full = np.convolve(d, kernel)[REACH : REACH + len(d)]
+        above = np.flatnonzero(full > 0.5)
+        assert t.support == ((above[0] - REACH, above[-1] + 1 - REACH) if len(above) else (-REACH, -REACH))
+        inside = np.zeros(len(d), bool)
+        inside[t.support[0] + REACH : t.support[1] + REACH] = True
+        assert np.allclose(t.wave, np.where(inside, full, 0.0), rtol=1e-13, atol=0.0)
+        assert len(t.cut) == (t.support[1] + REACH + 2 - t.cut_first if len(above) else 0)
+        for K, row in zip(range(t.cut_first, t.cut_first + len(t.cut)), t.cut):
+            k = np.arange(K - 2 * REACH, K)[:, None]  # the cells reaching the row
+            j = K - REACH + o[None, :] - k
+            cells = np.where((k + REACH >= 0) & (k + REACH < len(d)), d[np.clip(k + REACH, 0, len(d) - 1)], 0.0)
+            want = (cells * np.where(np.abs(j) <= REACH, kernel[np.clip(j + REACH, 0, 2 * REACH)], 0.0)).sum(axis=0)
+            assert np.allclose(row, want, rtol=1e-13, atol=1e-13)
+
+
+def test_realisations_are_the_mean_scaled_per_slab():
+    """Each realisation's cells (batched, node-wise factors) are those of its density, the mean times its slab's
+    factor, integrated on its own (high-pass included)."""
+    mean = lambda r: 1.0 / (1.0 + r * r)  # noqa: E731
+    edges = np.array([1.0, 1.3, 2.0, 2.1])
+    factors = np.random.default_rng(2).uniform(0.0, 2.0, (4, len(edges) - 1))
+    nodes, lower, upper = cell_nodes(sigma_m=0.3, r_max_m=4.0, start_m=0.5)
+    slab = np.searchsorted(edges, nodes, side="right") - 1
+    slab[(slab < 0) | (slab >= len(factors[0]))] = len(factors[0])
+    got = realised_density(mean(nodes), factors, slab, lower, upper, tau_m=0.4)
+    for f, cells in zip(factors, got):
+        def realised(r, f=f):
+            i = np.searchsorted(edges, r, side="right") - 1
+            return mean(r) * np.where((i >= 0) & (i < len(f)), f[np.clip(i, 0, len(f) - 1)], 1.0)
+
+        want = cell_density(realised, sigma_m=0.3, r_max_m=4.0, start_m=0.5, tau_m=0.4)
+        assert np.allclose(cells, want, rtol=1e-13, atol=1e-15 * want.max())

@@ -25,7 +25,8 @@ import numpy as np
 
 from lidar_weather_sim.physics.overlap import OVERLAP_MODELS
 from lidar_weather_sim.regions.base import VolumeTerm
-from lidar_weather_sim.sensor.volume_tables import REACH, VolumeTable, cell_density, grid_step, table_of_cells
+from lidar_weather_sim.sensor.volume_tables import (REACH, VolumeTable, cell_density, cell_nodes, grid_step,
+                                                     realised_density, table_of_cells, tables_of_cells)
 
 #: Near-field realisations drawn per weather state (each beam reads one).
 REALISATIONS = 256
@@ -71,16 +72,12 @@ def air_volume(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: float
     far[: cells + REACH] = 0.0
     rng = np.random.default_rng(seed)
     factors = np.maximum(1.0 + rel_sd[None, :] * rng.standard_normal((REALISATIONS, len(rel_sd))), 0.0)
-    near = []
-    for f in factors:
-        def realised(r: np.ndarray, f=f) -> np.ndarray:
-            i = np.searchsorted(slab_edges, r, side="right") - 1
-            inside = (i >= 0) & (i < len(f))
-            return density_fn(r) * np.where(inside, f[np.clip(i, 0, len(f) - 1)], 1.0)
-
-        d = cell_density(realised, sigma_m=sigma_m, r_max_m=boundary_m, start_m=start_m, tau_m=tau_m)
-        d[cells + REACH :] = 0.0
-        near.append(table_of_cells(d, dx, label, 0.5 * floor))
+    nodes, lower, upper = cell_nodes(sigma_m=sigma_m, r_max_m=boundary_m, start_m=start_m)
+    slab = np.searchsorted(slab_edges, nodes, side="right") - 1  # each node's slab; len(rel_sd): none (factor 1)
+    slab[(slab < 0) | (slab >= len(rel_sd))] = len(rel_sd)
+    values = density_fn(nodes.ravel()).reshape(nodes.shape)
+    realised = realised_density(values, factors, slab, lower, upper, tau_m)
+    near = tables_of_cells(realised, dx, label, 0.5 * floor)
     return AirVolume(table_of_cells(far, dx, label, 0.5 * floor), tuple(near), factors, slab_edges, boundary_m)
 
 

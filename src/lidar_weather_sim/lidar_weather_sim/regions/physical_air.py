@@ -42,7 +42,7 @@ fog droplet statistics: the fast model is checked against it (``benchmarks/valid
 
 from __future__ import annotations
 
-from functools import partial
+from functools import cache, partial
 
 import zlib
 
@@ -95,7 +95,8 @@ class PhysicalAir:
         self.volume = VolumeReturn(self.power, self.alpha, 1.0, sigma, start, o.overlap_full_m, overlap)
         self._grid = np.arange(max(start, MIN_RANGE_M), self.r_max + GRID_M, GRID_M)
         widening = overlap is not None and 1e-3 * o.receiver_fov_mrad >= self.divergence  # the view holds the beam
-        self._full_overlap_m = _full_overlap_range(overlap, self._grid) if widening else np.inf
+        self._full_overlap_m = (_full_overlap_range(o.overlap_model, float(self._grid[0]), self.r_max,
+                                                    **overlap.keywords) if widening else np.inf)  # fmt: skip
         if self.precip is not None:
             self._cum, self._d_min = self._drop_tables(self.precip)
         sampled = None if overlap is None else optics_overlap(o.overlap_model, self.r_max, **overlap.keywords)
@@ -209,11 +210,14 @@ class PhysicalAir:
         return point_share("defocus", lateral, range_m, fov, rx_radius)
 
 
-def _full_overlap_range(overlap, grid: np.ndarray) -> float:
-    """The range (m) from which the biaxial ``overlap`` of a receiver whose field of view widens at least as fast as
-    the beam is exactly 1: once its disc holds the beam's it keeps holding it (checked on ``grid``'s points beyond);
-    inf if it never does on the grid."""
-    o = overlap(grid)
+@cache
+def _full_overlap_range(model: str, start_m: float, r_max_m: float, **optics: float) -> float:
+    """The range (m) from which the biaxial overlap ``OVERLAP_MODELS[model]`` with ``optics`` (its keyword arguments)
+    of a receiver whose field of view widens at least as fast as the beam is exactly 1: once its disc holds the
+    beam's it keeps holding it (checked on the range grid's points from ``start_m`` to ``r_max_m``, m, beyond);
+    inf if it never does on the grid. Computed once per optics."""
+    grid = np.arange(start_m, r_max_m + GRID_M, GRID_M)
+    o = OVERLAP_MODELS[model](grid, **optics)
     below = np.flatnonzero(o < 1.0)
     if len(below) == len(grid):
         return np.inf

@@ -93,46 +93,147 @@ def cell_density(density_fn: Callable[[np.ndarray], np.ndarray], *, sigma_m: flo
     """The cells' return (noise units; index i: cell i - REACH) of the density ``density_fn(r)`` (noise units per m)
     on [``start_m``, ``r_max_m``] (m), after the AC coupling of time constant ``tau_m`` (m; 0: DC), on the grid of
     pulse sigma ``sigma_m`` (m) (:func:`build_table`)."""
+    nodes, lower, upper = cell_nodes(sigma_m=sigma_m, r_max_m=r_max_m, start_m=start_m)
+    values = density_fn(nodes.ravel()).reshape(nodes.shape)
+    return realised_density(values, np.zeros((1, 0)), np.zeros(nodes.shape, np.int64), lower, upper, tau_m)[0]
+
+
+def cell_nodes(*, sigma_m: float, r_max_m: float, start_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(nodes (n, 8), lower (n,), upper (n,)), m: the Gauss-Legendre nodes of each cell (index i: cell i - REACH) on
+    the grid of pulse sigma ``sigma_m`` (m) and the cell's bounds clipped to [``start_m``, ``r_max_m``] (m)."""
     dx = grid_step(sigma_m)
     n = int(np.ceil(r_max_m / dx)) + 1 + 2 * REACH
     k = np.arange(n) - REACH
     lower = np.clip((k - 0.5) * dx, start_m, r_max_m)
     upper = np.clip((k + 0.5) * dx, start_m, r_max_m)
     half = 0.5 * (upper - lower)
-    nodes = (lower + half)[:, None] + half[:, None] * _NODES[None, :]
-    density = np.where(half > 0, density_fn(nodes.ravel()).reshape(nodes.shape) @ _WEIGHTS * half, 0.0)
+    return (lower + half)[:, None] + half[:, None] * _NODES[None, :], lower, upper
+
+
+def realised_density(values: np.ndarray, factors: np.ndarray, slab: np.ndarray, lower: np.ndarray,
+                     upper: np.ndarray, tau_m: float = 0.0) -> np.ndarray:  # fmt: skip
+    """The cells' return (noise units; (m, n)) of m realisations of a density whose ``values`` (noise units per m;
+    (n, 8)) at the nodes of :func:`cell_nodes` of the cells [``lower``, ``upper``] (m; (n,)) realisation t scales
+    node-wise by ``factors[t, slab]`` (``factors`` (m, S); ``slab`` (n, 8), S: factor 1), after the AC coupling of
+    time constant ``tau_m`` (m; 0: DC), each realisation filtered on its own."""
+    half = 0.5 * (upper - lower)
+    density = _realised(np.ascontiguousarray(values, np.float64), np.ascontiguousarray(factors, np.float64),
+                        np.ascontiguousarray(slab, np.int64), half)  # fmt: skip
     if tau_m > 0:
         inside = half > 0
-        density[inside] = highpass_slabs(density[inside], lower[inside], upper[inside],
-                                         np.zeros(int(inside.sum()), np.int64), tau_m)  # fmt: skip
+        m, k = len(density), int(inside.sum())
+        filtered = highpass_slabs(density[:, inside].ravel(), np.tile(lower[inside], m), np.tile(upper[inside], m),
+                                  np.repeat(np.arange(m), k), tau_m)  # fmt: skip
+        density[:, inside] = filtered.reshape(m, k)
     return density
+
+
+@numba.njit(cache=True, nogil=True)
+def _realised(values, factors, slab, half):
+    """(m, n): ``sum_j values[c, j] factors[t, slab[c, j]] weight_j half[c]`` for each realisation t and cell c
+    with ``half[c]`` > 0 (0 elsewhere); a slab index past the factors' is factor 1 (:func:`realised_density`)."""
+    m, n, s = len(factors), len(values), factors.shape[1]
+    out = np.zeros((m, n))
+    for t in range(m):
+        for c in range(n):
+            if half[c] > 0:
+                total = 0.0
+                for j in range(values.shape[1]):
+                    total += values[c, j] * (factors[t, slab[c, j]] if slab[c, j] < s else 1.0) * _WEIGHTS[j]
+                out[t, c] = total * half[c]
+    return out
 
 
 def table_of_cells(density: np.ndarray, dx_m: float, label: int | np.ndarray, floor: float = 0.0) -> VolumeTable:
     """The table of the cells' return ``density`` (noise units, after the AC coupling; index i: cell i - REACH) on
     the grid of step ``dx_m`` (m): waveform, cut rows and the support where the waveform exceeds ``floor``."""
-    n = len(density)
-    wave = np.convolve(density, _KERNEL)[REACH : REACH + n]
-    above = np.flatnonzero(wave > floor)
-    i0, i1 = (int(above[0]), int(above[-1]) + 1) if len(above) else (0, 0)
-    wave[:i0] = 0.0
-    wave[i1:] = 0.0
-    k0, k1 = i0 - REACH, i1 - REACH
-    cut_first = max(k0 - REACH + 1, 0)
-    rows = np.arange(cut_first, k1 + REACH + 2) if k1 > k0 else np.zeros(0, np.int64)
-    return VolumeTable(float(dx_m), density, wave, _cut_rows(density, rows), cut_first,
-                       np.broadcast_to(np.asarray(label, np.uint8), (n,)).copy(), (k0, k1))  # fmt: skip
+    return tables_of_cells(np.asarray(density)[None, :], dx_m, label, floor)[0]
 
 
-def _cut_rows(density: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``cut[i, o] = sum_{k < K} density(k) kernel(K - REACH + o - k)`` for K = rows[i] (module doc; density(k) is
-    ``density[k + REACH]``): cell K - q reaches samples o <= 2 REACH - q of the row."""
-    padded = np.concatenate([np.zeros(REACH), density, np.zeros(REACH + 2)])  # density(k) at k + 2 REACH
-    cut = np.zeros((len(rows), 2 * REACH))
-    for q in range(1, 2 * REACH + 1):
-        width = min(2 * REACH, 2 * REACH + 1 - q)
-        cut[:, :width] += padded[rows + 2 * REACH - q][:, None] * _KERNEL[q : q + width][None, :]
+def tables_of_cells(density: np.ndarray, dx_m: float, label: int | np.ndarray, floor: float = 0.0) -> list[VolumeTable]:
+    """:func:`table_of_cells` of each row of ``density`` (m, n) at once (noise units), all with ``label`` (one, or
+    (n,) per cell) and ``floor`` (noise units)."""
+    density = np.ascontiguousarray(density, np.float64)
+    wave, span = _waves(density, float(floor))
+    k0, k1 = span[:, 0] - REACH, span[:, 1] - REACH
+    first = np.maximum(k0 - REACH + 1, 0)
+    count = np.where(k1 > k0, k1 + REACH + 2 - first, 0)
+    end = np.cumsum(count)
+    cut = _cut_rows(density, first, count, end - count, np.empty((int(count.sum()), 2 * REACH)))  # numpy's: huge pages
+    label = np.broadcast_to(np.asarray(label, np.uint8), (density.shape[1],))
+    return [VolumeTable(float(dx_m), density[t], wave[t], cut[end[t] - count[t] : end[t]], int(first[t]),
+                        label.copy(), (int(k0[t]), int(k1[t]))) for t in range(len(density))]  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _first_row(density, first, row):
+    """Row ``first`` of the cut rows of ``density`` (one table's; see :func:`_cut_rows`) into ``row``, summed."""
+    for o in range(2 * REACH):
+        s = 0.0
+        for q in range(1, 2 * REACH + 1 - o):  # cell first - q reaches samples o <= 2 REACH - q of the row
+            i = first - q + REACH
+            if 0 <= i < len(density):
+                s += density[i] * _KERNEL[q + o]
+        row[o] = s
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _next_row(density, k, row, out):
+    """The cut row of boundary k + 1 into ``out`` from that of k (``row``; see :func:`_cut_rows`)."""
+    i = k + REACH
+    d = density[i] if 0 <= i < len(density) else 0.0
+    for o in range(2 * REACH - 1):
+        out[o] = row[o + 1] + d * _KERNEL[o + 1]
+    out[2 * REACH - 1] = d * _KERNEL[2 * REACH]
+
+
+@numba.njit(cache=True, nogil=True)
+def _cut_rows(density, first, count, origin, cut):
+    """Each table t's (a row of ``density``) cut rows K = first[t] .. first[t] + count[t] - 1 into rows origin[t] ..
+    of ``cut``: ``cut[i, o] = sum_{k < K} density(k) kernel(K - REACH + o - k)`` (module doc; density(k) is
+    ``density[t, k + REACH]``, 0 outside), the first row summed, each next one from the last as
+    ``cut_{K+1}[o] = cut_K[o + 1] + density(K) kernel(o + 1 - REACH)`` (cut_K[2 REACH] = 0: the kernel ends at
+    REACH)."""
+    row, nxt = np.empty(2 * REACH), np.empty(2 * REACH)
+    for t in range(len(count)):
+        for r in range(count[t]):
+            if r == 0:
+                _first_row(density[t], first[t], row)
+            else:
+                _next_row(density[t], first[t] + r - 1, row, nxt)
+                row, nxt = nxt, row
+            cut[origin[t] + r, :] = row
     return cut
+
+
+@numba.njit(cache=True, nogil=True)
+def _waves(density, floor):
+    """Each row of ``density`` convolved with the pulse (module doc: ``wave``, index i: sample i - REACH), 0 outside
+    its support, and the support [i0, i1) (indices; (0, 0): none) where it exceeds ``floor``. Sample k is the cut
+    row of boundary k + REACH at o = 0 plus the cell k + REACH, which reaches it at the kernel's end."""
+    m, n = density.shape
+    wave = np.zeros((m, n))
+    span = np.zeros((m, 2), np.int64)
+    row, nxt = np.empty(2 * REACH), np.empty(2 * REACH)
+    for t in range(m):
+        d = density[t]
+        _first_row(d, 0, row)
+        i0, i1 = -1, 0
+        for i in range(n):
+            w = row[0] + (d[i + REACH] * _KERNEL[0] if i + REACH < n else 0.0)
+            wave[t, i] = w
+            if w > floor:
+                i0 = i if i0 < 0 else i0
+                i1 = i + 1
+            _next_row(d, i, row, nxt)
+            row, nxt = nxt, row
+        if i0 < 0:
+            wave[t] = 0.0
+        else:
+            wave[t, :i0] = 0.0
+            wave[t, i1:] = 0.0
+            span[t, 0], span[t, 1] = i0, i1
+    return wave, span
 
 
 class Volume(NamedTuple):
