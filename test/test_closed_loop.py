@@ -18,7 +18,7 @@ from lidar_weather_sim.experiments.closed_loop import VARIANTS, Trace, Variant, 
 from lidar_weather_sim.scenario.schema import load_scenario
 
 BOX_AT_S = 1.0
-OBSTACLE, SPRAY = 3, 14
+OBSTACLE, RAIN, SPRAY = 3, 11, 14
 SCENARIO = "highway_spray_crosswind"
 
 
@@ -109,10 +109,11 @@ def test_closed_loop_brakes_for_the_box_and_not_for_filtered_weather(tmp_path):
     before = int(np.searchsorted(boxed.stamp_s, start)) - 1
     lost = boxed.speed_m_s[before] - boxed.speed_m_s[-1]
     assert lost >= 0.9 * cfg.max_brake_m_s2 * (boxed.stamp_s[-1] - boxed.stamp_s[before]), (lost, start)
-    # without the filter: phantom braking; the confirmed obstacle it brakes for is the spray
+    # without the filter: phantom braking; the confirmed obstacle it brakes for is the weather (the rain's drops
+    # 2-3 m ahead confirm first since the atmosphere is physical; with the removed fitted model it was the spray)
     assert raw.brakes
     labels = raw.label[np.isfinite(raw.label)]
-    assert np.mean(labels == SPRAY) > 0.6, labels
+    assert np.mean(np.isin(labels, (RAIN, SPRAY))) > 0.6, labels
     report = write_report([raw, filtered, boxed], SCENARIO, tmp_path)
     assert (tmp_path / "speed.png").stat().st_size > 10_000 and "| filter + box |" in report.read_text()
 

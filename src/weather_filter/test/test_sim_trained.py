@@ -233,4 +233,6 @@ def test_eval_without_a_method_gives_the_best_filter_on_other_profiles(spec, cac
     f1, objects = DEFAULT_FLOORS[spec]
     assert default["method"] == "learned" and "fallback" not in default, default
     assert default["weather_f1"] >= f1 and default["object_recall"] >= objects, default
-    assert default["weather_f1"] > echo["weather_f1"] + 0.3, (default, echo)
+    # clearly better: at most a third of the echo filter's F1 shortfall (vlp16 run with the physical atmosphere:
+    # learned 0.9997, echo 0.777; with the removed fitted atmosphere the echo filter scored 0.51)
+    assert 1.0 - default["weather_f1"] <= (1.0 - echo["weather_f1"]) / 3.0, (default, echo)
