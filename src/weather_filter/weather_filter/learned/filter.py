@@ -150,6 +150,16 @@ class LearnedByFields(PointFilter):
         self.epw, self.single = epw, single
         self.last_used = epw.name
 
+    def missing_fields(self, points: np.ndarray) -> list[str]:
+        """As :meth:`PointFilter.missing_fields`, and ``intensity`` for a cloud without EPW whose intensity is 0 at
+        every point: the node's reader (``lidar_weather_sim.io.layouts.CloudReader``) writes 0 for a driver that
+        gives none, and the single-return model reads the intensity (such a cloud goes to the geometry-only
+        fallback)."""
+        missing = super().missing_fields(points)
+        if not missing and "epw" not in points.dtype.names and len(points) and not points["intensity"].any():
+            missing = ["intensity"]
+        return missing
+
     def choose(self, points: np.ndarray) -> LearnedFilter:
         return self.epw if EPW_MODEL_FIELDS <= set(points.dtype.names or ()) else self.single
 
