@@ -1,6 +1,7 @@
 """The weather filters on labelled simulation never used in training, and the per-frame KNN.
 
     python benchmarks/validation/weather_filter_eval.py [--no-train] [--methods dror,dsor,lior,echo,learned]
+    python benchmarks/validation/weather_filter_eval.py --strip-epw [--no-train] [--profiles vlp16,...]
 
 1. Simulates (or reuses, under .venv/cache/weather_filter) the training runs
    (weather_filter.simdata.TRAIN_SPECS) and the held-out runs (HELDOUT_SPECS: other
@@ -14,6 +15,11 @@
    shows in the spread).
 4. Per-frame weather KNN (shipped model): accuracy on unseen seeds of its training
    scenarios and on other scenarios.
+
+``--strip-epw``: the held-out runs as a single-return driver publishes them (the strongest return of each beam,
+no EPW / echo fields: weather_filter.points.single_return), the single-return model (retrained from its stored
+command unless --no-train) against DROR, DSOR and LIOR (without its EPW term), and the single-return model
+with the intensity scaled x0.25 and x4.
 """
 
 from __future__ import annotations
@@ -28,20 +34,33 @@ import numpy as np
 
 from weather_filter.evaluate import Accumulator
 from weather_filter.filter_methods import make_filter
-from weather_filter.learned.filter import DEFAULT_MODEL
+from weather_filter.learned.filter import DEFAULT_MODEL, SINGLE_RETURN_MODEL
+from weather_filter.points.single_return import single_return_cloud
 from weather_filter.simdata import HELDOUT_SPECS, TRAIN_SPECS, SimSpec, default_cache_dir, frames_of, simulate
 
 TIMING_SPEC = "wf_heldout_mixed:102:6:os1_128_2048"
 
 
-def evaluate_runs(method: str, specs, model: Path | None = None) -> tuple[dict, dict]:
-    """Micro-averaged result over ``specs`` (filter state reset per run) and per-run F1."""
+def _without_epw_term(points: np.ndarray) -> np.ndarray:
+    """``points`` with an EPW field of 0 m: LIOR's EPW condition always holds (LIOR on intensity alone)."""
+    from numpy.lib import recfunctions
+
+    return recfunctions.append_fields(points, "epw", np.zeros(len(points), np.float32), usemask=False)
+
+
+def evaluate_runs(method: str, specs, model: Path | None = None, strip: float | None = None) -> tuple[dict, dict]:
+    """Micro-averaged result over ``specs`` (filter state reset per run) and per-run F1. ``strip``: each cloud
+    as a single-return (strongest) driver publishes it, the intensity times ``strip``."""
     filt = make_filter(method, **({"model_path": str(model)} if model and method == "learned" else {}))
     total, per_run = Accumulator(method), {}
     for spec in specs:
         acc = Accumulator(method)
         filt.reset()
         for points in frames_of(simulate(spec)):
+            if strip is not None:
+                points = single_return_cloud(points, "strongest", strip)
+                if method == "lior":
+                    points = _without_epw_term(points)
             result = filt(points)
             total.add(points, result.remove, result.elapsed_s)
             acc.add(points, result.remove, result.elapsed_s)
@@ -49,15 +68,46 @@ def evaluate_runs(method: str, specs, model: Path | None = None) -> tuple[dict, 
     return total.result(), per_run
 
 
-def retrain() -> tuple[Path, bool]:
+def retrain(packaged: Path = DEFAULT_MODEL) -> tuple[Path, bool]:
     import joblib
 
-    shipped = joblib.load(DEFAULT_MODEL)
-    out = default_cache_dir() / "models" / DEFAULT_MODEL.name
+    shipped = joblib.load(packaged)
+    out = default_cache_dir() / "models" / packaged.name
     argv = shlex.split(shipped["command"])[1:] + ["--out", str(out)]
     print("retraining:", shipped["command"], flush=True)
     subprocess.run([sys.executable, "-m", "weather_filter.cli", *argv], check=True)
-    return out, out.read_bytes() == DEFAULT_MODEL.read_bytes()
+    return out, out.read_bytes() == packaged.read_bytes()
+
+
+def stripped_main(args) -> int:
+    """--strip-epw: the held-out runs without EPW and later echoes (see the module's doc)."""
+    profiles = args.profiles.split(",")
+    specs = [s for s in HELDOUT_SPECS if (SimSpec.parse(s).profile or "scala4") in profiles]
+    for spec in specs:
+        simulate(spec)
+    model = SINGLE_RETURN_MODEL
+    if not args.no_train:
+        model, identical = retrain(SINGLE_RETURN_MODEL)
+        print(f"retrained model byte-identical to the shipped {SINGLE_RETURN_MODEL.name}: {identical}")
+    methods = [m for m in args.methods.split(",") if m != "echo"]  # echo needs the echoes stripped here
+    groups: dict[str, list[str]] = {}
+    for spec in specs:
+        groups.setdefault(SimSpec.parse(spec).profile or "scala4", []).append(spec)
+    print("\nheld-out runs, strongest return only, no EPW / echo fields: weather F1 / object recall (micro-averaged per "
+          "profile; lior without its EPW term; learned = the single-return model)")  # fmt: skip
+    cases = [(m, 1.0) for m in methods] + ([("learned", 0.25), ("learned", 4.0)] if "learned" in methods else [])
+    names = [m if scale == 1.0 else f"{m} x{scale:g}" for m, scale in cases]
+    print("| profile | " + " | ".join(names) + " | ms/frame (learned) |")
+    print("|---" * (len(names) + 2) + "|")
+    for profile, group in groups.items():
+        cells, ms = [], ""
+        for method, scale in cases:
+            r, _ = evaluate_runs(method, group, model if method == "learned" else None, strip=scale)
+            cells.append(f"{r['weather_f1']:.3f} / {r['object_recall']:.4f}")
+            if method == "learned" and scale == 1.0:
+                ms = f"{r['ms_per_frame_mean']:.1f}"
+        print(f"| {profile} | " + " | ".join(cells) + f" | {ms} |", flush=True)
+    return 0
 
 
 def repeat_timing(methods, model: Path | None, repeats: int = 20) -> None:
@@ -105,7 +155,15 @@ def main() -> int:
     parser.add_argument("--no-train", action="store_true", help="use the shipped model, do not retrain")
     parser.add_argument("--methods", default="dror,dsor,lior,echo,learned")
     parser.add_argument("--knn-only", action="store_true", help="only the per-frame weather KNN's accuracy (part 4)")
+    parser.add_argument("--strip-epw", action="store_true", help="the held-out runs without EPW and later echoes "
+                        "(strongest return): the single-return model against dror, dsor and lior, and intensity x0.25 / x4")  # fmt: skip
+    parser.add_argument("--profiles", default="os1_128_1024,os1_128_2048,vlp16,vlp32c,hdl64e",
+                        help="--strip-epw: the profiles whose held-out runs are evaluated (scala4 too if named)")  # fmt: skip
     args = parser.parse_args()
+    if args.strip_epw:
+        if args.methods == parser.get_default("methods"):
+            args.methods = "dror,dsor,lior,learned"
+        return stripped_main(args)
     if args.knn_only:
         knn_accuracy()
         return 0

@@ -29,14 +29,14 @@ def test_features_shape_and_counts():
 
 def test_packaged_model_is_versioned_and_loads():
     assert DEFAULT_MODEL.name == "weather_point_mlp_v4.joblib" and DEFAULT_MODEL.exists()
-    filt = make_filter("learned")
+    filt = make_filter("learned").epw  # the EPW model (the single-return one: test_single_return.py)
     assert isinstance(filt, LearnedFilter)
     assert filt.bundle["command"].startswith("weather-filter train --sim ")
     assert filt.bundle["trained_on"].startswith("sim:")
 
 
 def test_fast_forward_pass_equals_the_pipeline():
-    filt = make_filter("learned")
+    filt = make_filter("learned").epw
     feats = PointFeatures()(highway_frame("rain", seed=5))
     proba = filt.model.predict_proba(feats)[:, 1]
     fast = 1 / (1 + np.exp(-filt._fast.logit(feats).astype(float)))
@@ -125,7 +125,7 @@ def test_eval_cli_on_a_labelled_bag(tmp_path):
      ("dror", "radius=1", "has no parameter(s) radius (its parameters: angular_resolution_deg, multiplier,"),
      ("dsor", "neighbours=0", "key 'neighbours': value 0: Input should be greater than or equal to 1"),
      ("echo", 'lior={"epw_threshold_m": "x"}', "filter 'echo': key 'lior.epw_threshold_m': value 'x': Input should be a valid number"),
-     ("learned", "foo=1", "filter 'learned' has no parameter(s) foo (its parameters: model_path, threshold)"),
+     ("learned", "foo=1", "filter 'learned' has no parameter(s) foo (its parameters: model_path, single_return_model_path, threshold)"),
      ("learned", "threshold=2", "threshold must be a probability between 0 and 1, got 2")],
 )  # fmt: skip
 def test_filter_parameters_are_checked_with_a_reason_naming_them(method, param, reason):

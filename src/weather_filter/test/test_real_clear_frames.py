@@ -1,7 +1,8 @@
 """The filter's target on the real clear OS1-128 street recording (``lidar-weather-sim import-ouster``, left in
 ``.venv/cache/ouster_real/os1_128_street`` by ``make setup``): the filters must remove <= 0.5 % of
-the points. The frames carry no EPW or echo fields, so the default filter (``echo``, as in the node and
-``weather-filter eval``) runs through the geometry-only fallback, with a warning."""
+the points. The frames carry no EPW or echo fields: the default filter (``learned``, as in the node and
+``weather-filter eval``) runs its single-return model on them; ``echo`` and ``lior`` run through the geometry-only
+fallback, with a warning."""
 
 from pathlib import Path
 
@@ -34,7 +35,19 @@ def test_angular_steps_are_estimated_from_the_real_cloud(real_frames):
     assert 0.3 < np.degrees(steps.elevation_rad) < 0.37  # 128 beams over ~43 deg
 
 
-@pytest.mark.parametrize("method", ["echo", "learned", "lior"])
+def test_default_filter_runs_its_single_return_model_and_keeps_the_clear_scene(real_frames):
+    import warnings
+
+    filt = make_filter_with_fallback("learned")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback warning
+        result = evaluate_frames(filt, real_frames, "learned")
+    assert "fallback" not in result and filt.primary.last_used == "learned-single"
+    # measured: 0.13 % of the 3 frames' points (single-return model v1; without its 5 m limit ~16 %)
+    assert result["removed_fraction"] <= MAX_REMOVED, result
+
+
+@pytest.mark.parametrize("method", ["echo", "lior"])
 def test_default_filter_falls_back_with_a_warning_and_keeps_the_clear_scene(real_frames, method):
     filt = make_filter_with_fallback(method)
     assert isinstance(filt, FallbackFilter)

@@ -5,8 +5,8 @@ numpy/scipy computation, and the reproducibility of ``weather-filter train --sim
 The shipped models match the simulator they were trained with (commit ce35beb, with the ellipsoidal spray drop
 packets of 857575c: fresh runs of the training specs reproduce the training bags). When the simulated weather changes (the atmosphere or spray
 regions), these floors may fail: retrain with
-``rm -rf .venv/cache/weather_filter && weather-filter train --preset shipped && weather-filter train-weather
---preset shipped`` and re-measure with benchmarks/validation/weather_filter_eval.py."""
+``rm -rf .venv/cache/weather_filter && weather-filter train --preset shipped && weather-filter train --preset
+shipped-single && weather-filter train-weather --preset shipped`` and re-measure with benchmarks/validation/weather_filter_eval.py."""
 
 import numpy as np
 import pytest

@@ -91,7 +91,21 @@ def _synthetic_frames(n: int, seed: int):
 
 
 def _training_sources(args: argparse.Namespace) -> tuple[list, list[str]]:
-    """Frame sequences (one per bag / simulation run / synthetic set) and their descriptions."""
+    """Frame sequences (one per bag / simulation run / synthetic set) and their descriptions; with
+    ``--single-return MODE`` each cloud as a single-return driver in that mode publishes it."""
+    sources, described = _raw_training_sources(args)
+    if getattr(args, "single_return", None):
+        from functools import partial
+
+        from weather_filter.points.single_return import single_return_cloud
+
+        strip = partial(single_return_cloud, mode=args.single_return)
+        sources = [map(strip, frames) for frames in sources]
+        described = [f"{d} (single return: {args.single_return})" for d in described]
+    return sources, described
+
+
+def _raw_training_sources(args: argparse.Namespace) -> tuple[list, list[str]]:
     from weather_filter.simdata import SimSpec, frames_of
 
     sources, described = [], []
@@ -124,7 +138,8 @@ def _simulate_all(args: argparse.Namespace, specs: list) -> list:
 
 
 def _preset_specs(command: str) -> tuple[str, ...]:  # noqa: D401
-    """The runs of the shipped model of ``command`` (``--preset shipped``)."""
+    """The runs of the shipped model of ``command`` (``--preset shipped``; ``shipped-single`` trains on the same
+    runs)."""
     if command == "train":
         from weather_filter.simdata import TRAIN_SPECS
 
@@ -145,6 +160,8 @@ def _stored_command(args: argparse.Namespace) -> str:
     if args.command == "train":
         if args.synthetic_frames:
             argv += ["--synthetic-frames", str(args.synthetic_frames)]
+        if args.single_return:
+            argv += ["--single-return", args.single_return]
         argv += ["--hidden", args.hidden, "--spray-weight", repr(args.spray_weight), "--solid-weight", repr(args.solid_weight)]
         if args.threshold is not None:
             argv += ["--threshold", repr(args.threshold)]
@@ -166,6 +183,10 @@ def _refuse_packaged_overwrite(args: argparse.Namespace) -> None:
 
 
 def _apply_preset(args: argparse.Namespace) -> None:
+    if args.preset == "shipped-single":  # the single-return model: the EPW model's runs, strongest return only
+        if args.single_return not in (None, "strongest"):
+            raise ValueError("--preset shipped-single trains on the strongest returns: no other --single-return")
+        args.single_return = "strongest"
     if args.preset:
         args.sim = [*_preset_specs(args.command), *args.sim]
     if args.command == "train-weather" and not args.sim:
@@ -247,7 +268,7 @@ def _cmd_train_obstacle(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from weather_filter.learned.filter import DEFAULT_MODEL
+    from weather_filter.learned.filter import DEFAULT_MODEL, SINGLE_RETURN_MODEL
     from weather_filter.learned.training import train
 
     if args.preset and args.preset.startswith("augmentation"):
@@ -256,9 +277,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
     _refuse_packaged_overwrite(args)
     sources, described = _training_sources(args)
     hidden = tuple(int(h) for h in args.hidden.split(",") if h)
-    report = train(sources, args.out or DEFAULT_MODEL, trained_on=", ".join(described), command=_stored_command(args),
+    packaged = SINGLE_RETURN_MODEL if args.single_return else DEFAULT_MODEL
+    report = train(sources, args.out or packaged, trained_on=", ".join(described), command=_stored_command(args),
                    seed=args.seed, hidden=hidden, threshold=args.threshold, spray_weight=args.spray_weight,
-                   solid_weight=args.solid_weight, object_recall=args.object_recall)  # fmt: skip
+                   solid_weight=args.solid_weight, object_recall=args.object_recall,
+                   single_return=bool(args.single_return))  # fmt: skip
     print(
         f"trained on {report.frames} frames ({report.points} points, {report.weather_points} weather): threshold "
         f"{report.threshold:.2f}, train precision {report.train_precision:.4f}, recall {report.train_recall:.4f}, "
@@ -324,9 +347,11 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("bags", nargs="*", metavar="BAG", help="labelled rosbag2 directories or .mcap files")
     tr.add_argument("--sim", action="append", default=[], metavar="SCENARIO:SEED:FRAMES[:PROFILE[:WEATHER]]",
                     help="simulate this labelled run (cached under --cache) and train on it; repeatable")  # fmt: skip
-    tr.add_argument("--preset", choices=["shipped", "augmentation", "augmentation-v2", "augmentation-v3", "augmentation-v4",
+    tr.add_argument("--preset", choices=["shipped", "shipped-single", "augmentation", "augmentation-v2", "augmentation-v3", "augmentation-v4",
                                                "augmentation-wide"],
-                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); augmentation-v4: train paper 4's "
+                    help="shipped: add the runs of the shipped model (simdata.TRAIN_SPECS); shipped-single: the shipped "
+                         "single-return model (clouds without EPW / later echoes: the same runs, --single-return strongest; "
+                         "default --out: models/weather_point_mlp_single_v<N>.joblib); augmentation-v4: train paper 4's "
                          "obstacle classifier on its augmented runs (obstacle.runs.AUGMENT_TRAIN_RUNS_V4, threshold chosen on "
                          "obstacle.runs.AUGMENT_VALIDATION_RUNS_V4; default --out: the shipped models/obstacle_point_hgb_v4.joblib); "
                          "augmentation-v3: the third model's (models/obstacle_point_mlp_v3.joblib); "
@@ -345,7 +370,11 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--object-recall", type=number_in(float, 0, 1, open_low=True), default=TRAIN_OBJECT_RECALL,
                     help=f"least share of the training solid points the chosen threshold keeps (default {TRAIN_OBJECT_RECALL})")  # fmt: skip
     tr.add_argument("--seed", type=number_in(int, 0), default=0, help="random seed of sampling, synthetic frames and the MLP")
-    tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib)")
+    tr.add_argument("--single-return", choices=["strongest", "first", "last"],
+                    help="train the single-return model: every training cloud as a single-return driver in this mode "
+                         "publishes it (one point per beam, no EPW / echo fields; weather_filter.points.single_return)")  # fmt: skip
+    tr.add_argument("--out", help="model file (default: the packaged models/weather_point_mlp_v<N>.joblib, with "
+                    "--single-return models/weather_point_mlp_single_v<N>.joblib)")
     _engine_options(tr)
     tr.set_defaults(func=_cmd_train)
 

@@ -7,6 +7,7 @@
 | ``lior``  | x, y, z, intensity, epw| :mod:`weather_filter.points.lior`   | LIOR-style: Park et al. 2020 (IEEE RA-L), plus EPW |
 | ``echo``  | + echo, channel        | :mod:`weather_filter.points.echo`   | multi-echo structure of the beam (this project)    |
 | ``learned`` | + echo, channel, epw | :mod:`weather_filter.learned.filter`| paper 4 per-point features, scikit-learn MLP       |
+|           | or x, y, z, intensity, channel | (single-return model)   | clouds without EPW / later echoes                  |
 
 The learned filter is imported on use (scikit-learn and its compiled features), so the geometry filters load
 without them.
@@ -69,14 +70,20 @@ def _with_params(filter_cls: type[PointFilter], params_cls: type[FilterParams], 
 
 def _learned(**overrides) -> PointFilter:
     """The learned filter (imported on use: scikit-learn and its compiled features); its parameters are
-    ``model_path`` and ``threshold``."""
-    from weather_filter.learned.filter import LearnedFilter
+    ``model_path`` (one model file, used on every cloud: the EPW model or the single-return one, as the file
+    says), ``single_return_model_path`` and ``threshold``. Without ``model_path``: the EPW model on clouds with
+    EPW and echo fields, the single-return model on the others (:class:`~weather_filter.learned.filter.LearnedByFields`)."""
+    from weather_filter.learned.filter import LearnedByFields, LearnedFilter, SingleReturnLearnedFilter
 
-    known = ("model_path", "threshold")
+    known = ("model_path", "single_return_model_path", "threshold")
     unknown = sorted(set(overrides) - set(known))
     if unknown:
         raise ValueError("filter 'learned' " + UNKNOWN_PARAMETERS.format(unknown=", ".join(unknown), known=", ".join(known)))
-    return LearnedFilter.load(**overrides)
+    single_path = overrides.pop("single_return_model_path", None)
+    if overrides.get("model_path"):
+        return LearnedFilter.load(**overrides)
+    threshold = overrides.get("threshold")
+    return LearnedByFields(LearnedFilter.load(None, threshold), SingleReturnLearnedFilter.load(single_path, threshold))
 
 
 #: Filter factories by method name: ``FILTERS.get(method)(**overrides)``.
@@ -92,7 +99,8 @@ METHODS = tuple(FILTERS.names())
 DEFAULT_METHOD = "learned"
 #: One line per method for ``--help`` and the node's parameter description.
 METHOD_HELP = {
-    "learned": "per-point MLP on echo, EPW, intensity and neighbourhood features; the best on every shipped profile",
+    "learned": "per-point MLP on echo, EPW, intensity and neighbourhood features; the best on every shipped profile; "
+               "clouds without EPW/echo fields get the single-return model (intensity, range, ring and previous-frame features)",
     "echo": "weak, short, sparsely surrounded first echoes of multi-echo beams, plus a LIOR stage",
     "lior": "weak (low intensity, short EPW) points that are also isolated (Park et al. 2020)",
     "dror": "too few neighbours within a range-scaled radius (geometry only: clouds without intensity/EPW)",

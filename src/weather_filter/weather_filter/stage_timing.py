@@ -1,6 +1,6 @@
 """Stage times of the learned filter on one frame (budget: <= 20 ms per ~131k-point frame).
 
-    python -m weather_filter.stage_timing [--spec wf_heldout_mixed:102:6:os1_128_2048] [--repeats 40]
+    python -m weather_filter.stage_timing [--spec wf_heldout_mixed:102:6:os1_128_2048] [--repeats 40] [--single-return]
 
 Runs the filter on the run's first frame (the frame-difference state), then times each stage on its second
 frame ``repeats`` times, the stages interleaved so that they share the machine's load: CPU time
@@ -18,7 +18,7 @@ import numpy as np
 
 from weather_filter.learned import features as F
 from weather_filter.learned.azimuth import approx_azimuth
-from weather_filter.learned.filter import LearnedFilter
+from weather_filter.learned.filter import LearnedFilter, SingleReturnLearnedFilter
 from weather_filter.simdata import frames_of, simulate
 
 #: benchmarks/validation/weather_filter_eval.py's timing run (os1_128_2048, ~120k points per frame).
@@ -60,15 +60,38 @@ def stages(filt: LearnedFilter, points: np.ndarray) -> dict:
     }
 
 
+def single_return_stages(filt: SingleReturnLearnedFilter, points: np.ndarray) -> dict:
+    """The single-return model's stages: the EPW model's feature passes (``PointFeatures``), its own features
+    on top, the network and the whole filter call."""
+    fe = filt.features
+    feats = fe(points)
+    return {
+        "base features": lambda: fe.base(points),
+        "features (all)": lambda: fe(points),
+        "mlp": lambda: filt._fast.logit(feats),
+        "filter call": lambda: filt(points),
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--spec", default=TIMING_SPEC)
     parser.add_argument("--repeats", type=int, default=40)
+    parser.add_argument("--single-return", action="store_true", help="the single-return model on the frames "
+                        "stripped to their strongest returns without EPW / echo (weather_filter.points.single_return)")  # fmt: skip
     args = parser.parse_args()
     first, points = list(frames_of(simulate(args.spec)))[:2]
-    filt = LearnedFilter.load()
-    filt(first)
-    run = stages(filt, points)
+    if args.single_return:
+        from weather_filter.points.single_return import single_return_cloud
+
+        first, points = single_return_cloud(first), single_return_cloud(points)
+        filt = SingleReturnLearnedFilter.load()
+        filt(first)
+        run = single_return_stages(filt, points)
+    else:
+        filt = LearnedFilter.load()
+        filt(first)
+        run = stages(filt, points)
     for fn in run.values():  # state and caches as in a running filter
         fn()
     times = {name: ([], []) for name in run}

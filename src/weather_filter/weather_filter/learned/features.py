@@ -78,6 +78,8 @@ DEFAULT_STEP_DEG = 0.2
 #: Largest range image (cells): a coarser step is used beyond it (a corrupt channel or azimuth field).
 MAX_RI_CELLS = 1 << 22
 REQUIRED_FIELDS = frozenset({"x", "y", "z", "echo", "channel", "epw", "intensity"})
+#: Column values of fields a single-return cloud lacks (:mod:`weather_filter.learned.single_return`).
+ABSENT_FIELD_VALUES = {"echo": 1, "epw": 0.0}
 
 
 class CellGrids(NamedTuple):
@@ -391,6 +393,7 @@ class PointFeatures:
         self.extent_m = float(extent_m)
         self.ri_columns, self.ri_channels = int(ri_columns), int(ri_channels)
         self.last_step_rad: float | None = None
+        self.last_azimuth: np.ndarray | None = None
         self.radial_bin_deg = float(radial_bin_deg)
         self._n_radial = int(round(360 / self.radial_bin_deg))
         shapes = [_grid_shape(cx, cy, self.extent_m) for _, cx, cy in CELL_SHAPES]
@@ -412,8 +415,10 @@ class PointFeatures:
         has_previous = previous is not None
         if previous is None:
             previous = np.zeros(self._n_radial, np.int64)
+        names = points.dtype.names or ()
         for k, name in enumerate(("x", "y", "z", "echo", "channel", "epw", "intensity")):
-            out[:, k] = points[name]
+            # a single-return cloud without echo / EPW (the single-return model's input): echo 1, EPW 0
+            out[:, k] = points[name] if name in names else ABSENT_FIELD_VALUES[name]
         azimuth = np.empty(len(points), np.float64)
         approx_azimuth(out[:, 0], out[:, 1], azimuth)
         self._previous_radial = _point_features(out, self._grids, self._n_radial, 1.0 / self.radial_bin_deg, previous,
@@ -421,9 +426,11 @@ class PointFeatures:
         if len(points):
             channel = points["channel"]
             n_channels = int(channel.max()) + 1
-            step = azimuth_step(out[:, 0], out[:, 1], channel, points["echo"], n_channels)
+            echo = points["echo"] if "echo" in names else np.ones(len(points), np.uint8)
+            step = azimuth_step(out[:, 0], out[:, 1], channel, echo, n_channels)
             step = max(step if step > 0 else np.radians(DEFAULT_STEP_DEG), 2 * np.pi * n_channels / MAX_RI_CELLS)
             self.last_step_rad = float(step)
+            self.last_azimuth = azimuth  # rad, for the single-return features' range image
             _range_image_features(out, azimuth, step, n_channels, RI_ECHOES, self.ri_columns, self.ri_channels,
                                   np.float32(RI_CLOSE))  # fmt: skip
             for k in (FEATURE_NAMES.index("ri_ring"), FEATURE_NAMES.index("ri_cross")):

@@ -9,7 +9,10 @@ clouds skipped so far). A malformed cloud is skipped: logged once per cause, and
 ``/diagnostics`` with level ERROR, its reason and the counts; so is a cloud with a field the filter
 cannot use (``weather_filter.points.cloud_check``: an array field, a float or out-of-range channel or echo).
 Points no filter can use (non-finite or out-of-reach coordinates, (0, 0, 0) placeholders) are removed
-and counted (``points_set_aside``). A cloud lacking the fields of ``method`` (EPW, echo...) is
+and counted (``points_set_aside``). ``learned`` runs its EPW model on clouds with EPW and echo fields and its
+single-return model on clouds without them (most real drivers), the model used named as ``method`` on
+``/diagnostics`` (``learned`` / ``learned-single``). A cloud lacking the fields of ``method`` (for ``learned``:
+intensity or channel) is
 filtered with ``fallback_method`` (geometry only, with
 ``weather_filter.filter_methods.FALLBACK_PARAMS``), with a warning once.
 
@@ -132,7 +135,8 @@ class WeatherFilterNode(Node):
         stamp_ns, frame_id = frame.stamp_ns, msg.header.frame_id
         self._pub_filtered.publish(cloud_to_msg(points[~result.remove], stamp_ns, frame_id)[0])
         self._pub_removed.publish(cloud_to_msg(points[result.remove], stamp_ns, frame_id)[0])
-        self._pub_diag.publish(self._diagnostics(msg, points, result, filt.name))
+        # the learned method names the model the cloud's fields chose (learned: EPW model, learned-single: without)
+        self._pub_diag.publish(self._diagnostics(msg, points, result, getattr(filt, "last_used", filt.name)))
         self.frames += 1
 
     def _weather_status(self, points: np.ndarray) -> list[KeyValue]:
