@@ -24,6 +24,8 @@ numba pass over the range image of the frame (a row per channel, a column per az
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -105,12 +107,27 @@ def _window(rng, lin, prev, c, ri, inv, has_prev, stride, columns, channels, clo
     return s, m, best, ring, cross
 
 
+class Planes(NamedTuple):
+    """The padded range-image planes of :func:`_plane` the window is read from: this frame's ranges (m) ``rng``
+    and log intensities ``lin``, the previous frame's ranges in this frame's columns ``prev`` (``has_prev`` false:
+    none), the planes' row ``stride`` and the window's ``columns`` x ``channels``."""
+
+    rng: np.ndarray
+    lin: np.ndarray
+    prev: np.ndarray
+    has_prev: bool
+    stride: int
+    columns: int
+    channels: int
+
+
 @njit(cache=True, nogil=True, fastmath=True)
-def _extra_features(out, cell, r, li, li_median, rng, lin, prev, has_prev, stride, columns, channels, close):
+def _extra_features(out, cell, r, li, li_median, planes, close):
     """Columns 0-5 of ``out`` (:data:`EXTRA_NAMES`; ``prev_*`` as relative differences, the caller takes log10)
-    from the points' cells of the padded planes of :func:`_plane` (``rng``, ``lin``: this frame; ``prev``: the
-    previous frame's ranges in this frame's columns), their 3-D ranges ``r`` (m) and ``li`` = log(intensity + o).
-    The own cell is emptied while its window is read (and restored), so the window is read without branches."""
+    from the points' cells of ``planes`` (:class:`Planes`), their 3-D ranges ``r`` (m) and ``li`` = log(intensity
+    + o). The own cell is emptied while its window is read (and restored), so the window is read without branches."""
+    rng, lin, prev, has_prev = planes.rng, planes.lin, planes.prev, planes.has_prev
+    stride, columns, channels = planes.stride, planes.columns, planes.channels
     for i in range(len(r)):
         ri, c = r[i], cell[i]
         inv = np.float32(1.0) / max(ri, np.float32(0.05))
@@ -176,8 +193,8 @@ class SingleReturnFeatures:
         else:
             prev_plane = rng
         extra = out[:, len(BASE_NAMES):]
-        _extra_features(extra, cell, r, li, li_median, rng, lin, prev_plane, has_prev, n_channels + 2 * chans, cols,
-                        chans, np.float32(RI_CLOSE))  # fmt: skip
+        planes = Planes(rng, lin, prev_plane, has_prev, n_channels + 2 * chans, cols, chans)
+        _extra_features(extra, cell, r, li, li_median, planes, np.float32(RI_CLOSE))
         for k in (3, 4):
             log10_clamped(extra[:, k], extra[:, k].view(np.uint32))
         self._previous = (azimuth.copy(), channel, r)
