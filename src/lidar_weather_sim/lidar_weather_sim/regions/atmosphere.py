@@ -21,8 +21,9 @@ Effects per batch (world frame rays, ranges in m along the ray):
   a mirror once it covers it; a snow cover of depth d (``weather.road.snow_depth_m``, none: 0) replaces the
   reflectance by that of ``snow`` and moves the hit forward along the ray by d / cos(incidence).
 
-A fitted model (one sensor's rooftop statistics per weather class) was the default until the physical one ran at
-its speed; it was removed, and ``model: fitted`` is refused with one line.
+A fitted model (one sensor's rooftop statistics per weather class) was the default until 2026-11-29; it was removed,
+and ``model: fitted`` is refused with one line. The physical model is not yet at clear-weather speed on dense
+sensors (docs/speed.md).
 """
 
 from __future__ import annotations
