@@ -14,8 +14,9 @@ from lidar_weather_sim.regions.volume_return import VolumeReturn
 from lidar_weather_sim.sensor.echo import detect_echoes
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.sensor.radiometry import MIN_RANGE_M, Threshold
-from lidar_weather_sim.sensor.volume_tables import (REACH, build_table, cell_density, cell_nodes, realised_density,
-                                                     stack_volume, tables_of_cells)  # fmt: skip
+from lidar_weather_sim.sensor.volume_tables import (BLOCK, REACH, build_table, cell_density, cell_nodes,
+                                                     fill_block_bounds, fill_volume, realised_density, stack_volume,
+                                                     tables_of_cells)  # fmt: skip
 from lidar_weather_sim.testing.lidar_integral import lidar_integral, medium_return
 
 FOG = 3
@@ -173,6 +174,38 @@ def test_a_far_target_behind_thin_fog_is_detected_as_without_a_volume():
     assert far.sum() == len(clear.range_m) == 2 and (~far).sum() >= 1
     for name in ("range_m", "amplitude", "epw_m", "label", "object_id"):
         np.testing.assert_array_equal(getattr(with_fog, name)[far], getattr(clear, name))
+
+
+def test_block_bounds_hold_every_beams_volume():
+    """The echo stage samples a beam only where its block bounds reach the threshold: on seeded draws of two
+    layers (fog and rain tables of OS1-128, random scales, hits anywhere or none), every sample's volume is at
+    most its block's bound, and the bound is within 1.5 times the block's largest untruncated value (1.25 from the
+    interpolation of the cut rows, the rest from the layers' peaks within a block)."""
+    profile = load_profile("os1_128_2048")
+    tables = [table_of(profile, medium_return(profile, kind, value)) for kind, value in (("fog", 50.0), ("rain", 10.0))]
+    rng = np.random.default_rng(7)
+    n = 200
+    table = np.stack([np.zeros(n, np.int64), np.where(rng.random(n) < 0.8, 1, -1)], axis=1)
+    scale = rng.uniform(0.05, 1.0, (n, 2))
+    hit = np.where(rng.random((n, 2)) < 0.7, rng.uniform(0.3, 40.0, (n, 2)), np.inf)
+    volume = stack_volume(tables, table, scale, hit)
+    first, count = -REACH, max(t.support[1] for t in tables) + 2 * REACH
+    q0, nq = first // BLOCK, (first + count - 1) // BLOCK - first // BLOCK + 1
+    values, labels, bounds = np.empty(count), np.empty(count, np.uint8), np.empty(nq)
+    whole = stack_volume(tables, table, scale, np.full((n, 2), np.inf))
+    whole_values = np.empty(count)
+    block = (first + np.arange(count)) // BLOCK - q0
+    ratios = []
+    for b in range(n):
+        fill_volume(volume, b, first, count, values, labels)
+        fill_block_bounds(volume, b, q0, nq, bounds)
+        assert np.all(np.abs(values) <= bounds[block]), f"beam {b}: a sample above its block's bound"
+        fill_volume(whole, b, first, count, whole_values, labels)
+        largest = np.zeros(nq)
+        np.maximum.at(largest, block, np.abs(whole_values))
+        tight = bounds[largest > 0] / largest[largest > 0]
+        ratios.append(tight.max())
+    assert max(ratios) <= 1.25 * 1.2, f"a bound {max(ratios):.2f}x its block's largest value"
 
 
 def test_batched_tables_are_the_module_doc_sums():

@@ -48,7 +48,8 @@ from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.points import ReturnType
 from lidar_weather_sim.core.scratch import allocator
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold
-from lidar_weather_sim.sensor.volume_tables import Volume, empty_volume, fill_volume, volume_window
+from lidar_weather_sim.sensor.volume_tables import (BLOCK, Volume, empty_volume, fill_block_bounds, fill_volume,
+                                                    volume_window)
 
 
 @dataclass(frozen=True)
@@ -532,7 +533,7 @@ def _detect_run(candidates, detector, lo, hi, out, volume):
     reach = np.empty(size)  # _reach of each merged pulse of the beam
     pulses = Pulses(mr, ma, reach, ml, mo)
     buf = np.empty(ESTIMATE_SAMPLES)  # waveform samples of a cluster
-    samples = VolumeSamples(np.empty(0), np.empty(0, np.uint8))  # a volume beam's, grown when needed
+    samples = VolumeScratch(np.empty(0), np.empty(0, np.uint8), np.empty(0))  # a volume beam's, grown when needed
     isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
     n_isolated = 0
     count = lo
@@ -642,16 +643,76 @@ def _volume_echoes(pulses, m, detector, beam_volume, out, out0, buf, samples):
             if total + v_bound > thr:
                 first = int(np.floor(w_lo / dx)) - 1
                 n = int(np.ceil(w_hi / dx)) + 2 - first
-                if n + 2 > len(samples.value):
-                    samples = VolumeSamples(np.empty(n + 2), np.empty(n + 2, np.uint8))
-                fill_volume(volume, b, first - 1, n + 2, samples.value, samples.label)
-                got = _run_echoes(pulses, c0, c1, thr, s, (0.0, first, n),
-                                  VolumeSamples(samples.value[: n + 2], samples.label[: n + 2]),
-                                  out, out0 + found, max_echoes - found, buf)  # fmt: skip
+                got, samples = _open_echoes(pulses, (c0, c1), detector, (volume, b, first, n), out, out0 + found,
+                                            max_echoes - found, buf, samples)  # fmt: skip
             done = True
         found += got
         c0 = c1
     return found, samples
+
+
+class VolumeScratch(NamedTuple):
+    """A volume beam's scratch (grown when needed): its volume's samples (:class:`VolumeSamples`) and block bounds."""
+
+    value: np.ndarray
+    label: np.ndarray
+    bound: np.ndarray
+
+
+@numba.njit(cache=True, inline="always")
+def _pulse_bound(r, a, c0, c1, s, x0, x1):
+    """A bound on the waveform of pulses c0..c1 (pulse width ``s``, m) over [x0, x1] (m): each pulse's value at
+    the nearest point of the interval, plus what the pulses farther than 38 widths (below 1e-313 of their
+    amplitude) may add."""
+    w = 0.0
+    far = 0.0
+    for i in range(c0, c1):
+        d = max(x0 - r[i], r[i] - x1, 0.0) / s
+        if d < 38.0:
+            w += a[i] * np.exp(-0.5 * d * d)
+        else:
+            far += a[i]
+    return w + far * 1e-300
+
+
+@numba.njit(cache=True, inline="always")
+def _open_echoes(pulses, span, detector, window, out, out0, room, buf, scratch):
+    """Echoes of the waveform of ``pulses`` c0..c1 (``span``) plus beam b's volume over the samples first..first
+    + n (``window`` = (volume, b, first, n)), written into ``out`` from out0 on; returns (how many, ``scratch``
+    (:class:`VolumeScratch`) grown if it had to be). Sampled by :func:`_run_echoes` only in the runs of blocks
+    (:data:`~lidar_weather_sim.sensor.volume_tables.BLOCK` samples) where the bound of the pulses and the volume
+    reaches the threshold, each run with one sample on each side: elsewhere the waveform is below it, so every
+    echo lies inside a run, and its crossings, maximum and label are those of the whole window, bit for bit."""
+    r, a = pulses.range_m, pulses.amplitude
+    c0, c1 = span
+    thr, s = detector.threshold, detector.sigma
+    volume, b, first, n = window
+    dx = s / 8.0
+    q0 = first // BLOCK
+    nq = (first + n - 1) // BLOCK - q0 + 1
+    if nq > len(scratch.bound) or n + 2 > len(scratch.value):
+        scratch = VolumeScratch(np.empty(max(n + 2, len(scratch.value))), np.empty(max(n + 2, len(scratch.value)),
+                                np.uint8), np.empty(max(nq, len(scratch.bound))))  # fmt: skip
+    bound = fill_block_bounds(volume, b, q0, nq, scratch.bound)
+    limit = thr * (1.0 - 1e-9)  # the bounds' own rounding
+    got = 0
+    q = 0
+    while q < nq and got < room:
+        if bound[q] + _pulse_bound(r, a, c0, c1, s, (q0 + q) * BLOCK * dx, ((q0 + q + 1) * BLOCK - 1) * dx) <= limit:
+            q += 1
+            continue
+        q_end = q + 1
+        while q_end < nq and bound[q_end] + _pulse_bound(r, a, c0, c1, s, (q0 + q_end) * BLOCK * dx,
+                                                         ((q0 + q_end + 1) * BLOCK - 1) * dx) > limit:  # fmt: skip
+            q_end += 1
+        k0 = max((q0 + q) * BLOCK - 1, first)
+        k1 = min((q0 + q_end) * BLOCK + 1, first + n)
+        fill_volume(volume, b, k0 - 1, k1 - k0 + 2, scratch.value, scratch.label)
+        got += _run_echoes(pulses, c0, c1, thr, s, (0.0, k0, k1 - k0),
+                           VolumeSamples(scratch.value[: k1 - k0 + 2], scratch.label[: k1 - k0 + 2]),
+                           out, out0 + got, room - got, buf)  # fmt: skip
+        q = q_end
+    return got, scratch
 
 
 _STRONGEST, _LAST, _FIRST, _DUAL = (RETURN_MODES.index(m) for m in ("strongest", "last", "first", "dual"))

@@ -24,7 +24,9 @@ sample i - REACH. Cell k is [(k - 1/2) dx, (k + 1/2) dx]. A table holds, for one
 
 The high-pass is causal, so truncating the filtered density at a hit is the filtered truncated density: the
 rows hold both. :class:`Volume` stacks the tables of a batch with each beam's hit and scale for the echo kernel,
-which reads them with :func:`volume_window` and :func:`fill_volume`.
+which reads them with :func:`volume_window` and :func:`fill_volume`, and bounds them block by block
+(:func:`fill_block_bounds`: per ``BLOCK`` samples, the largest magnitude of ``wave`` and of every cut row there)
+so that the kernel samples only where a beam's waveform may reach its threshold.
 """
 
 from __future__ import annotations
@@ -43,6 +45,11 @@ from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
 SAMPLES_PER_SIGMA = 8
 #: Samples (6 sigma) the pulse reaches on each side of a cell.
 REACH = 6 * SAMPLES_PER_SIGMA
+#: Samples per block of :func:`fill_block_bounds` (sample k in block k // BLOCK).
+BLOCK = 16
+#: A truncated layer is the quadratic interpolation of three cut rows (weights summing to 1, the last in
+#: [-1/8, 0]): its magnitude is at most 1 - 2 (-1/8) = 1.25 times the rows' largest.
+INTERPOLATION_GAIN = 1.25
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(8)
 _KERNEL = np.exp(-0.5 * (np.arange(-REACH, REACH + 1) / SAMPLES_PER_SIGMA) ** 2)  # the pulse at k dx, k = -REACH..REACH
 
@@ -251,6 +258,8 @@ class Volume(NamedTuple):
     cut_origin: np.ndarray  # (T,) int64
     support: np.ndarray  # (T, 2) int64
     peak: np.ndarray  # (T,) the highest sample of wave
+    block_max: np.ndarray  # (B,) per BLOCK samples of a table's support, the largest |wave| or |cut row| there
+    block_origin: np.ndarray  # (T,) int64: block k // BLOCK of table t at block_origin[t] + k // BLOCK
     dx: float  # m, the grid's step
     table: np.ndarray  # (N, L) int64
     scale: np.ndarray  # (N, L)
@@ -287,11 +296,14 @@ def _stacked(tables: tuple[VolumeTable, ...]) -> tuple:
     cut_base = 1 + np.concatenate([[0], np.cumsum(rows)[:-1]]).astype(np.int64)
     cut_first = np.array([t.cut_first for t in tables], np.int64)
     part = [slice(k0 + REACH, k0 + REACH + w) for (k0, _), w in zip(support, width)]
+    blocks = [_block_envelope(t.wave, t.cut, t.cut_first, k0, k1) for t, (k0, k1) in zip(tables, support)]
+    block_base = 1 + np.concatenate([[0], np.cumsum([len(b) for b in blocks])[:-1]]).astype(np.int64)
     stacked = (np.concatenate([[0.0]] + [t.wave[p] for t, p in zip(tables, part)]),
                np.concatenate([np.zeros(1, np.uint8)] + [t.label[p] for t, p in zip(tables, part)]),
                base - support[:, 0], np.concatenate([np.zeros((1, 2 * REACH))] + [t.cut for t in tables]),
                cut_first, cut_first + rows, cut_base - cut_first, support,
-               np.array([t.wave.max(initial=0.0) for t in tables]), float(steps.pop()))  # fmt: skip
+               np.array([t.wave.max(initial=0.0) for t in tables]), np.concatenate([[0.0]] + blocks),
+               block_base - support[:, 0] // BLOCK, float(steps.pop()))  # fmt: skip
     with _STACKS_LOCK:  # batches are detected on worker threads
         while len(_STACKS) >= _STACKS_KEPT:
             _STACKS.pop(next(iter(_STACKS)))
@@ -299,11 +311,31 @@ def _stacked(tables: tuple[VolumeTable, ...]) -> tuple:
     return stacked
 
 
+@numba.njit(cache=True, nogil=True)
+def _block_envelope(wave, cut, cut_first, k0, k1):
+    """Per block (k // BLOCK, from k0 // BLOCK to (k1 - 1) // BLOCK) of a table's support [k0, k1) (samples): the
+    largest magnitude there of its ``wave`` (index k + REACH) and of each of its ``cut`` rows (row i: boundary
+    cut_first + i, sample k at column k - boundary + REACH)."""
+    if k1 <= k0:
+        return np.zeros(0)
+    b0 = k0 // BLOCK
+    out = np.zeros((k1 - 1) // BLOCK - b0 + 1)
+    for k in range(k0, k1):
+        out[k // BLOCK - b0] = max(out[k // BLOCK - b0], abs(wave[k + REACH]))
+    for i in range(cut.shape[0]):
+        boundary = cut_first + i
+        for o in range(2 * REACH):
+            k = boundary - REACH + o
+            if k0 <= k < k1:
+                out[k // BLOCK - b0] = max(out[k // BLOCK - b0], abs(cut[i, o]))
+    return out
+
+
 def empty_volume(n_beams: int = 0) -> Volume:
     """A :class:`Volume` without layers (what the echo kernel reads for a batch without volume returns)."""
     none = np.zeros(0, np.int64)
     return Volume(np.zeros(1), np.zeros(1, np.uint8), none, np.zeros((1, 2 * REACH)), none, none, none,
-                  np.zeros((0, 2), np.int64), np.zeros(0), 0.0, np.full((n_beams, 0), -1, np.int64),
+                  np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(1), none, 0.0, np.full((n_beams, 0), -1, np.int64),
                   np.zeros((n_beams, 0)), np.zeros((n_beams, 0)))  # fmt: skip
 
 
@@ -320,13 +352,16 @@ def _cut_index(volume, t, hit_m):
 
 
 @numba.njit(cache=True, inline="always")
-def _row(volume, t, k, j):
-    """Table t's waveform at sample j (inside the support) in front of boundary row k."""
+def _row(wave, cut, w0, c0, c_first, c_end, k, j):
+    """A table's waveform at sample j (inside the support) in front of boundary row k: its samples at w0 + j of
+    ``wave``, its boundary rows c_first <= k < c_end at c0 + k of ``cut`` (:class:`Volume`'s ``origin[t]``,
+    ``cut_origin[t]``, ``cut_first[t]``, ``cut_end[t]``; the arrays passed alone, as the kernel's loop reads them
+    without touching the tuple)."""
     if j < k - REACH:
-        return volume.wave[volume.origin[t] + j]
-    if j >= k + REACH or k < volume.cut_first[t] or k >= volume.cut_end[t]:
+        return wave[w0 + j]
+    if j >= k + REACH or k < c_first or k >= c_end:
         return 0.0  # behind the cut, or a row whose samples all lie outside the support
-    return volume.cut[volume.cut_origin[t] + k, j - k + REACH]
+    return cut[c0 + k, j - k + REACH]
 
 
 @numba.njit(cache=True, inline="always")
@@ -360,23 +395,60 @@ def volume_window(volume, b):
 
 
 @numba.njit(cache=True, nogil=True)
+def fill_block_bounds(volume, b, first_block, n, bounds):
+    """Into bounds[:n], for beam b's blocks first_block..first_block + n (block q: samples q BLOCK .. q BLOCK +
+    BLOCK - 1): a bound on the magnitude of its volume (:func:`fill_volume`) there, the sum over its layers of the
+    scale times INTERPOLATION_GAIN times the table's block envelope, for the blocks each layer may reach."""
+    bounds[:n] = 0.0
+    for layer in range(volume.table.shape[1]):
+        t, scale, lo, hi, k, _ = _layer(volume, b, layer)
+        if t < 0:
+            continue
+        if k >= 0:
+            hi = min(hi, k + 2 + REACH)
+        if hi <= lo:
+            continue
+        gain = INTERPOLATION_GAIN * scale
+        for q in range(max(lo // BLOCK - first_block, 0), min((hi - 1) // BLOCK - first_block + 1, n)):
+            bounds[q] += gain * volume.block_max[volume.block_origin[t] + first_block + q]
+    return bounds
+
+
+@numba.njit(cache=True, nogil=True)
 def fill_volume(volume, b, first, n, values, labels):
     """Beam b's volume (the sum of its layers, each scaled and cut at its hit) at samples first..first + n into
     values[:n], and the label of the layer contributing most at each into labels[:n]."""
     values[:n] = 0.0
     labels[:n] = 0
+    wave, cut, label = volume.wave, volume.cut, volume.label
     for layer in range(volume.table.shape[1]):
         t, scale, lo, hi, k, f = _layer(volume, b, layer)
         if t < 0:
             continue
-        for i in range(max(lo - first, 0), min(hi - first, n)):
-            j = first + i
-            if k < 0:
-                v = scale * volume.wave[volume.origin[t] + j]
-            else:
-                v = scale * (0.5 * (f - 1.0) * (f - 2.0) * _row(volume, t, k, j) - f * (f - 2.0) * _row(volume, t, k + 1, j)
-                             + 0.5 * f * (f - 1.0) * _row(volume, t, k + 2, j))
+        w0, c0, c_first, c_end = volume.origin[t], volume.cut_origin[t], volume.cut_first[t], volume.cut_end[t]
+        g0, g1, g2 = 0.5 * (f - 1.0) * (f - 2.0), -f * (f - 2.0), 0.5 * f * (f - 1.0)
+        i0 = max(lo - first, 0)
+        if k < 0:
+            for i in range(i0, min(hi - first, n)):
+                v = scale * wave[w0 + first + i]
+                if v > values[i]:
+                    labels[i] = label[w0 + first + i]
+                values[i] += v
+            continue
+        # in front of k - REACH the three rows are the waveform; behind k + 2 + REACH all are 0 (adds nothing)
+        i1 = min(max(k - REACH - first, i0), min(hi - first, n))
+        for i in range(i0, i1):
+            w = wave[w0 + first + i]
+            v = scale * (g0 * w + g1 * w + g2 * w)
             if v > values[i]:
-                labels[i] = volume.label[volume.origin[t] + j]
+                labels[i] = label[w0 + first + i]
+            values[i] += v
+        for i in range(i1, min(min(hi, k + 2 + REACH) - first, n)):
+            j = first + i
+            v = scale * (g0 * _row(wave, cut, w0, c0, c_first, c_end, k, j)
+                         + g1 * _row(wave, cut, w0, c0, c_first, c_end, k + 1, j)
+                         + g2 * _row(wave, cut, w0, c0, c_first, c_end, k + 2, j))
+            if v > values[i]:
+                labels[i] = label[w0 + j]
             values[i] += v
     return values
