@@ -17,6 +17,16 @@ from weather_filter.points.base import PointFilter
 from weather_filter.points.fallback import GeometryFallbackWarning
 
 
+def ran(filt: PointFilter) -> str:
+    """The name of the model or method that filtered the latest cloud: through the geometry fallback's wrapper into
+    the learned filter's choice (``learned``: the EPW model, ``learned-single``: the single-return one)."""
+    used = getattr(filt, "last_used", filt.name)
+    primary = getattr(filt, "primary", None)
+    if primary is not None and used == primary.name:
+        used = getattr(primary, "last_used", used)
+    return str(used)
+
+
 def weather_keep_mask(filt: PointFilter, points: np.ndarray) -> np.ndarray:
     """(N,) bool: True for the points of ``points`` that ``filt`` keeps (not weather, not unusable)."""
     return ~filt(points).remove
@@ -33,7 +43,7 @@ class TwinWeatherFilter:
         with warnings.catch_warnings():  # the twin names the filter that ran in its own line
             warnings.simplefilter("ignore", GeometryFallbackWarning)
             keep = weather_keep_mask(self.filter, points)
-        self.name = str(getattr(self.filter, "last_used", self.filter.name))
+        self.name = ran(self.filter)
         return keep
 
     def reset(self) -> None:

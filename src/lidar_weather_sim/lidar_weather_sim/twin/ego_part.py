@@ -6,8 +6,8 @@ path; the twin writes it into the scenario as a fixed part of the sensor instead
 (``sensor.fixed_parts``, :class:`lidar_weather_sim.scenario.schema.FixedPart`), which the simulator casts in
 the sensor frame.
 
-:func:`detect_ego_part`: only when the sensor moves more than :data:`MIN_TRAVEL_M` over the frames (standing
-still, the world is as fixed in the sensor frame as the ego is). Points within :data:`RADIUS_M` of the sensor
+:func:`detect_ego_part`: only when the sensor moves more than :data:`MIN_TRAVEL_M` over at least
+:data:`MIN_FRAMES` frames (standing still, the world is as fixed in the sensor frame as the ego is). Points within :data:`RADIUS_M` of the sensor
 are binned in :data:`VOXEL_M` voxels of the sensor frame; a voxel is *present* in a frame when a point of that
 frame lies in it or one of its 26 neighbours (range noise moves a fixed point across a voxel boundary). A voxel
 with points is ego when it is present in at least :data:`MIN_SHARE` of the frames and the sensor positions of
@@ -33,6 +33,7 @@ RADIUS_M = 2.0  # points nearer the sensor than this may be the ego's
 VOXEL_M = 0.05  # sensor-frame voxel (m)
 MIN_TRAVEL_M = 2.0  # the sensor must move farther than this over the frames (and over a voxel's frames)
 MIN_SHARE = 0.9  # of the frames a voxel must be present in
+MIN_FRAMES = 3  # fewer frames say too little (two frames of near-field clutter can coincide)
 MARGIN_M, MARGIN_FRACTION = 0.3, 0.03  # another frame's returns this far (+ share of the range) from a place
 BIN_DEG = 1.0  # direction bins of the other frames' look at a candidate's place (deg; the twin: its beam spacing)
 
@@ -80,7 +81,10 @@ def detect_ego_part(local: list[np.ndarray], world: list[np.ndarray], positions:
     none = [np.zeros(len(x), dtype=bool) for x in local]
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     travel = _span(positions)
-    if len(local) < 2 or travel <= min_travel_m:
+    if len(local) < MIN_FRAMES:
+        return EgoDetection(none, np.zeros((0, 3), np.int64), travel,
+                            f"{len(local)} frames (fewer than {MIN_FRAMES}): no ego part looked for")  # fmt: skip
+    if travel <= min_travel_m:
         return EgoDetection(none, np.zeros((0, 3), np.int64), travel,
                             f"the sensor moved {travel:.2f} m (not more than {min_travel_m:g} m): no ego part looked for")  # fmt: skip
     near = [np.linalg.norm(x, axis=1) < radius_m for x in local]
