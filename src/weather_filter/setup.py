@@ -27,6 +27,8 @@ setup(
         "lidar_weather_sim.scenario_dirs": ["weather_filter = weather_filter.simdata:scenario_directory"],
         # `lidar-weather-sim sweep`'s `compute: [eval]`: the filter's evaluation of each run.
         "lidar_weather_sim.sweep_metrics": ["eval = weather_filter.sweep_metrics:evaluate"],
+        # `lidar-weather-sim twin`: the frames' weather removed before the scene is meshed.
+        "lidar_weather_sim.point_filters": ["weather = weather_filter.twin_filter:make"],
         "console_scripts": [
             "weather-filter = weather_filter.cli:main",
             "weather_filter_node = weather_filter.ros.weather_filter_node:main",

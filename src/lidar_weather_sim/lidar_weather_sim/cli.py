@@ -305,8 +305,13 @@ def _cmd_twin(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.overwrite:
         raise FileExistsError(f"{args.out} exists and is not empty (use --overwrite)")
-    inp = load_input(args.bag, args.topic, args.profile, args.frames, args.split, args.sector_deg)  # every check first
+    inp = load_input(args.bag, args.topic, args.profile, args.frames, args.split, args.sector_deg,
+                     args.weather_filter)  # every check first  # fmt: skip
     r = build_twin(inp, args.out)
+    print(f"lidar-weather-sim twin: weather: {r['weather_filter']['note']}")
+    if r["ego_part"]["voxels"]:
+        print(f"lidar-weather-sim twin: ego part: {r['ego_part']['note']} ({r['ego_part']['file']}, "
+              "scenario sensor.fixed_parts)")  # fmt: skip
     if not r["deskewed"] and inp.recording.layout.has_time:  # without a time field the reader said so already
         print("lidar-weather-sim twin: note: point times are constant in some frame: KISS-ICP did not deskew",
               file=sys.stderr)  # fmt: skip
@@ -517,6 +522,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "every frame, or auto (sectors below 4 frames; default)")  # fmt: skip
     twin.add_argument("--sector-deg", type=float, default=30.0, help="width of the alternating azimuth sectors of a "
                                                                       "sector split (deg, dividing 360; default 30)")  # fmt: skip
+    twin.add_argument("--weather-filter", default="auto", metavar="NAME",
+                      help="frame filter run on every frame before meshing, by its name in the entry points "
+                           "lidar_weather_sim.point_filters: auto (default: 'weather', weather_filter's learned "
+                           "filter, when installed, else none), none, or a registered name")  # fmt: skip
     twin.add_argument("--out", required=True, metavar="DIR", help="output directory")
     twin.add_argument("--overwrite", action="store_true", help="write into a non-empty DIR")
     twin.set_defaults(func=_cmd_twin)

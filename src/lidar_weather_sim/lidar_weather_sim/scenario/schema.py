@@ -132,6 +132,37 @@ class Mount(ConfigModel):
     yaw_deg: float = Field(0.0, ge=-360, le=360, description="deg")
 
 
+MAX_PART_M = 5.0  # a fixed part of the sensor lies within this of it (m)
+
+
+class PartBox(ConfigModel):
+    """An axis-aligned box in the sensor frame: centre (m) and size (m)."""
+
+    x_m: float = Field(ge=-MAX_PART_M, le=MAX_PART_M, description="centre, m")
+    y_m: float = Field(ge=-MAX_PART_M, le=MAX_PART_M, description="centre, m")
+    z_m: float = Field(ge=-MAX_PART_M, le=MAX_PART_M, description="centre, m")
+    length_m: float = Field(gt=0, le=2 * MAX_PART_M, description="along x, m")
+    width_m: float = Field(gt=0, le=2 * MAX_PART_M, description="along y, m")
+    height_m: float = Field(gt=0, le=2 * MAX_PART_M, description="along z, m")
+
+
+class FixedPart(ConfigModel):
+    """Structure fixed to the sensor (its housing's surroundings, a roof rack, the car's roof edge): cast in the
+    sensor frame at every column, wherever the sensor is. Either ``mesh`` (a mesh file in the sensor frame, m;
+    a surveyed PLY keeps its reflectivity per face, :mod:`lidar_weather_sim.scene.surveyed`) or ``box``."""
+
+    mesh: str | None = Field(None, description="Mesh file (glTF/OBJ/PLY) in the sensor frame: a path, a name in "
+                                               "maps/ or 'cache:<path>'")  # fmt: skip
+    box: PartBox | None = Field(None, description="An axis-aligned box in the sensor frame")
+    material: str = Field("car_paint", description="Material of the box, or of a mesh without reflectivity per face")
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> "FixedPart":
+        if (self.mesh is None) == (self.box is None):
+            raise ValueError("a fixed part needs exactly one of 'mesh' (a file) and 'box'")
+        return self
+
+
 class SensorSetup(ConfigModel):
     profile: str = Field("scala4", description="Name in config/sensors or a path")
     return_mode: ReturnMode | None = Field(
@@ -151,6 +182,9 @@ class SensorSetup(ConfigModel):
     elevation_offsets_deg: dict[int, float] = Field(
         default_factory=dict, description="Channel (0 = lowest) -> degrees its beam points, and is reported, above "
                                           "the profile's elevation table (a unit off its nominal calibration)")  # fmt: skip
+    fixed_parts: list[FixedPart] = Field(
+        default_factory=list, description="Structure fixed to the sensor, in the sensor frame (e.g. the ego part "
+                                          "`lidar-weather-sim twin` finds): cast at every column, labelled static")  # fmt: skip
 
 
 class Scenario(ConfigModel):

@@ -12,6 +12,7 @@ from lidar_weather_sim.regions.topic_inputs import TopicInputs
 from lidar_weather_sim.scenario.player import ScenarioPlayer
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scene.materials import MaterialTable
+from lidar_weather_sim.scene.mesh import box_mesh
 from lidar_weather_sim.scene.opendrive import RoadNetwork
 from lidar_weather_sim.scene.scene import Scene
 from lidar_weather_sim.sensor.profile import SensorProfile, load_profile
@@ -53,6 +54,19 @@ class World:
             scene = Scene.from_xodr(_map_path(scenario.map))
         for mesh_name in scenario.static_meshes:
             scene.add_mesh_file(_map_path(mesh_name), mesh_name)
+        for k, part in enumerate(scenario.sensor.fixed_parts):  # sensor frame, cast by the simulator
+            name = f"sensor.fixed_parts[{k}]"
+            try:
+                if part.mesh is not None:
+                    scene.add_mesh_file_to_sensor(_map_path(part.mesh), name, part.material)
+                else:
+                    b = part.box
+                    box = box_mesh((b.length_m, b.width_m, b.height_m), scene.materials.index(part.material),
+                                   scene.next_object_id(), z_bottom=b.z_m - 0.5 * b.height_m)  # fmt: skip
+                    box.vertices[:, :2] += (b.x_m, b.y_m)
+                    scene.add_sensor_part(box, name)
+            except KeyError as exc:  # an unknown material
+                raise ConfigError(f"{name}: {exc.args[0]}") from None
         for actor in scenario.actors:
             size = actor.size
             scene.add_body(actor.id, size.length_m, size.width_m, size.height_m, vehicle=actor.type == "vehicle",

@@ -146,6 +146,8 @@ class Scene:
     object_names: dict[int, str] = field(default_factory=dict)
     roads: RoadNetwork | None = None
     actor_labels: dict[int, Label] = field(default_factory=dict)  # ground-truth label per actor id
+    #: structure fixed to the sensor (sensor frame, m): cast at every column wherever the sensor is
+    sensor_parts: TriangleMesh = field(default_factory=TriangleMesh.empty)
 
     @classmethod
     def from_xodr(cls, path: str | Path, materials: MaterialTable | None = None, *,
@@ -185,6 +187,24 @@ class Scene:
         if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
             self.materials, mesh.material = surveyed_materials(self.materials, reflectivity)
         self.add_static(mesh, name)
+
+    def add_mesh_file_to_sensor(self, path: str | Path, name: str, material: str = "car_paint") -> None:
+        """Append the sensor-frame mesh file ``path`` as a fixed part of the sensor (:meth:`add_sensor_part`), of
+        ``material`` unless it is a surveyed PLY with its reflectivity per triangle."""
+        mesh = load_static_mesh(path, self.materials.index(material), self.next_object_id())
+        reflectivity = read_face_reflectivity(path)
+        if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
+            self.materials, mesh.material = surveyed_materials(self.materials, reflectivity)
+        self.add_sensor_part(mesh, name)
+
+    def add_sensor_part(self, mesh: TriangleMesh, name: str = "fixed part", label: Label = Label.STATIC) -> None:
+        """Append sensor-frame triangles fixed to the sensor (their object ids must be new); their returns get
+        ``label``. The simulator casts them in the sensor frame at every column (the scene's caster does not hold
+        them)."""
+        self._claim(mesh, name)
+        self.sensor_parts = TriangleMesh.concatenate([self.sensor_parts, mesh])
+        for object_id in np.unique(mesh.object_id).tolist():
+            self.actor_labels[int(object_id)] = Label(label)
 
     def add_body(self, object_id: int, length: float, width: float, height: float, *, vehicle: bool, name: str,
                  label: Label = Label.VEHICLE) -> None:  # fmt: skip

@@ -153,6 +153,12 @@ class LidarSimulator:
         self.beam_origin_m = (float(beam_origin_m[0]), float(beam_origin_m[1]))
         self.scene = scene
         self.caster = scene.caster(backend) if caster is None else caster
+        self._part_caster = None  # the scene's sensor_parts (fixed to the sensor), cast in the sensor frame
+        parts = getattr(scene, "sensor_parts", None)
+        if parts is not None and len(parts.triangles):
+            from lidar_weather_sim.scene.raycast.scene_caster import SceneCaster
+
+            self._part_caster = SceneCaster(parts, {}, backend=getattr(self.caster, "backend", backend))
         self.regions = list(regions or [])
         self.seed = int(seed)
         self.sun_irradiance_w_m2 = float(sun_irradiance_w_m2)
@@ -318,6 +324,8 @@ class LidarSimulator:
             translation = translation + np.einsum("cij,cj->ci", rotation, local)
         origins32, dirs32, dirs64 = world_rays(directions, rotation, translation, bool(self.regions), self._ray_scratch)
         hits = self._cast_rays(origins32, dirs32, actor_poses)
+        if self._part_caster is not None:
+            self._cast_sensor_parts(hits, directions, rotation, columns)
         ray_batch, effect = self._regions(acc.index, columns, times, translation, directions, dirs64, hits)
         self.flush()
         args = (acc, columns, directions, rotation, hits, ray_batch, effect)
@@ -361,6 +369,32 @@ class LidarSimulator:
         gathers the static hits' attributes itself."""
         return self.caster.cast(origins32, dirs32, actor_poses, self.profile.range.max_m, reuse=not self.regions,
                                 gather=bool(self.regions))  # fmt: skip
+
+    def _cast_sensor_parts(self, hits, directions: np.ndarray, rotation: np.ndarray, columns: np.ndarray) -> None:
+        """The scene's fixed parts of the sensor (``scene.sensor_parts``, sensor frame) cast with the sensor-frame
+        rays of ``columns`` (from the beams' origin); where one is nearer than the scene's hit it replaces it in
+        ``hits`` as an actor's hit (its object id as the actor, the normal turned into the map frame by each
+        column's ``rotation``). Exact at every column's firing time: the parts move with the sensor."""
+        d = directions.reshape(-1, 3)
+        per_column = len(d) // len(columns)
+        radial, up = self.beam_origin_m
+        if radial or up:
+            azimuth = self.pattern.column_azimuth[columns]
+            local = np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), np.full(len(columns), up)], axis=1)
+            origins = np.repeat(local, per_column, axis=0)
+        else:
+            origins = np.zeros_like(d)
+        part = self._part_caster.cast(origins, d, {}, self.profile.range.max_m)
+        idx = np.flatnonzero(part.distance < hits.distance)
+        if not len(idx):
+            return
+        column = idx // per_column
+        hits.distance[idx] = part.distance[idx]
+        hits.triangle[idx] = -1
+        hits.normal[idx] = np.einsum("nij,nj->ni", rotation[column], part.normal[idx].astype(np.float64))
+        hits.material[idx] = part.material[idx]
+        hits.object_id[idx] = part.object_id[idx]
+        hits.hit_actor[idx] = part.object_id[idx]
 
     def _regions(self, frame_index: int, columns: np.ndarray, times: np.ndarray, translation: np.ndarray,
                  directions: np.ndarray, dirs64: np.ndarray, hits) -> tuple[RayBatch | None, RegionEffect | None]:  # fmt: skip

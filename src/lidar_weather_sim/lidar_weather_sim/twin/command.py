@@ -2,16 +2,20 @@
 
 Steps (each in its own module): the split (:func:`lidar_weather_sim.gap.split.split_recording`: even /
 odd frames, or alternating 30 deg azimuth sectors below 4 frames); the profile
-(:mod:`~lidar_weather_sim.twin.profile_match`); the poses (:mod:`~lidar_weather_sim.twin.poses`); the
-calibration points in the map frame, moving ones left out, and the trimmed Poisson mesh
-(:mod:`~lidar_weather_sim.twin.reconstruct`); reflectivity per triangle
-(:mod:`~lidar_weather_sim.twin.reflectivity`). At most ``max_frames`` calibration frames (evenly spaced)
-build the mesh, so the cost does not grow with the recording.
+(:mod:`~lidar_weather_sim.twin.profile_match`); the poses (:mod:`~lidar_weather_sim.twin.poses`); what the
+weather filter calls weather removed from each frame (:mod:`~lidar_weather_sim.twin.point_filter`: a filter
+registered by entry point, weather_filter's when installed); the sensor's own near-field structure set apart
+as a fixed ego part (:mod:`~lidar_weather_sim.twin.ego_part`); the calibration points in the map frame, moving
+ones left out, and the trimmed Poisson mesh (:mod:`~lidar_weather_sim.twin.reconstruct`); reflectivity per
+triangle (:mod:`~lidar_weather_sim.twin.reflectivity`). At most ``max_frames`` calibration frames (evenly
+spaced) build the mesh, so the cost does not grow with the recording.
 
 DIR gets ``mesh.ply`` (map frame, m; reflectivity per face, :mod:`lidar_weather_sim.scene.surveyed`),
 ``split.yaml``, ``scenario.yaml`` (mesh-only, the recording's sensor poses as its ``trajectory``: runnable
 by ``lidar-weather-sim run``, and ``gap BAG --scenario DIR/scenario.yaml`` fits and scores on the split),
-``profile.yaml`` when the profile was derived, and ``report.json`` / ``report.md``: coverage (share of
+``ego_part.ply`` (sensor frame; the scenario's ``sensor.fixed_parts``) when there is an ego part,
+``profile.yaml`` when the profile was derived, and ``report.json`` / ``report.md``: weather removed, ego part,
+the cover zone the recording shows, coverage (share of
 calibration and held-out points within :data:`COVERAGE_M` of the mesh), point-to-mesh and
 mesh-to-points distances (median, p95), triangle count, time per step.
 """
@@ -34,8 +38,10 @@ from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scene.surveyed import write_surveyed_ply
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.scan import ScanPattern
+from lidar_weather_sim.twin.ego_part import detect_ego_part, ego_part_mesh, voxel_reflectivity
+from lidar_weather_sim.twin.point_filter import AUTO, FilterChoice, choose_filter, filter_frames
 from lidar_weather_sim.twin.poses import TwinPoses, points_in_map, twin_poses
-from lidar_weather_sim.twin.profile_match import choose_profile
+from lidar_weather_sim.twin.profile_match import choose_profile, cover_zone
 from lidar_weather_sim.twin.reconstruct import (
     FrameCloud,
     ReconstructionSettings,
@@ -51,6 +57,7 @@ COVERAGE_M = 0.1
 MAX_FRAMES = 20  # calibration frames that build the mesh (evenly spaced)
 GAP_FILL_MAX_DEG = 5.0  # held-out sectors up to this wide are spanned channel by channel (reconstruct step 3)
 MAX_REPORT_POINTS = 400_000  # points per part whose distance to the mesh is measured (seeded subset)
+EGO_PART_FILE = "ego_part.ply"  # the fixed ego part, sensor frame (scenario sensor.fixed_parts)
 
 
 @dataclass
@@ -64,13 +71,17 @@ class TwinInput:
     profile_how: str
     split: DataSplit
     timings: dict[str, float] = field(default_factory=dict)
+    point_filter: FilterChoice = field(default_factory=lambda: FilterChoice(None, "none", "no weather filter"))
+    cover_zone: dict = field(default_factory=dict)
 
 
 def load_input(bag: str | Path, topic: str | None = None, profile: str | None = None,
-               frames: int | None = None, split: str = "auto", sector_deg: float = SECTOR_DEG) -> TwinInput:  # fmt: skip
-    """Everything checked before anything is written: the bag, its topic, non-empty clouds, the profile and
-    the split (``split``: auto, frames or sectors, of ``sector_deg`` sectors,
-    :func:`~lidar_weather_sim.gap.split.split_recording`)."""
+               frames: int | None = None, split: str = "auto", sector_deg: float = SECTOR_DEG,
+               weather_filter: str = AUTO) -> TwinInput:  # fmt: skip
+    """Everything checked before anything is written: the bag, its topic, non-empty clouds, the profile, the
+    split (``split``: auto, frames or sectors, of ``sector_deg`` sectors,
+    :func:`~lidar_weather_sim.gap.split.split_recording`) and the frame filter (``weather_filter``: auto, none or
+    a registered name, :func:`~lidar_weather_sim.twin.point_filter.choose_filter`)."""
     t0 = time.perf_counter()
     if not Path(bag).exists():
         raise FileNotFoundError(f"no bag at {bag}")
@@ -81,8 +92,12 @@ def load_input(bag: str | Path, topic: str | None = None, profile: str | None = 
         raise BagError(f"bag {bag}: topic {recording.topic}: frame {empty[0]} holds no points (empty cloud)")
     stamps = np.array([f.stamp_ns for f in recording.frames[:n]], dtype=np.float64)
     rate = 1e9 / float(np.median(np.diff(stamps))) if n > 1 and np.median(np.diff(stamps)) > 0 else None
-    name, prof, how = choose_profile(recording.frames[0].points, profile, rate)
-    out = TwinInput(recording, n, name, prof, how, split_recording(n, split, sector_deg))
+    data_split = split_recording(n, split, sector_deg)
+    calibration = [recording.frames[i].points[data_split.keep(recording.frames[i].points, "calibration")]
+                   for i in data_split.calibration_frames]  # fmt: skip
+    name, prof, how = choose_profile(recording.frames[0].points, profile, rate, calibration)
+    out = TwinInput(recording, n, name, prof, how, data_split, point_filter=choose_filter(weather_filter),
+                    cover_zone=cover_zone(calibration, prof))  # fmt: skip
     out.timings["load_s"] = time.perf_counter() - t0
     return out
 
@@ -93,6 +108,40 @@ def _frame_cloud(recording: Recording, index: int, poses: TwinPoses, part_mask: 
     mid = recording.time_s(frame.stamp_ns) + 0.5 * float(frame.points["time_stamp"].max()) * 1e-9
     channel = frame.points["channel"]
     return FrameCloud(xyz[part_mask], origins[part_mask], poses.frame_pose(mid), channel[part_mask])
+
+
+def _subset(cloud: FrameCloud, keep: np.ndarray) -> FrameCloud:
+    return FrameCloud(cloud.xyz[keep], cloud.origins[keep], cloud.pose, cloud.channel[keep])
+
+
+def weather_masks(inp: TwinInput, used: list[int]) -> tuple[list[np.ndarray], dict]:
+    """Per frame of ``used`` the calibration points the frame filter keeps (all of them without a filter), and
+    report.json's ``weather_filter``. The filter sees only calibration points: each frame after the frame before
+    it in the recording when that is a calibration frame (a filter with previous-frame features)."""
+    rec, split, choice = inp.recording, inp.split, inp.point_filter
+    parts = [split.keep(rec.frames[i].points, "calibration") for i in used]
+    total = int(sum(int(k.sum()) for k in parts))
+    if choice.filter is None:
+        return parts, {"requested": choice.requested, "ran": None, "points_removed": 0, "calibration_points": total,
+                       "note": choice.note}  # fmt: skip
+    calibration = set(split.calibration_frames)
+
+    def part(i: int) -> np.ndarray:
+        return rec.frames[i].points[split.keep(rec.frames[i].points, "calibration")]
+
+    frames = [rec.frames[i].points[k] for i, k in zip(used, parts)]
+    previous = [part(i - 1) if i - 1 in calibration else None for i in used]
+    masks, names = filter_frames(choice.filter, frames, previous)
+    out = []
+    for k, m in zip(parts, masks):
+        keep = k.copy()
+        keep[np.flatnonzero(k)] = m
+        out.append(keep)
+    removed = total - int(sum(int(k.sum()) for k in out))
+    ran = ", ".join(f"{n} ({names.count(n)} frames)" for n in dict.fromkeys(names))
+    return out, {"requested": choice.requested, "ran": ran, "points_removed": removed, "calibration_points": total,
+                 "note": f"{ran} removed {removed} of {total} calibration points ({100 * removed / max(total, 1):.1f} %) "
+                         "as weather before meshing"}  # fmt: skip
 
 
 def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings = ReconstructionSettings(),
@@ -106,11 +155,26 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
     t = time.perf_counter()
     pattern = ScanPattern(profile)
     used = thin_evenly(split.calibration_frames, max_frames)
-    clouds, intensity = [], []
-    for i in used:
-        keep = split.keep(rec.frames[i].points, "calibration")
+    keeps, weather_report = weather_masks(inp, used)
+    timings["weather_filter_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    clouds, intensity, local = [], [], []
+    for i, keep in zip(used, keeps):
         clouds.append(_frame_cloud(rec, i, poses, keep))
-        intensity.append(rec.frames[i].points["intensity"][keep])
+        p = rec.frames[i].points[keep]
+        intensity.append(p["intensity"])
+        local.append(np.stack([p["x"], p["y"], p["z"]], axis=-1).astype(np.float64))
+    step = max(2 * np.pi / pattern.n_columns, float(np.median(np.diff(np.sort(pattern.elevation)))) if pattern.n_channels > 1 else 0.0)
+    ego = detect_ego_part(local, [c.xyz for c in clouds], np.array([c.pose[:3, 3] for c in clouds]),
+                          [c.pose for c in clouds], bin_deg=float(np.degrees(step)))  # fmt: skip
+    ego_local = np.concatenate([x[m] for x, m in zip(local, ego.masks)]) if ego.points else np.zeros((0, 3))
+    ego_intensity = np.concatenate([v[m] for v, m in zip(intensity, ego.masks)]) if ego.points else np.zeros(0)
+    clouds = [_subset(c, ~m) for c, m in zip(clouds, ego.masks)]
+    intensity = [v[~m] for v, m in zip(intensity, ego.masks)]
+    timings["ego_part_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
     moving = moving_points(clouds, pattern.elevation, pattern.n_columns)
     static_xyz = np.concatenate([c.xyz[~m] for c, m in zip(clouds, moving)])
     static_origin = np.concatenate([c.origins[~m] for c, m in zip(clouds, moving)])
@@ -119,7 +183,6 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
 
     t = time.perf_counter()
     fill_xyz, fill_origin = _gap_fill(split, clouds, moving, pattern.n_columns)
-    step = max(2 * np.pi / pattern.n_columns, float(np.median(np.diff(np.sort(pattern.elevation)))) if pattern.n_channels > 1 else 0.0)
     vertices, triangles = reconstruct_mesh(np.concatenate([static_xyz, fill_xyz]),
                                            np.concatenate([static_origin, fill_origin]), step, settings,
                                            _sector_bridge(split, clouds[0].pose) if split.kind == "sectors" else None)  # fmt: skip
@@ -150,7 +213,13 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
         (out / "profile.yaml").write_text("# derived from the recording by lidar-weather-sim twin\n"
                                           + yaml.safe_dump(profile.model_dump(mode="json"), sort_keys=False))  # fmt: skip
         profile_ref = str((out / "profile.yaml").resolve())
-    scenario = twin_scenario(rec, inp.frames, poses, mesh_path.resolve(), profile_ref, profile)
+    fixed_parts = []
+    if len(ego.voxels):
+        rho = point_reflectivity(ego_intensity, np.linalg.norm(ego_local, axis=1), np.ones(len(ego_local)), profile)
+        part_v, part_t, part_r = ego_part_mesh(ego.voxels, voxel_reflectivity(ego.voxels, ego_local, rho))
+        part_path = write_surveyed_ply(out / EGO_PART_FILE, part_v, part_t, part_r)
+        fixed_parts.append({"mesh": str(part_path.resolve())})
+    scenario = twin_scenario(rec, inp.frames, poses, mesh_path.resolve(), profile_ref, profile, fixed_parts)
     (out / "scenario.yaml").write_text(yaml.safe_dump(scenario, sort_keys=False))
     removed = int(sum(int(m.sum()) for m in moving))
     report = {
@@ -164,6 +233,10 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
         "moving_note": ("a single frame: nothing to compare it with, no moving points removed" if len(used) < 2
                         else f"{removed} of {removed + len(static_xyz)} calibration points seen through by a "
                              "neighbouring frame"),
+        "weather_filter": weather_report,
+        "ego_part": {"points": ego.points, "voxels": int(len(ego.voxels)), "sensor_travel_m": round(ego.travel_m, 3),
+                     "file": EGO_PART_FILE if fixed_parts else None, "note": ego.note},
+        "cover_zone": inp.cover_zone,
         "mesh": {"vertices": int(len(vertices)), "triangles": int(len(triangles)), "file": "mesh.ply"},
         "coverage_within_m": COVERAGE_M,
         **coverage,
@@ -257,8 +330,9 @@ def _stats(d: np.ndarray) -> dict:
 
 
 def twin_scenario(rec: Recording, frames: int, poses: TwinPoses, mesh: Path, profile_ref: str,
-                  profile: SensorProfile) -> dict:  # fmt: skip
-    """The twin as a mesh-only scenario whose ``trajectory`` is the sensor's poses (base_link = sensor)."""
+                  profile: SensorProfile, fixed_parts: list[dict] | None = None) -> dict:  # fmt: skip
+    """The twin as a mesh-only scenario whose ``trajectory`` is the sensor's poses (base_link = sensor), with
+    ``fixed_parts`` (the ego part) on the sensor."""
     starts = np.array([rec.time_s(f.stamp_ns) for f in rec.frames[:frames]])
     # to the microsecond the trajectory is written with: a frame's end and the next frame's start are one time
     times = np.unique(np.round(np.concatenate([starts, starts + profile.period_s]), 6))
@@ -275,7 +349,8 @@ def twin_scenario(rec: Recording, frames: int, poses: TwinPoses, mesh: Path, pro
         "static_meshes": [str(mesh)],
         "duration_s": round(float(times[-1]), 6),
         "seed": 0,
-        "sensor": {"profile": profile_ref, "mount": {"x_m": 0.0, "y_m": 0.0, "z_m": 0.0}},
+        "sensor": {"profile": profile_ref, "mount": {"x_m": 0.0, "y_m": 0.0, "z_m": 0.0},
+                   **({"fixed_parts": fixed_parts} if fixed_parts else {})},
         "trajectory": trajectory,
         "weather": {"fog": {"visual_range_m": 100000.0}, "precipitation": {"type": "dry", "intensity_mm_h": 0.0},
                     "sun": {"irradiance_w_m2": 0.0}, "wind": {"speed_m_s": 0.0}},
@@ -290,7 +365,8 @@ def _markdown(r: dict) -> str:
         f"{r['frames']} frames of {r['topic']}; profile {r['profile']['name']} ({r['profile']['how']}); "
         f"poses: {r['poses']}; split: {r['split']['kind']} ({r['split']['calibration_frames']} calibration, "
         f"{r['split']['heldout_frames']} held-out frames; {len(r['split']['frames_used_for_mesh'])} build the mesh).",
-        "", f"Moving objects: {r['moving_note']}.", "",
+        "", f"Weather: {r['weather_filter']['note']}.", "", f"Ego part: {r['ego_part']['note']}.", "",
+        f"Moving objects: {r['moving_note']}.", "",
         f"| part | within {r['coverage_within_m']} m of the mesh | point-to-mesh median (m) | p95 (m) |",
         "|---|---:|---:|---:|",
         *[f"| {p} | {c[p]:.3f} | {d[p]['median']:.3f} | {d[p]['p95']:.3f} |" for p in ("calibration", "heldout")],
