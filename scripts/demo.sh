@@ -19,7 +19,8 @@ lidar-weather-sim run highway_clear --frames 50 --out "$out" --overwrite
 lidar-weather-sim info "$out" | head -12
 echo
 echo "== closed loop over DDS: lidar_sim_node -> [weather_filter_node] -> ego_controller_node -> /ego/cmd_speed"
-echo "   highway_spray_crosswind: the spray of the car ahead blows across the ego's lane (4 runs, ~1 min)"
+echo "   highway_spray_crosswind (rain 2 mm/h, spray blowing across the lane): without the filter the rain"
+echo "   ahead reads as an obstacle and the ego brakes; with it, not; a real box brakes both (4 runs, ~1 min)"
 report="$root/log/demo/closed_loop"
 lidar-weather-sim closed-loop --seconds 4 --box-at 1.0 --out "$report"
 cat "$report/report.md"
