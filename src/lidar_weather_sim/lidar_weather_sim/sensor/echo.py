@@ -363,10 +363,10 @@ _NO_VOLUME = VolumeSamples(np.zeros(0), np.zeros(0, np.uint8))
 @numba.njit(cache=True, inline="always")
 def _exact(r, a, c0, c1, s, x, volume, j):
     """The waveform at the window's sample j, at range ``x`` (m): pulses c0..c1 summed in order, then the volume's
-    sample when there is one."""
+    sample (``volume``: :class:`VolumeSamples`' value array, empty: none)."""
     w = _sample(r, a, c0, c1, s, x)
-    if len(volume.value):
-        w += volume.value[j + 1]
+    if len(volume):
+        w += volume[j + 1]
     return w
 
 
@@ -388,14 +388,15 @@ def _run_echoes(pulses, c0, c1, thr, s, window, volume, out, out0, room, buf):
     the echoes are those of the exact samples, bit for bit."""
     r, a, reach, lab, obj = pulses
     out_r, out_a, out_w, out_l, out_o = out.range_m, out.amplitude, out.epw_m, out.label, out.object_id
+    volume, volume_label = volume.value, volume.label  # the arrays, not the tuple, in the loops (no refcounts)
     lo, first, n = window
     dx = s / 8.0
     if n > len(buf):
         buf = np.empty(n)
     tol, eps = _fill_estimates(r, a, c0, c1, s, lo, dx, first, n, buf)
-    if len(volume.value):
+    if len(volume):
         for j in range(n):
-            buf[j] += volume.value[j + 1]
+            buf[j] += volume[j + 1]
     up, down = 1.0 + tol, 1.0 - tol  # the exact sample lies in [est * down, est * up + eps]
     written = 0
     inside = False
@@ -453,8 +454,8 @@ def _run_echoes(pulses, c0, c1, thr, s, window, volume, out, out0, room, buf):
             out_r[out0 + written] = peak_x
             out_a[out0 + written] = best_w
             out_w[out0 + written] = end - start
-            if len(volume.value) and volume.value[best_m + 1] > best_c:
-                out_l[out0 + written] = volume.label[best_m + 1]
+            if len(volume) and volume[best_m + 1] > best_c:
+                out_l[out0 + written] = volume_label[best_m + 1]
                 out_o[out0 + written] = 0
             else:
                 out_l[out0 + written] = lab[best_i]
