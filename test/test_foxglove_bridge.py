@@ -176,7 +176,8 @@ def test_up_sim_foxglove_serves_the_cloud_tf_static_and_actor_boxes(processes, c
 
 @pytest.mark.slow
 def test_play_foxglove_serves_the_bags_clouds_and_skips_malformed_ones(processes, cli, ros, tmp_path):
-    """The player waits (--wait-for) until the client is subscribed and malformed clouds were refused, then plays."""
+    """The player waits (--wait-for) until the client is subscribed, malformed clouds were refused and the bridge's
+    subscription is matched to the player's publisher, then plays."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2, PointField
 
@@ -192,8 +193,10 @@ def test_play_foxglove_serves_the_bags_clouds_and_skips_malformed_ones(processes
               for m in read_messages(str(bag), ["/lidar/points"])}  # fmt: skip
     assert len(stamps) == 20
 
+    # the player starts once the test says go and the bridge's /lidar/points subscription (made when the client
+    # subscribed) is matched to its publisher: on a loaded machine the 20 clouds were once all played before it was
     play = processes.start(*cli, "play", str(bag), "--foxglove", "--foxglove-port", "0",
-                           "--wait-for", "/foxglove_test/go", "--wait-timeout", "600")  # fmt: skip
+                           "--wait-for", "/foxglove_test/go", "/lidar/points", "--wait-timeout", "600")  # fmt: skip
     client = _start_client(ros, processes, play, {"/lidar/points"})
     try:
         assert ros.spin_until(lambda: client.channel("/lidar/points") is not None or client.error, timeout_s=60)
