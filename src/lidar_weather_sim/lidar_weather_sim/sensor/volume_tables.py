@@ -376,6 +376,16 @@ def _layer(volume, b, layer):
     return t, scale, volume.support[t, 0], volume.support[t, 1], k, f
 
 
+@numba.njit(cache=True, inline="always")
+def _reached(volume, b, layer):
+    """(table, scale, first sample, past the last sample) where beam b's layer may be non-zero: its support, up to
+    where its cut rows end (k + 2 + REACH); table -1: no such layer."""
+    t, scale, lo, hi, k, _ = _layer(volume, b, layer)
+    if k >= 0:
+        hi = min(hi, k + 2 + REACH)
+    return t, scale, lo, hi
+
+
 @numba.njit(cache=True, nogil=True)
 def volume_window(volume, b):
     """[j0, j1): the samples where beam b's volume may be non-zero (j1 <= j0: none) and a bound on its value."""
@@ -383,12 +393,8 @@ def volume_window(volume, b):
     if b >= volume.table.shape[0]:
         return j0, j1, bound
     for layer in range(volume.table.shape[1]):
-        t, scale, lo, hi, k, _ = _layer(volume, b, layer)
-        if t < 0:
-            continue
-        if k >= 0:
-            hi = min(hi, k + 2 + REACH)
-        if hi > lo:
+        t, scale, lo, hi = _reached(volume, b, layer)
+        if t >= 0 and hi > lo:
             j0, j1 = min(j0, lo), max(j1, hi)
             bound += scale * volume.peak[t]
     return j0, j1, bound
@@ -401,12 +407,8 @@ def fill_block_bounds(volume, b, first_block, n, bounds):
     scale times INTERPOLATION_GAIN times the table's block envelope, for the blocks each layer may reach."""
     bounds[:n] = 0.0
     for layer in range(volume.table.shape[1]):
-        t, scale, lo, hi, k, _ = _layer(volume, b, layer)
-        if t < 0:
-            continue
-        if k >= 0:
-            hi = min(hi, k + 2 + REACH)
-        if hi <= lo:
+        t, scale, lo, hi = _reached(volume, b, layer)
+        if t < 0 or hi <= lo:
             continue
         gain = INTERPOLATION_GAIN * scale
         for q in range(max(lo // BLOCK - first_block, 0), min((hi - 1) // BLOCK - first_block + 1, n)):
