@@ -1,0 +1,103 @@
+"""The judgement after the gap search (lidar_weather_sim.gap.unexplained), on signatures built from arrays (no
+simulation): which zones' residuals the counting noise cannot explain, their shapes, and the naming rule."""
+
+import numpy as np
+import pytest
+
+from lidar_weather_sim.gap.signatures import RANGE_EDGES, Signature, gap_value
+from lidar_weather_sim.gap.unexplained import (
+    BANDS,
+    MIN_RELATIVE,
+    judge_effects,
+    removes_its_residual,
+    zone_residuals,
+)
+from lidar_weather_sim.scenario.effects import parse_effect
+
+FRAMES = 10
+SUN, FOG, DIRT = (parse_effect(t) for t in ("sensor.sun:irradiance=400", "atmosphere.fog:visual_range=150",
+                                            "cover.dirt:transmission=0.7"))  # fmt: skip
+
+
+def signature(zones: dict[str, list[float]], frames: int = FRAMES) -> Signature:
+    """A signature whose zones hold the given returns (sums over ``frames``) per band of :data:`BANDS`, each band's
+    returns in the range bin at its middle (unit weights: squares = sums)."""
+    sig = Signature(channels=1, frames=frames)
+    for zone, counts in zones.items():
+        edges = RANGE_EDGES[zone]
+        hist = np.zeros(len(edges) - 1)
+        for (lo, hi), count in zip(BANDS[zone], counts):
+            hist[np.searchsorted(edges, 0.5 * (lo + hi)) - 1] += count
+        sig.sums[f"{zone}/range"], sig.squares[f"{zone}/range"] = hist, hist.copy()
+    return sig
+
+
+SIMULATED = {"far": [1000.0] * 4, "road": [1000.0] * 4, "near": [0.0], "cover": [0.0]}
+ONE_SIGMA = 1000.0 - (np.sqrt(8001.0) - 1.0) / 2.0  # a band 1 sigma low: (1000 - M) / sqrt(1000 + M) = 1
+#: far field: the last band at exactly 10 sigma ((1000 - 600) / sqrt(1600)), the loss growing with range;
+#: road: every band 1 sigma low; near field: 100 returns in 10 frames where the model has none (10 sigma)
+MEASURED = {"far": [1000.0, 950.0, 800.0, 600.0], "road": [ONE_SIGMA] * 4, "near": [100.0], "cover": [0.0]}
+
+
+def test_a_zone_at_10_sigma_is_unexplained_with_its_shape_and_one_at_1_sigma_is_not():
+    residuals = zone_residuals(signature(MEASURED), signature(SIMULATED))
+    far, near, road = residuals["far"], residuals["near"], residuals["road"]
+    assert far.significant and far.sigma == pytest.approx(10.0)
+    assert far.shape == "loss growing with range" and far.text() == "far field, loss growing with range"
+    assert far.relative == pytest.approx(3350.0 / 4000.0 - 1.0)
+    assert [b.significant for b in far.bands] == [False, False, True, True]  # 0, 1.1, 4.7 and 10 sigma
+    assert near.significant and near.sigma == pytest.approx(10.0) and near.shape == "excess returns"
+    assert not road.significant and max(b.sigma for b in road.bands) == pytest.approx(1.0)
+    assert not residuals["cover"].significant and not residuals["wake"].significant  # empty on both sides
+
+
+@pytest.mark.parametrize("measured, shape", [([800.0, 800.0, 800.0, 800.0], "uniform loss"),
+                                             ([1000.0, 1000.0, 1300.0, 1800.0], "excess growing with range"),
+                                             ([1800.0, 1300.0, 1000.0, 1000.0], "excess falling with range"),
+                                             ([500.0, 800.0, 950.0, 1000.0], "loss falling with range")])  # fmt: skip
+def test_the_shape_of_a_range_zone_is_the_sign_and_trend_of_measured_over_simulated(measured, shape):
+    assert zone_residuals(signature({"far": measured}), signature({"far": [1000.0] * 4}))["far"].shape == shape
+
+
+def test_a_significant_change_below_the_stated_share_of_a_bands_returns_is_not_unexplained():
+    big = 1e6  # 0.5 % fewer returns: 3.5 sigma of the counting noise, but below MIN_RELATIVE
+    assert MIN_RELATIVE > 0.005
+    far = zone_residuals(signature({"far": [big * 0.995] * 4}), signature({"far": [big] * 4}))["far"]
+    assert far.bands[0].sigma > 3.0 and not far.significant
+
+
+def _simulate(table: dict[frozenset, dict[str, list[float]]]):
+    return lambda effects: signature(table[frozenset(e.name for e in effects)])
+
+
+def test_an_effect_that_shrinks_the_total_gap_but_leaves_its_own_zones_residual_is_not_named():
+    measured = signature(MEASURED | {"road": [1000.0] * 4})
+    # the sun's threshold loss takes 15 % of every band: the total gap shrinks, the far field's shape is left
+    with_sun = SIMULATED | {"far": [850.0] * 4}
+    table = {frozenset(): SIMULATED, frozenset({SUN.name}): with_sun}
+    assert gap_value(measured, signature(with_sun)) < gap_value(measured, signature(SIMULATED))
+    judgement = judge_effects([SUN], measured, _simulate(table))
+    assert judgement.named == [] and [e for e, _ in judgement.refused] == [SUN]
+    assert judgement.refused[0][1].startswith("leaves far field, ")
+    unexplained = {r.zone: r.shape for r in judgement.unexplained}
+    assert unexplained == {"far": "loss growing with range", "near": "excess returns"}  # without the sun
+
+
+def test_an_effect_that_removes_its_zones_residual_is_named_and_leaves_only_the_others():
+    measured = signature(MEASURED | {"road": [1000.0] * 4})
+    with_fog = SIMULATED | {"far": [1000.0, 948.0, 805.0, 596.0], "near": [96.0]}
+    table = {frozenset(): SIMULATED, frozenset({FOG.name}): with_fog}
+    judgement = judge_effects([FOG], measured, _simulate(table))
+    assert judgement.named == [FOG] and judgement.refused == [] and judgement.unexplained == []
+
+
+def test_an_effect_with_no_residual_in_its_zones_is_not_named_and_a_partial_removal_must_reach_the_stated_share():
+    measured = signature({"far": [1000.0] * 4, "road": [1000.0] * 4, "cover": [0.0], "near": [1000.0]})
+    clear = {"far": [1000.0] * 4, "road": [1000.0] * 4, "cover": [0.0], "near": [0.0]}
+    without, with_dirt = zone_residuals(measured, signature(clear)), zone_residuals(measured, signature(clear))
+    assert removes_its_residual(DIRT.name, without, with_dirt).startswith("no residual to remove in its zones")
+    half = zone_residuals(measured, signature(clear | {"near": [500.0]}))  # rain removes half the near field's
+    assert removes_its_residual("atmosphere.rain", without, half).startswith("leaves near field, excess returns")
+    most = zone_residuals(measured, signature(clear | {"near": [850.0]}))  # 3.5 sigma left, < 20 % of the residual
+    assert most["near"].significant and removes_its_residual("atmosphere.rain", without, most) is None
+    assert removes_its_residual("sensor.intensity_gamma", without, without) is None  # no zones: the search decides
