@@ -101,3 +101,37 @@ def test_an_effect_with_no_residual_in_its_zones_is_not_named_and_a_partial_remo
     most = zone_residuals(measured, signature(clear | {"near": [850.0]}))  # 3.5 sigma left, < 20 % of the residual
     assert most["near"].significant and removes_its_residual("atmosphere.rain", without, most) is None
     assert removes_its_residual("sensor.intensity_gamma", without, without) is None  # no zones: the search decides
+
+
+def test_the_report_and_the_cli_say_what_is_unexplained_and_which_fit_is_not_named(tmp_path, monkeypatch, capsys):
+    import json
+
+    import lidar_weather_sim.gap.command as command
+    from lidar_weather_sim.cli import main as cli_main
+    from lidar_weather_sim.gap.report import write_gap
+    from lidar_weather_sim.gap.search import Candidate, Diagnosis
+    from lidar_weather_sim.gap.signatures import ZONES
+
+    measured, simulated = (signature({z: counts.get(z, [0.0] * len(BANDS[z])) for z in ZONES})
+                           for counts in (MEASURED, SIMULATED))  # fmt: skip
+    for sig in (measured, simulated):
+        sig.sums["bev"] = np.zeros((400, 200))
+    table = {frozenset(): SIMULATED, frozenset({SUN.name}): SIMULATED | {"far": [850.0] * 4}}
+    judgement = judge_effects([SUN], measured, _simulate(table))
+    diagnosis = Diagnosis(0.1, 0.08, accepted=[(Candidate(SUN, 0.08, 0.08, 1), 0.1)])
+    result = write_gap(tmp_path / "gap", diagnosis, measured, simulated, simulated, "name: x\n", judgement=judgement)
+    assert result["found"] == "no effect" and result["effects"][0]["named"] is False
+    assert result["effects"][0]["refused"].startswith("leaves far field")
+    on_disk = json.loads((tmp_path / "gap" / "gap.json").read_text())
+    assert sorted((u["zone"], u["shape"], round(u["sigma"], 1)) for u in on_disk["unexplained"]) == [
+        ("far", "loss growing with range", 10.0), ("near", "excess returns", 10.0)]
+    report = (tmp_path / "gap" / "report.md").read_text()
+    assert "| far field | loss growing with range | 10.0 |" in report and "Fitted but not named: sensor.sun" in report
+
+    monkeypatch.setattr(command, "run_gap", lambda *args, **kwargs: result)
+    assert cli_main(["gap", "bag", "--scenario", "highway_clear", "--out", str(tmp_path / "gap")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("gap 0.1000 -> 0.0800: no effect")
+    assert lines[1].startswith("not named: sensor.sun (leaves far field")
+    assert sorted(lines[2:]) == ["unexplained: far field, loss growing with range (10.0 sigma)",
+                                 "unexplained: near field, excess returns (10.0 sigma)"]  # fmt: skip

@@ -8,7 +8,9 @@ module is the judgement after it, on the held-out frames:
 range bands (:data:`BANDS`: the cover zone and the near field one band each, the zones beyond 5 m at 5-15-30-60-150
 m). In each band the measured returns ``M`` and the simulated ones ``S`` (sums over the ``n`` held-out frames of the
 zone's linearly binned range histogram) differ by ``D = M - S``; chance alone gives ``sigma = sqrt(sum w^2 (M) + sum
-w^2 (S))`` (Poisson, each return's weight in the band squared: the counting noise of both sides' ``n`` frames). A
+w^2 (S))`` (Poisson, each return's weight in the band squared: the counting noise of both sides' ``n`` frames),
+and, since the effects were fitted to the calibration frames' counts, the counting noise of the measured
+calibration frames' per-frame mean as well (``sqrt(sum w^2 (M_cal)) / n_cal``). A
 band's residual is significant when ``|D| >= SIGMA sigma`` (3) and ``|D| >= MIN_RELATIVE max(M, S)``
 (:data:`MIN_RELATIVE`: a band of 10^5 returns is significant at 3 sigma from a 0.4 % change, below what a scene
 model gets right; the floor is stated in the report). A zone's residual (returns per frame) is the sum over its
@@ -134,12 +136,13 @@ def _band_sums(sig: Signature, zone: str, lo: float, hi: float) -> tuple[float, 
 
 
 def band_residual(m: float, m_sq: float, s: float, s_sq: float, frames_m: int, frames_s: int,
-                  lo: float = 0.0, hi: float = 0.0) -> tuple[Band, float]:  # fmt: skip
+                  lo: float = 0.0, hi: float = 0.0, fit_noise: float = 0.0) -> tuple[Band, float]:  # fmt: skip
     """The :class:`Band` of sums ``m`` / ``s`` (squared weights ``m_sq`` / ``s_sq``) over ``frames_m`` / ``frames_s``
-    frames, and its residual per frame beyond the thresholds (0 when not significant)."""
+    frames, and its residual per frame beyond the thresholds (0 when not significant); ``fit_noise``: the counting
+    noise (per frame) of the calibration frames the simulation's effects were fitted to, counted on its side."""
     nm, ns = max(frames_m, 1), max(frames_s, 1)
     a, b = m / nm, s / ns
-    noise_m, noise_s = float(np.sqrt(m_sq)) / nm, float(np.sqrt(s_sq)) / ns
+    noise_m, noise_s = float(np.sqrt(m_sq)) / nm, float(np.hypot(np.sqrt(s_sq) / ns, fit_noise))
     noise = float(np.hypot(noise_m, noise_s))
     d = a - b
     threshold = max(SIGMA * noise, MIN_RELATIVE * max(a, b))
@@ -184,13 +187,18 @@ def shape_of(zone: str, bands: list[Band]) -> str:
     return f"{sign} {'growing' if growing else 'falling'} with range"
 
 
-def zone_residual(zone: str, measured: Signature, simulated: Signature) -> ZoneResidual:
-    """One zone's :class:`ZoneResidual` between the measured and simulated signatures (the same frames)."""
+def zone_residual(zone: str, measured: Signature, simulated: Signature,
+                  calibration: Signature | None = None) -> ZoneResidual:  # fmt: skip
+    """One zone's :class:`ZoneResidual` between the measured and simulated signatures (the same frames);
+    ``calibration``: the measured calibration frames the effects were fitted to (their counting noise counts too)."""
     bands, residual = [], 0.0
     for lo, hi in BANDS[zone]:
         m, m_sq = _band_sums(measured, zone, lo, hi)
         s, s_sq = _band_sums(simulated, zone, lo, hi)
-        band, excess = band_residual(m, m_sq, s, s_sq, measured.frames, simulated.frames, lo, hi)
+        fit_noise = 0.0
+        if calibration is not None and calibration.frames:
+            fit_noise = float(np.sqrt(_band_sums(calibration, zone, lo, hi)[1])) / calibration.frames
+        band, excess = band_residual(m, m_sq, s, s_sq, measured.frames, simulated.frames, lo, hi, fit_noise)
         bands.append(band)
         residual += excess
     total_m, total_s = sum(b.measured for b in bands), sum(b.simulated for b in bands)
@@ -200,9 +208,10 @@ def zone_residual(zone: str, measured: Signature, simulated: Signature) -> ZoneR
     return ZoneResidual(zone, float(residual), float(sigma), float(relative), shape, tuple(bands))
 
 
-def zone_residuals(measured: Signature, simulated: Signature) -> dict[str, ZoneResidual]:
-    """Every zone's :class:`ZoneResidual` (module doc)."""
-    return {zone: zone_residual(zone, measured, simulated) for zone in ZONES}
+def zone_residuals(measured: Signature, simulated: Signature,
+                   calibration: Signature | None = None) -> dict[str, ZoneResidual]:  # fmt: skip
+    """Every zone's :class:`ZoneResidual` (module doc; ``calibration``: :func:`zone_residual`)."""
+    return {zone: zone_residual(zone, measured, simulated, calibration) for zone in ZONES}
 
 
 def removes_its_residual(name: str, without: dict[str, ZoneResidual],
@@ -238,20 +247,26 @@ class Judgement:
                 "effect_zones": {k: list(v) for k, v in EFFECT_ZONES.items()}}  # fmt: skip
 
 
-def judge_effects(accepted: list[Effect], measured: Signature, simulate) -> Judgement:
+def judge_effects(accepted: list[Effect], measured: Signature, simulate,
+                  calibration: Signature | None = None) -> Judgement:  # fmt: skip
     """:class:`Judgement` of the search's ``accepted`` effects against the ``measured`` held-out signature;
-    ``simulate(effects)`` gives the held-out frames' simulated :class:`Signature` with ``effects``."""
-    with_all = zone_residuals(measured, simulate(accepted))
+    ``simulate(effects)`` gives the held-out frames' simulated :class:`Signature` with ``effects``; ``calibration``:
+    the measured frames the effects were fitted to (:func:`zone_residual`)."""
+
+    def residuals(effects: list[Effect]) -> dict[str, ZoneResidual]:
+        return zone_residuals(measured, simulate(effects), calibration)
+
+    with_all = residuals(accepted)
     out = Judgement()
     for i, effect in enumerate(accepted):
         reason = None
         if effect.name in EFFECT_ZONES:
-            without = zone_residuals(measured, simulate(accepted[:i] + accepted[i + 1 :]))
+            without = residuals(accepted[:i] + accepted[i + 1 :])
             reason = removes_its_residual(effect.name, without, with_all)
         if reason is None:
             out.named.append(effect)
         else:
             out.refused.append((effect, reason))
-    out.residuals = zone_residuals(measured, simulate(out.named)) if out.refused else with_all
+    out.residuals = residuals(out.named) if out.refused else with_all
     out.unexplained = sorted((r for r in out.residuals.values() if r.significant), key=lambda r: -r.sigma)
     return out
