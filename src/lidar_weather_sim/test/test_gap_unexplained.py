@@ -125,6 +125,7 @@ def test_the_report_and_the_cli_say_what_is_unexplained_and_which_fit_is_not_nam
     on_disk = json.loads((tmp_path / "gap" / "gap.json").read_text())
     assert sorted((u["zone"], u["shape"], round(u["sigma"], 1)) for u in on_disk["unexplained"]) == [
         ("far", "loss growing with range", 10.0), ("near", "excess returns", 10.0)]
+    assert [u["relative"] for u in on_disk["unexplained"] if u["zone"] == "near"] == [None]  # none simulated
     report = (tmp_path / "gap" / "report.md").read_text()
     assert "| far field | loss growing with range | 10.0 |" in report and "Fitted but not named: sensor.sun" in report
 

@@ -181,8 +181,8 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
                   "| zone | shape | residual (sigma) | returns/frame beyond the noise | measured / simulated |",
                   "|---|---|---:|---:|---:|"]  # fmt: skip
         for r in result["unexplained"]:
-            lines.append(f"| {r['label']} | {r['shape']} | {r['sigma']:.1f} | {r['residual']:.1f} | "
-                         f"{1.0 + r['relative']:.3f} |")  # fmt: skip
+            ratio = "-" if r["relative"] is None else f"{1.0 + r['relative']:.3f}"
+            lines.append(f"| {r['label']} | {r['shape']} | {r['sigma']:.1f} | {r['residual']:.1f} | {ratio} |")
         if not result["unexplained"]:
             lines.append("| none | - | - | - | - |")
         for e in result["effects"]:

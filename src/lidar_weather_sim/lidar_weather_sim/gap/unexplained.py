@@ -15,7 +15,8 @@ band's residual is significant when ``|D| >= SIGMA sigma`` (3) and ``|D| >= MIN_
 (:data:`MIN_RELATIVE`: a band of 10^5 returns is significant at 3 sigma from a 0.4 % change, below what a scene
 model gets right; the floor is stated in the report). A zone's residual (returns per frame) is the sum over its
 bands of what ``|D|`` exceeds both thresholds by; it is significant when that is above 0, and then reported with
-its largest band's ``|D| / sigma`` and a shape from a fixed vocabulary (:data:`SHAPES`), computed from the numbers:
+its largest band's ``|D| / sigma`` and a shape from a fixed vocabulary (:data:`SHAPES`; ``no residual`` for a zone
+without one), computed from the numbers:
 
 - cover zone, near field: ``excess returns`` / ``missing returns`` (the sign of ``D``);
 - the zones beyond 5 m: the sign of the zone's ``D`` (``loss`` / ``excess``) and the trend of ``ln(M / S)`` over
@@ -60,7 +61,7 @@ BANDS: dict[str, tuple[tuple[float, float], ...]] = {
 ZONE_LABELS = {"cover": "cover zone", "near": "near field", "body": "vehicle bodies", "wake": "vehicle wakes",
                "road": "road", "far": "far field"}  # fmt: skip
 SHAPES = ("excess returns", "missing returns", "loss growing with range", "loss falling with range", "uniform loss",
-          "excess growing with range", "excess falling with range", "uniform excess")  # fmt: skip
+          "excess growing with range", "excess falling with range", "uniform excess", "no residual")  # fmt: skip
 #: the zones that are each weather effect's physics (module doc): fog dims every surface more with range and puts
 #: soft echoes in the near field; rain and snow put discrete returns in the near field and dim the far one; a wet
 #: road takes the road's returns; dirt or water on the cover returns from the cover and dims every direction; the
@@ -120,6 +121,8 @@ class ZoneResidual:
     def to_dict(self) -> dict:
         out = asdict(self)
         out.update(label=self.label, bands=[asdict(b) for b in self.bands])
+        if not np.isfinite(self.relative):  # returns where the model has none: no ratio (JSON has no infinity)
+            out["relative"] = None
         return out
 
 
@@ -204,7 +207,7 @@ def zone_residual(zone: str, measured: Signature, simulated: Signature,
     total_m, total_s = sum(b.measured for b in bands), sum(b.simulated for b in bands)
     relative = (total_m - total_s) / total_s if total_s > 0 else (np.inf if total_m > 0 else 0.0)
     sigma = max((b.sigma for b in bands if b.significant), default=max((b.sigma for b in bands), default=0.0))
-    shape = shape_of(zone, bands) if total_m != total_s else "uniform excess"
+    shape = shape_of(zone, bands) if residual > 0 else "no residual"
     return ZoneResidual(zone, float(residual), float(sigma), float(relative), shape, tuple(bands))
 
 
