@@ -137,17 +137,20 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
         text = effect.spec.main if effect.spec.categorical else None
         return {k: v if k == text else float(v) for k, v in effect.params.items() if k == text or not isinstance(v, str)}
 
-    refused = {} if judgement is None else {id(e): why for e, why in judgement.refused}
+    def refused(effect) -> str | None:
+        """Why the judgement does not name ``effect`` (None: named)."""
+        return next((why for e, why in judgement.refused if e == effect), None) if judgement is not None else None
+
     result = {
         "gap_before": diagnosis.gap_before,
         "gap_after": diagnosis.gap_after,
         "effects": [{"name": c.effect.name, "params": params(c.effect), "gap_before": before_gap,
-                     "gap_after": c.heldout_gap, "named": id(c.effect) not in refused,
-                     "refused": refused.get(id(c.effect))} for c, before_gap in diagnosis.accepted],  # fmt: skip
+                     "gap_after": c.heldout_gap, "named": refused(c.effect) is None,
+                     "refused": refused(c.effect)} for c, before_gap in diagnosis.accepted],  # fmt: skip
         "rejected": [{"name": c.effect.name, "gap_after": c.heldout_gap, "params": params(c.effect)}
                      for c in diagnosis.rejected],  # fmt: skip
         "found": ", ".join(f"{c.effect.name} ({format_params(params(c.effect))})" for c, _ in diagnosis.accepted
-                           if id(c.effect) not in refused) or "no effect",  # fmt: skip
+                           if refused(c.effect) is None) or "no effect",  # fmt: skip
         "unexplained": [] if judgement is None else [r.to_dict() for r in judgement.unexplained],
         "naming_rule": None if judgement is None else judgement.rule(),
         "patched_scenario": "patched_scenario.yaml",
