@@ -136,3 +136,29 @@ def test_the_report_and_the_cli_say_what_is_unexplained_and_which_fit_is_not_nam
     assert lines[1].startswith("not named: sensor.sun (leaves far field")
     assert sorted(lines[2:]) == ["unexplained: far field, loss growing with range (10.0 sigma)",
                                  "unexplained: near field, excess returns (10.0 sigma)"]  # fmt: skip
+
+
+def _with_epw(sig: Signature, zone: str, per_bin: list[float]) -> Signature:
+    """``sig`` with the zone's EPW histogram (echo 1; unit weights) holding ``per_bin`` returns in its first bins."""
+    from lidar_weather_sim.gap.signatures import EPW_EDGES
+
+    hist = np.zeros(3 * (len(EPW_EDGES) - 1))
+    hist[: len(per_bin)] = per_bin
+    sig.sums[f"{zone}/epw"], sig.squares[f"{zone}/epw"] = hist, hist.copy()
+    return sig
+
+
+def test_pulses_wider_than_the_models_are_unexplained_and_fewer_pulses_of_the_same_widths_are_not():
+    simulated = _with_epw(signature(SIMULATED), "far", [2000.0, 1500.0, 500.0])
+    wider = _with_epw(signature(SIMULATED), "far", [1000.0, 1500.0, 1500.0])  # the same count, a third moved wider
+    residual = zone_residuals(wider, simulated)["far/epw"]
+    assert residual.significant and residual.shape == "wider pulses" and residual.text() == "far field, wider pulses"
+    assert zone_residuals(wider, simulated)["far"].significant is False  # the counts agree
+    fewer = _with_epw(signature(SIMULATED), "far", [1600.0, 1200.0, 400.0])  # 20 % fewer, same widths
+    assert not zone_residuals(fewer, simulated)["far/epw"].significant
+    # 3 % of 40000 returns moved wider: beyond the bins' thresholds, below MIN_SHAPE (what a fit's own error leaves)
+    many = _with_epw(signature(SIMULATED), "far", [20000.0, 15000.0, 5000.0])
+    slight = _with_epw(signature(SIMULATED), "far", [18800.0, 15000.0, 6200.0])
+    bins = zone_residuals(slight, many)["far/epw"].bands
+    assert bins[0].significant and bins[2].significant  # each bin alone: 6.1 and 11.3 sigma, beyond 5 %
+    assert not zone_residuals(slight, many)["far/epw"].significant

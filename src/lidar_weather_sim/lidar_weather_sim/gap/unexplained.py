@@ -25,7 +25,14 @@ without one), computed from the numbers:
   the bands, else ``uniform``. ``loss growing with range``: the measured frames lose ever more of the far returns
   (an extinction the model lacks).
 
-**Naming rule** (:func:`judge`). Each weather effect declares the zones that are its physics
+Besides the counts, each zone's EPW and intensity distributions (echoes summed, each a histogram of
+:mod:`~lidar_weather_sim.gap.signatures`) are compared in shape: the simulated histogram is scaled to the measured
+total and each bin is a band of the rule above, and what the bins exceed their thresholds by must also come to
+:data:`MIN_SHAPE` (10 %) of the zone's returns; a zone with a residual there is reported ``wider pulses`` /
+``narrower pulses`` or ``returns brighter`` / ``returns dimmer`` (the sign of the change of the mean). A raised
+noise floor (the sun) widens the pulses of every surface more than it changes their count.
+
+**Naming rule** (:func:`judge_effects`). Each weather effect declares the zones that are its physics
 (:data:`EFFECT_ZONES`). An accepted effect is named only when, on the held-out frames, (1) one of its zones has a
 significant residual without it (the other accepted effects in place): it had something to explain there; and
 (2) with it, each of its zones' residual is no longer significant or is at most :data:`REMAINING` (20 %) of what it
@@ -50,6 +57,9 @@ from lidar_weather_sim.scenario.effects import Effect
 SIGMA = 3.0  # a band's residual counts beyond this many standard deviations of the counting noise
 #: ... and beyond this share of its returns: at 10^5 returns 3 sigma is 0.4 %, less than any scene model gets right
 MIN_RELATIVE = 0.05
+#: a distribution's residual counts when it is at least this share of the zone's returns: the model's own fog at 80.2 m
+#: and sun at 404 W/m^2 fitted to 80 m and 400 W/m^2 leave 6 % of the near field's 1740 returns/frame in its EPW bins
+MIN_SHAPE = 0.10
 REMAINING = 0.2  # with the effect, its zones' residual must be gone or at most this share of what it was without it
 MIN_TREND_RETURNS = 20.0  # bands with fewer returns (both sides) do not enter the trend of the ratio
 RANGE_ZONES = ("body", "wake", "road", "far")
@@ -61,7 +71,10 @@ BANDS: dict[str, tuple[tuple[float, float], ...]] = {
 ZONE_LABELS = {"cover": "cover zone", "near": "near field", "body": "vehicle bodies", "wake": "vehicle wakes",
                "road": "road", "far": "far field"}  # fmt: skip
 SHAPES = ("excess returns", "missing returns", "loss growing with range", "loss falling with range", "uniform loss",
-          "excess growing with range", "excess falling with range", "uniform excess", "no residual")  # fmt: skip
+          "excess growing with range", "excess falling with range", "uniform excess", "wider pulses",
+          "narrower pulses", "returns brighter", "returns dimmer", "no residual")  # fmt: skip
+#: the distributions compared besides the range counts (module doc): a zone's histogram of each, echoes summed
+ASPECTS = {"epw": ("wider pulses", "narrower pulses"), "intensity": ("returns brighter", "returns dimmer")}
 #: the zones that are each weather effect's physics (module doc): fog dims every surface more with range and puts
 #: soft echoes in the near field; rain and snow put discrete returns in the near field and dim the far one; a wet
 #: road takes the road's returns; dirt or water on the cover returns from the cover and dims every direction; the
@@ -97,7 +110,8 @@ class Band:
 @dataclass(frozen=True)
 class ZoneResidual:
     """A zone's residual (module doc): ``residual`` returns per frame beyond the thresholds, ``sigma`` the largest
-    band's |D| / sigma, ``relative`` the zone's (M - S) / S, ``shape`` one of :data:`SHAPES`."""
+    band's |D| / sigma, ``relative`` the zone's (M - S) / S (for a distribution: of the means), ``shape`` one of
+    :data:`SHAPES`."""
 
     zone: str
     residual: float
@@ -105,6 +119,7 @@ class ZoneResidual:
     relative: float
     shape: str
     bands: tuple[Band, ...]
+    aspect: str = "range"  # or a distribution of :data:`ASPECTS` (its bands are then that quantity's bins)
 
     @property
     def significant(self) -> bool:
@@ -211,10 +226,56 @@ def zone_residual(zone: str, measured: Signature, simulated: Signature,
     return ZoneResidual(zone, float(residual), float(sigma), float(relative), shape, tuple(bands))
 
 
+def distribution_residual(zone: str, aspect: str, measured: Signature, simulated: Signature) -> ZoneResidual | None:
+    """The zone's residual in the shape of its ``aspect`` distribution (EPW or intensity, echoes summed; module
+    doc): the simulated histogram scaled to the measured total, each bin a band of :func:`band_residual`; the shape
+    from the sign of the change of the mean. None when either side has less than one return per frame (the range
+    counts judge that zone) or the signatures lack the histogram."""
+    key = f"{zone}/{aspect}"
+    if key not in measured.sums or key not in simulated.sums:
+        return None
+    nm, ns = max(measured.frames, 1), max(simulated.frames, 1)
+
+    def folded(sig: Signature, store: dict) -> np.ndarray:
+        values = store.get(key, sig.sums[key])
+        return values.reshape(3, -1).sum(axis=0)
+
+    m, m_sq = folded(measured, measured.sums), folded(measured, measured.squares)
+    s, s_sq = folded(simulated, simulated.sums), folded(simulated, simulated.squares)
+    if m.sum() / nm < 1.0 or s.sum() / ns < 1.0:
+        return None
+    k = (m.sum() / nm) / (s.sum() / ns)  # the simulated returns scaled to the measured count: shape only
+    centres = np.arange(len(m)) + 0.5
+    bands, residual = [], 0.0
+    for i in range(len(m)):
+        band, excess = band_residual(m[i], m_sq[i], k * s[i], k * k * s_sq[i], nm, ns, float(i), float(i + 1))
+        bands.append(band)
+        residual += excess
+    if residual < MIN_SHAPE * m.sum() / nm:  # a shape this close is what a fit's own error leaves
+        residual = 0.0
+    sigma = max((b.sigma for b in bands if b.significant), default=max((b.sigma for b in bands), default=0.0))
+    more, less = ASPECTS[aspect]
+    mean_m, mean_s = float(np.sum(centres * m) / m.sum()), float(np.sum(centres * s) / s.sum())
+    shape = (more if mean_m > mean_s else less) if residual > 0 else "no residual"
+    return ZoneResidual(zone, float(residual), float(sigma), mean_m / mean_s - 1.0, shape, tuple(bands), aspect)
+
+
 def zone_residuals(measured: Signature, simulated: Signature,
                    calibration: Signature | None = None) -> dict[str, ZoneResidual]:  # fmt: skip
-    """Every zone's :class:`ZoneResidual` (module doc; ``calibration``: :func:`zone_residual`)."""
-    return {zone: zone_residual(zone, measured, simulated, calibration) for zone in ZONES}
+    """Every zone's :class:`ZoneResidual` (module doc; ``calibration``: :func:`zone_residual`): by zone name for
+    the range counts, ``zone/epw`` and ``zone/intensity`` for the distributions (:func:`distribution_residual`)."""
+    out = {zone: zone_residual(zone, measured, simulated, calibration) for zone in ZONES}
+    for zone in ZONES:
+        for aspect in ASPECTS:
+            residual = distribution_residual(zone, aspect, measured, simulated)
+            if residual is not None:
+                out[f"{zone}/{aspect}"] = residual
+    return out
+
+
+def _of_zones(residuals: dict[str, ZoneResidual], zones: tuple[str, ...]) -> list[str]:
+    """The keys of ``residuals`` (every aspect) in ``zones``."""
+    return [k for k, r in residuals.items() if r.zone in zones]
 
 
 def removes_its_residual(name: str, without: dict[str, ZoneResidual],
@@ -225,13 +286,15 @@ def removes_its_residual(name: str, without: dict[str, ZoneResidual],
     zones = EFFECT_ZONES.get(name)
     if zones is None:
         return None
-    if not any(without[z].significant for z in zones):
+    if not any(without[k].significant for k in _of_zones(without, zones)):
         return f"no residual to remove in its zones ({', '.join(ZONE_LABELS[z] for z in zones)})"
-    left = [z for z in zones if with_it[z].significant and with_it[z].residual > REMAINING * without[z].residual]
+    empty = ZoneResidual("", 0.0, 0.0, 0.0, "no residual", ())
+    left = [k for k in _of_zones(with_it, zones)
+            if with_it[k].significant and with_it[k].residual > REMAINING * without.get(k, empty).residual]  # fmt: skip
     if left:
         return "leaves " + "; ".join(
-            f"{with_it[z].text()} ({with_it[z].sigma:.1f} sigma, {with_it[z].residual:.1f} returns/frame, "
-            f"{without[z].residual:.1f} without it)" for z in left)  # fmt: skip
+            f"{with_it[k].text()} ({with_it[k].sigma:.1f} sigma, {with_it[k].residual:.1f} returns/frame, "
+            f"{without.get(k, empty).residual:.1f} without it)" for k in left)  # fmt: skip
     return None
 
 
