@@ -154,6 +154,9 @@ def test_pulses_wider_than_the_models_are_unexplained_and_fewer_pulses_of_the_sa
     residual = zone_residuals(wider, simulated)["far/epw"]
     assert residual.significant and residual.shape == "wider pulses" and residual.text() == "far field, wider pulses"
     assert zone_residuals(wider, simulated)["far"].significant is False  # the counts agree
+    import json
+
+    assert json.loads(json.dumps(residual.to_dict()))["shape"] == "wider pulses"  # gap.json takes it
     fewer = _with_epw(signature(SIMULATED), "far", [1600.0, 1200.0, 400.0])  # 20 % fewer, same widths
     assert not zone_residuals(fewer, simulated)["far/epw"].significant
     # 3 % of 40000 returns moved wider: beyond the bins' thresholds, below MIN_SHAPE (what a fit's own error leaves)

@@ -164,9 +164,9 @@ def band_residual(m: float, m_sq: float, s: float, s_sq: float, frames_m: int, f
     noise = float(np.hypot(noise_m, noise_s))
     d = a - b
     threshold = max(SIGMA * noise, MIN_RELATIVE * max(a, b))
-    excess = max(abs(d) - threshold, 0.0) if abs(d) > 0 else 0.0
+    excess = float(max(abs(d) - threshold, 0.0)) if abs(d) > 0 else 0.0  # plain floats: gap.json takes them
     sigma = abs(d) / noise if noise > 0 else (np.inf if d else 0.0)
-    return Band(lo, hi, a, b, noise, float(sigma), excess > 0, noise_m, noise_s), excess
+    return Band(float(lo), float(hi), float(a), float(b), noise, float(sigma), excess > 0, noise_m, noise_s), excess
 
 
 def range_trend(bands: list[Band]) -> tuple[float, float, float]:
