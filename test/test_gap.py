@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from lidar_weather_sim.core.names import RETURN_MODES
+from lidar_weather_sim.core.paths import config_dir
 from lidar_weather_sim.gap.command import run_gap
 from lidar_weather_sim.scenario.effects import EFFECTS, apply_effects, parse_effect, search_grid
 from lidar_weather_sim.references.measured import RECOVERY_CASES, Nuisance, case_scenario, make_measured
@@ -281,3 +282,35 @@ def test_gap_reads_weak_channels_and_elevation_offsets_off_the_recording(highway
     assert channel == "5" and abs(float(gain) / 0.33 - 1.0) < 0.05, named
     assert abs(named["sensor.range_noise"]["sigma"] - 0.02) < 0.003  # make-measured's nuisance
     assert result["gap_after"] <= 0.05 * result["gap_before"]
+
+
+@pytest.mark.validation
+def test_a_right_name_is_still_given_and_nothing_is_left_unexplained(highway, tmp_path):
+    """Rain the search names (8 frames, budgets 4 / 4 / 2: ~40 s): the judgement after it names it too and
+    reports no unexplained zone (lidar_weather_sim.gap.unexplained)."""
+    make_measured(highway, [parse_effect("atmosphere.rain:intensity=10")], tmp_path / "measured", frames=8)
+    result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", fit_frames=4, heldout_frames=4, screen_frames=2)
+    assert [(e["name"], e["named"]) for e in result["effects"]] == [("atmosphere.rain", True)]
+    assert result["effects"][0]["params"]["intensity"] == pytest.approx(10.0, rel=0.25)
+    assert result["unexplained"] == [] and result["found"].startswith("atmosphere.rain (intensity=")
+    assert "| none | - | - | - | - |" in (tmp_path / "gap" / "report.md").read_text()
+
+
+@pytest.mark.validation
+def test_a_fog_the_model_cannot_make_is_reported_unexplained_not_named_as_sun(highway, tmp_path):
+    """Case 0 of config/generator_draw.yaml: the Beer-Lambert fog of the fixed generator fog_loss (229 m, no soft
+    echoes), 8 frames, budgets 4 / 4 / 2 (~60 s). The search fits a sun to it (a wrong name before the judgement);
+    the sun does not remove the far field's loss, so nothing is named and the loss growing with range is
+    reported unexplained."""
+    case = yaml.safe_load((config_dir() / "generator_draw.yaml").read_text())["cases"][0]
+    assert (case["generator"], case["hide"]) == ("fog_loss", ["atmosphere.fog:visual_range=229.4"])
+    make_measured(highway, [parse_effect(h) for h in case["hide"]], tmp_path / "measured", frames=8, seed=case["seed"],
+                  profile=case["profile"], generator=case["generator"])  # fmt: skip
+    result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", profile=case["profile"], fit_frames=4,
+                     heldout_frames=4, screen_frames=2)  # fmt: skip
+    fitted = {e["name"]: e["named"] for e in result["effects"]}
+    assert fitted == {"sensor.sun": False}  # the search's answer, refused
+    assert result["found"] == "no effect"
+    shapes = {(u["zone"], u["shape"]) for u in result["unexplained"]}
+    assert ("far", "loss growing with range") in shapes, shapes
+    assert all(u["zone"] in ("body", "wake", "road", "far") for u in result["unexplained"])  # nothing near the sensor

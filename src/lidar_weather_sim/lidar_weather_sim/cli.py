@@ -295,6 +295,11 @@ def _cmd_gap(args: argparse.Namespace) -> int:
     pearson = f", held-out bird's-eye Pearson {bev['before']['pearson']:.3f} -> {bev['after']['pearson']:.3f}" if bev else ""
     print(f"gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {result['found']}{pearson}; "
           f"wrote {args.out}/gap.json")  # fmt: skip
+    for e in result["effects"]:
+        if not e.get("named", True):
+            print(f"not named: {e['name']} ({e['refused']})")
+    for r in result.get("unexplained", []):
+        print(f"unexplained: {r['label']}, {r['shape']} ({r['sigma']:.1f} sigma)")
     return 0
 
 

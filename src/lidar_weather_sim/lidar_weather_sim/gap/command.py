@@ -1,6 +1,7 @@
 """The gap package's entry points, as the command line calls them: ``lidar-weather-sim compare``
 (:func:`compare`) and ``lidar-weather-sim gap`` (:func:`run_gap`: load, diagnose with
-:mod:`lidar_weather_sim.gap.search`, re-simulate all frames, report)."""
+:mod:`lidar_weather_sim.gap.search`, judge what it accepted and what is left unexplained
+(:mod:`lidar_weather_sim.gap.unexplained`), re-simulate all frames, report)."""
 
 from __future__ import annotations
 
@@ -66,6 +67,7 @@ def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Pa
             remote = Workers(engine, source)
         search = GapSearch(resim, progress=progress, workers=remote, split=split, **budgets)
         diagnosis = search.run()
+        judgement = search.judge(diagnosis)
     patched = apply_effects(scenario, diagnosis.effects)
     patched = patched.model_copy(update={"name": f"{scenario.name}_patched",
                                          "description": f"{scenario.description} + effects found by gap".strip()})  # fmt: skip
@@ -75,7 +77,7 @@ def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Pa
     after = resim.signature(diagnosis.effects, everything)
     text = yaml.safe_dump(patched.model_dump(mode="json"), sort_keys=False)
     result = write_gap(Path(out), diagnosis, measured_sig, before, after, text,
-                       runnable=not scenario.mesh_only or bool(scenario.trajectory))  # fmt: skip
+                       runnable=not scenario.mesh_only or bool(scenario.trajectory), judgement=judgement)  # fmt: skip
     if split is not None:
         held, keep = diagnosis.heldout_indices, search.point_mask("heldout")
         measured_held = measured_signature(recording, held, resim.contexts, resim.channels, keep)

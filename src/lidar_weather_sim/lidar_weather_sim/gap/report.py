@@ -118,11 +118,15 @@ def write_compare(out: Path, comparison: Comparison, measured_name: str, simulat
 
 
 def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, after: Signature,
-              patched_yaml: str, runnable: bool = True) -> dict:  # fmt: skip
+              patched_yaml: str, runnable: bool = True, judgement=None) -> dict:  # fmt: skip
     """gap.json, patched_scenario.yaml, report.md and before/after plots in ``out``.
 
     ``before`` / ``after``: every measured frame re-simulated without / with the accepted effects;
-    ``runnable``: the patched scenario can be run on its own (it has roads and an ego)."""
+    ``runnable``: the patched scenario can be run on its own (it has roads and an ego); ``judgement``: the
+    :class:`~lidar_weather_sim.gap.unexplained.Judgement` after the search (None: every accepted effect named,
+    nothing judged unexplained). gap.json's ``effects`` are the search's accepted effects (the patched scenario's),
+    each with ``named`` and, when refused, ``refused`` (why); ``found`` names the named ones only; ``unexplained``
+    lists the zones the named effects leave (zone, label, shape, sigma, residual returns per frame, bands)."""
     from lidar_weather_sim.gap.signatures import gap_terms, gap_value
 
     out.mkdir(parents=True, exist_ok=True)
@@ -133,15 +137,22 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
         text = effect.spec.main if effect.spec.categorical else None
         return {k: v if k == text else float(v) for k, v in effect.params.items() if k == text or not isinstance(v, str)}
 
+    def refused(effect) -> str | None:
+        """Why the judgement does not name ``effect`` (None: named)."""
+        return next((why for e, why in judgement.refused if e == effect), None) if judgement is not None else None
+
     result = {
         "gap_before": diagnosis.gap_before,
         "gap_after": diagnosis.gap_after,
         "effects": [{"name": c.effect.name, "params": params(c.effect), "gap_before": before_gap,
-                     "gap_after": c.heldout_gap} for c, before_gap in diagnosis.accepted],  # fmt: skip
+                     "gap_after": c.heldout_gap, "named": refused(c.effect) is None,
+                     "refused": refused(c.effect)} for c, before_gap in diagnosis.accepted],  # fmt: skip
         "rejected": [{"name": c.effect.name, "gap_after": c.heldout_gap, "params": params(c.effect)}
                      for c in diagnosis.rejected],  # fmt: skip
-        "found": ", ".join(f"{c.effect.name} ({format_params(params(c.effect))})" for c, _ in diagnosis.accepted)
-                 or "no effect",  # fmt: skip
+        "found": ", ".join(f"{c.effect.name} ({format_params(params(c.effect))})" for c, _ in diagnosis.accepted
+                           if refused(c.effect) is None) or "no effect",  # fmt: skip
+        "unexplained": [] if judgement is None else [r.to_dict() for r in judgement.unexplained],
+        "naming_rule": None if judgement is None else judgement.rule(),
         "patched_scenario": "patched_scenario.yaml",
         "all_frames": {"frames": measured.frames, "gap_before": gap_value(measured, before),
                        "gap_after": gap_value(measured, after)},  # fmt: skip
@@ -152,6 +163,7 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
                 "range histograms per zone: measured, simulated before and after the fitted effects")  # fmt: skip
     plot_bev(out / "bev_before_after.png", measured, {"before": before, "after": after})
     plot_terms(out / "gap_terms.png", {"before": gap_terms(measured, before), "after": gap_terms(measured, after)})
+    named = [e for e in result["effects"] if e["named"]]
     lines = ["# Reality gap", "",
              f"Held-out gap {diagnosis.gap_before:.4f} -> {diagnosis.gap_after:.4f} "
              f"(all {measured.frames} frames: {result['all_frames']['gap_before']:.4f} -> "
@@ -159,10 +171,28 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
              "dissimilarity of the per-zone range, intensity and EPW histograms, the bird's-eye, the "
              "channel x range and the later-echo histograms (0 = indistinguishable, 1 = disjoint).", "",
              "## Effects found", "", "| effect | parameters | held-out gap before | after |", "|---|---|---:|---:|"]  # fmt: skip
-    for e in result["effects"]:
+    for e in named:
         lines.append(f"| {e['name']} | {format_params(e['params'])} | {e['gap_before']:.4f} | {e['gap_after']:.4f} |")
-    if not result["effects"]:
+    if not named:
         lines.append("| none | - | - | - |")
+    if judgement is not None:
+        lines += ["", "## Unexplained (held-out frames, with the named effects)", "",
+                  f"A zone is unexplained when a range band's measured returns differ from the simulated ones by "
+                  f"{SIGMA_TEXT.format(**result['naming_rule'])}. An effect is named only when it removes the "
+                  f"residual of the zones that are its physics (gone, or at most {result['naming_rule']['remaining']:.0%} "
+                  "of it left), not only the total gap.", "",
+                  "| zone | shape | residual (sigma) | returns/frame beyond the noise | measured / simulated |",
+                  "|---|---|---:|---:|---:|"]  # fmt: skip
+        for r in result["unexplained"]:
+            ratio = "-" if r["relative"] is None else f"{1.0 + r['relative']:.3f}"
+            lines.append(f"| {r['label']} | {r['shape']} | {r['sigma']:.1f} | {r['residual']:.1f} | {ratio} |")
+        if not result["unexplained"]:
+            lines.append("| none | - | - | - | - |")
+        for e in result["effects"]:
+            if not e["named"]:
+                lines += ["", f"Fitted but not named: {e['name']} ({format_params(e['params'])}, held-out gap "
+                              f"{e['gap_before']:.4f} -> {e['gap_after']:.4f}): {e['refused']}. It stays in the "
+                              "patched scenario as a fit."]  # fmt: skip
     lines += ["", "## Rejected in the last round (held-out gap with the effect fitted)", "",
               "| effect | fitted parameters | held-out gap |", "|---|---|---:|"]  # fmt: skip
     for e in result["rejected"]:
@@ -172,6 +202,9 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
                  "The patched scenario is mesh-only (no ego): use it with `gap` or `compare` on the recording.")  # fmt: skip
     (out / "report.md").write_text("\n".join(lines))
     return result
+
+
+SIGMA_TEXT = "at least {sigma:g} sigma of the counting noise of the frames used and at least {min_relative:.0%} of its returns"
 
 
 def format_params(params: dict[str, float | str]) -> str:

@@ -52,6 +52,10 @@
 5. Pruning round (:meth:`GapSearch.prune_round`, backward elimination): each accepted effect must still be
    worth that margin with all the others in place; one that is not (a weak effect accepted early,
    made redundant by a later one) is dropped and the rest refitted.
+6. Judgement (:meth:`GapSearch.judge`, :mod:`lidar_weather_sim.gap.unexplained`): on the held-out frames, each
+   accepted weather effect is named only when it removes the residual of the zones that are its physics (not only
+   the total gap); the zones whose residual the named effects leave above the counting noise are reported as
+   unexplained, with the shape of the residual. The search's fit (the patched scenario) is unchanged.
 
 Cost: the budgets do not grow with the recording, so a diagnosis casts about
 ``(candidates x (grid x screen_frames + heldout_frames) + refine x 10 x fit_frames)``
@@ -67,6 +71,7 @@ import numpy as np
 
 from lidar_weather_sim.gap.evaluation import GapEvaluator
 from lidar_weather_sim.gap.signatures import GapResimulator
+from lidar_weather_sim.gap.unexplained import Judgement, judge_effects
 from lidar_weather_sim.scenario.effects import EFFECTS, Effect, conflicts, spray_candidates
 
 
@@ -321,6 +326,20 @@ class GapSearch(GapEvaluator):
             diag.rejected = [c for c in fitted if c is not best]
         diag.gap_after = self.prune_round(diag, current)
         return diag
+
+    def judge(self, diag: Diagnosis) -> Judgement:
+        """The judgement after the search (:mod:`lidar_weather_sim.gap.unexplained`): which of ``diag``'s effects
+        remove the residual of the zones that are their physics on the held-out frames (named), which do not
+        (refused), and the zones left unexplained. Runs in this process (a few held-out re-simulations)."""
+        measured = self._measured["heldout"]
+        keep = self.point_mask("heldout")
+        judgement = judge_effects(diag.effects, measured, lambda effects: self.resim.signature(effects, self.held_idx, keep),
+                                  self._measured["fit"])  # fmt: skip
+        for effect, reason in judgement.refused:
+            self.progress(f"{effect.label()} not named: {reason}")
+        for residual in judgement.unexplained:
+            self.progress(f"unexplained: {residual.text()} ({residual.sigma:.1f} sigma)")
+        return judgement
 
     def prune_round(self, diag: Diagnosis, current: float) -> float:
         """Backward elimination: an accepted effect stays only if the held-out gap without it (the

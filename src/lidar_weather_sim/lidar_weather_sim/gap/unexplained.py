@@ -1,0 +1,338 @@
+"""After the search: what the effects leave unexplained, zone by zone, and which accepted effects may be named.
+
+The search (:mod:`lidar_weather_sim.gap.search`) accepts whatever shrinks the held-out gap by its margin; when the
+model has no effect for what the recording shows, the closest one wins (a Beer-Lambert fog fitted as sun). This
+module is the judgement after it, on the held-out frames:
+
+**Residual by zone** (:func:`zone_residuals`). Every zone of :mod:`~lidar_weather_sim.gap.signatures` is cut into
+range bands (:data:`BANDS`: the cover zone and the near field one band each, the zones beyond 5 m at 5-15-30-60-150
+m). In each band the measured returns ``M`` and the simulated ones ``S`` (sums over the ``n`` held-out frames of the
+zone's linearly binned range histogram) differ by ``D = M - S``; chance alone gives ``sigma = sqrt(sum w^2 (M) + sum
+w^2 (S))`` (Poisson, each return's weight in the band squared: the counting noise of both sides' ``n`` frames),
+and, since the effects were fitted to the calibration frames' counts, the counting noise of the measured
+calibration frames' per-frame mean as well (``sqrt(sum w^2 (M_cal)) / n_cal``). A
+band's residual is significant when ``|D| >= SIGMA sigma`` (3) and ``|D| >= MIN_RELATIVE max(M, S)``
+(:data:`MIN_RELATIVE`: a band of 10^5 returns is significant at 3 sigma from a 0.4 % change, below what a scene
+model gets right; the floor is stated in the report). A zone's residual (returns per frame) is the sum over its
+bands of what ``|D|`` exceeds both thresholds by; it is significant when that is above 0, and then reported with
+its largest band's ``|D| / sigma`` and a shape from a fixed vocabulary (:data:`SHAPES`; ``no residual`` for a zone
+without one), computed from the numbers:
+
+- cover zone, near field: ``excess returns`` / ``missing returns`` (the sign of ``D``);
+- the zones beyond 5 m: the sign of the zone's ``D`` (``loss`` / ``excess``) and the trend of ``ln(M / S)`` over
+  its bands (weighted least squares, the weights from the counting noise): ``growing with range`` / ``falling
+  with range`` when the slope is >= 3 of its standard errors and moves the ratio by ``MIN_RELATIVE`` or more over
+  the bands, else ``uniform``. ``loss growing with range``: the measured frames lose ever more of the far returns
+  (an extinction the model lacks).
+
+Besides the counts, each zone's EPW and intensity distributions (echoes summed, each a histogram of
+:mod:`~lidar_weather_sim.gap.signatures`) are compared in shape: the simulated histogram is scaled to the measured
+total and each bin is a band of the rule above, and what the bins exceed their thresholds by must also come to
+:data:`MIN_SHAPE` (10 %) of the zone's returns; a zone with a residual there is reported ``wider pulses`` /
+``narrower pulses`` or ``returns brighter`` / ``returns dimmer`` (the sign of the change of the mean). A raised
+noise floor (the sun) widens the pulses of every surface more than it changes their count.
+
+**Naming rule** (:func:`judge_effects`). Each weather effect declares the zones that are its physics
+(:data:`EFFECT_ZONES`). An accepted effect is named only when, on the held-out frames, (1) one of its zones has a
+significant residual without it (the other accepted effects in place): it had something to explain there; and
+(2) with it, each of its zones' residual is no longer significant or is at most :data:`REMAINING` (20 %) of what it
+was without it. An effect that shrinks the total gap while its own zones keep their residual (or gain one) is
+refused: it stays in the search's fit (``effects`` of gap.json, the patched scenario) but is not named, and the
+zones the named effects leave significant are reported as unexplained. The sensor family's effects (read off the
+data, or the unit's response) have no zones here and are named as the search accepts them.
+
+Cost: one held-out re-simulation with all accepted effects, one without each accepted weather effect, and one with
+the named effects only when one is refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from lidar_weather_sim.gap.signatures import RANGE_EDGES, ZONES, Signature
+from lidar_weather_sim.scenario.effects import Effect
+
+SIGMA = 3.0  # a band's residual counts beyond this many standard deviations of the counting noise
+#: ... and beyond this share of its returns: at 10^5 returns 3 sigma is 0.4 %, less than any scene model gets right
+MIN_RELATIVE = 0.05
+#: a distribution's residual counts when it is at least this share of the zone's returns: the model's own fog at 80.2 m
+#: and sun at 404 W/m^2 fitted to 80 m and 400 W/m^2 leave 6 % of the near field's 1740 returns/frame in its EPW bins
+MIN_SHAPE = 0.10
+REMAINING = 0.2  # with the effect, its zones' residual must be gone or at most this share of what it was without it
+MIN_TREND_RETURNS = 20.0  # bands with fewer returns (both sides) do not enter the trend of the ratio
+RANGE_ZONES = ("body", "wake", "road", "far")
+BANDS: dict[str, tuple[tuple[float, float], ...]] = {
+    "cover": ((0.0, 0.5),),
+    "near": ((0.5, 5.0),),
+    **{z: ((5.0, 15.0), (15.0, 30.0), (30.0, 60.0), (60.0, 150.0)) for z in RANGE_ZONES},
+}
+ZONE_LABELS = {"cover": "cover zone", "near": "near field", "body": "vehicle bodies", "wake": "vehicle wakes",
+               "road": "road", "far": "far field"}  # fmt: skip
+SHAPES = ("excess returns", "missing returns", "loss growing with range", "loss falling with range", "uniform loss",
+          "excess growing with range", "excess falling with range", "uniform excess", "wider pulses",
+          "narrower pulses", "returns brighter", "returns dimmer", "no residual")  # fmt: skip
+#: the distributions compared besides the range counts (module doc): a zone's histogram of each, echoes summed
+ASPECTS = {"epw": ("wider pulses", "narrower pulses"), "intensity": ("returns brighter", "returns dimmer")}
+#: the zones that are each weather effect's physics (module doc): fog dims every surface more with range and puts
+#: soft echoes in the near field; rain and snow put discrete returns in the near field and dim the far one; a wet
+#: road takes the road's returns; dirt or water on the cover returns from the cover and dims every direction; the
+#: sun's false detections and raised threshold act beyond the near field; spray flies in the vehicles' wakes
+EFFECT_ZONES: dict[str, tuple[str, ...]] = {
+    "atmosphere.fog": ("near", *RANGE_ZONES),
+    "atmosphere.rain": ("near", "far"),
+    "atmosphere.snow": ("near", "far"),
+    "atmosphere.road_wet": ("road",),
+    "cover.dirt": ("cover", "road", "far"),
+    "cover.water": ("cover", "road", "far"),
+    "sensor.sun": ("road", "far"),
+    "spray": ("wake", "body"),
+}
+
+
+@dataclass(frozen=True)
+class Band:
+    """One range band of a zone: returns per frame measured and simulated, the counting noise of their difference
+    (per frame) and the difference in those sigmas."""
+
+    lo_m: float
+    hi_m: float
+    measured: float
+    simulated: float
+    noise: float
+    sigma: float
+    significant: bool
+    noise_measured: float = 0.0  # each side's own counting noise (per frame)
+    noise_simulated: float = 0.0
+
+
+@dataclass(frozen=True)
+class ZoneResidual:
+    """A zone's residual (module doc): ``residual`` returns per frame beyond the thresholds, ``sigma`` the largest
+    band's |D| / sigma, ``relative`` the zone's (M - S) / S (for a distribution: of the means), ``shape`` one of
+    :data:`SHAPES`."""
+
+    zone: str
+    residual: float
+    sigma: float
+    relative: float
+    shape: str
+    bands: tuple[Band, ...]
+    aspect: str = "range"  # or a distribution of :data:`ASPECTS` (its bands are then that quantity's bins)
+
+    @property
+    def significant(self) -> bool:
+        return self.residual > 0.0
+
+    @property
+    def label(self) -> str:
+        return ZONE_LABELS[self.zone]
+
+    def text(self) -> str:
+        """``far field, loss growing with range`` (the CLI's ``unexplained:`` lines)."""
+        return f"{self.label}, {self.shape}"
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out.update(label=self.label, bands=[asdict(b) for b in self.bands])
+        if not np.isfinite(self.relative):  # returns where the model has none: no ratio (JSON has no infinity)
+            out["relative"] = None
+        return out
+
+
+def _band_sums(sig: Signature, zone: str, lo: float, hi: float) -> tuple[float, float]:
+    """(sum of weights, sum of squared weights) of the zone's range-histogram bins whose centres lie in [lo, hi)."""
+    key = f"{zone}/range"
+    if key not in sig.sums:
+        return 0.0, 0.0
+    edges = RANGE_EDGES[zone]
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    inside = (centres >= lo) & (centres < hi)
+    squares = sig.squares.get(key, sig.sums[key])
+    return float(sig.sums[key][inside].sum()), float(squares[inside].sum())
+
+
+def band_residual(m: float, m_sq: float, s: float, s_sq: float, frames_m: int, frames_s: int,
+                  lo: float = 0.0, hi: float = 0.0, fit_noise: float = 0.0) -> tuple[Band, float]:  # fmt: skip
+    """The :class:`Band` of sums ``m`` / ``s`` (squared weights ``m_sq`` / ``s_sq``) over ``frames_m`` / ``frames_s``
+    frames, and its residual per frame beyond the thresholds (0 when not significant); ``fit_noise``: the counting
+    noise (per frame) of the calibration frames the simulation's effects were fitted to, counted on its side."""
+    nm, ns = max(frames_m, 1), max(frames_s, 1)
+    a, b = m / nm, s / ns
+    noise_m, noise_s = float(np.sqrt(m_sq)) / nm, float(np.hypot(np.sqrt(s_sq) / ns, fit_noise))
+    noise = float(np.hypot(noise_m, noise_s))
+    d = a - b
+    threshold = max(SIGMA * noise, MIN_RELATIVE * max(a, b))
+    excess = float(max(abs(d) - threshold, 0.0)) if abs(d) > 0 else 0.0  # plain floats: gap.json takes them
+    sigma = abs(d) / noise if noise > 0 else (np.inf if d else 0.0)
+    return Band(float(lo), float(hi), float(a), float(b), noise, float(sigma), excess > 0, noise_m, noise_s), excess
+
+
+def range_trend(bands: list[Band]) -> tuple[float, float, float]:
+    """(slope per m, its standard error, the span of the bands' centres in m) of ln(M / S) over the bands' centre
+    ranges: weighted least squares, each band weighted by the inverse of var(ln M) + var(ln S) from its counting
+    noise; bands with fewer than :data:`MIN_TREND_RETURNS` returns per frame on both sides together are left out,
+    and an empty side is taken at a tenth of a return per frame."""
+    rows = [b for b in bands if b.measured + b.simulated >= MIN_TREND_RETURNS]
+    if len(rows) < 2:
+        return 0.0, np.inf, 0.0
+    x = np.array([0.5 * (b.lo_m + b.hi_m) for b in rows])
+    m = np.maximum([b.measured for b in rows], 0.1)
+    s = np.maximum([b.simulated for b in rows], 0.1)
+    y = np.log(m / s)
+    var = (np.array([b.noise_measured for b in rows]) / m) ** 2 + (np.array([b.noise_simulated for b in rows]) / s) ** 2
+    w = 1.0 / np.maximum(var, 1e-12)
+    xm = np.sum(w * x) / np.sum(w)
+    sxx = np.sum(w * (x - xm) ** 2)
+    if sxx <= 0:
+        return 0.0, np.inf, 0.0
+    slope = float(np.sum(w * (x - xm) * (y - np.sum(w * y) / np.sum(w))) / sxx)
+    return slope, float(np.sqrt(1.0 / sxx)), float(x.max() - x.min())
+
+
+def shape_of(zone: str, bands: list[Band]) -> str:
+    """The zone's shape (:data:`SHAPES`, module doc) from its bands."""
+    d = sum(b.measured - b.simulated for b in bands)
+    if zone not in RANGE_ZONES:
+        return "excess returns" if d > 0 else "missing returns"
+    sign = "excess" if d > 0 else "loss"
+    slope, se, span = range_trend(bands)
+    if not (abs(slope) >= SIGMA * se and abs(slope) * span >= np.log1p(MIN_RELATIVE)):
+        return f"uniform {sign}"
+    ratio_up = slope > 0  # measured / simulated rises with range
+    growing = ratio_up if sign == "excess" else not ratio_up
+    return f"{sign} {'growing' if growing else 'falling'} with range"
+
+
+def zone_residual(zone: str, measured: Signature, simulated: Signature,
+                  calibration: Signature | None = None) -> ZoneResidual:  # fmt: skip
+    """One zone's :class:`ZoneResidual` between the measured and simulated signatures (the same frames);
+    ``calibration``: the measured calibration frames the effects were fitted to (their counting noise counts too)."""
+    bands, residual = [], 0.0
+    for lo, hi in BANDS[zone]:
+        m, m_sq = _band_sums(measured, zone, lo, hi)
+        s, s_sq = _band_sums(simulated, zone, lo, hi)
+        fit_noise = 0.0
+        if calibration is not None and calibration.frames:
+            fit_noise = float(np.sqrt(_band_sums(calibration, zone, lo, hi)[1])) / calibration.frames
+        band, excess = band_residual(m, m_sq, s, s_sq, measured.frames, simulated.frames, lo, hi, fit_noise)
+        bands.append(band)
+        residual += excess
+    total_m, total_s = sum(b.measured for b in bands), sum(b.simulated for b in bands)
+    relative = (total_m - total_s) / total_s if total_s > 0 else (np.inf if total_m > 0 else 0.0)
+    sigma = max((b.sigma for b in bands if b.significant), default=max((b.sigma for b in bands), default=0.0))
+    shape = shape_of(zone, bands) if residual > 0 else "no residual"
+    return ZoneResidual(zone, float(residual), float(sigma), float(relative), shape, tuple(bands))
+
+
+def distribution_residual(zone: str, aspect: str, measured: Signature, simulated: Signature) -> ZoneResidual | None:
+    """The zone's residual in the shape of its ``aspect`` distribution (EPW or intensity, echoes summed; module
+    doc): the simulated histogram scaled to the measured total, each bin a band of :func:`band_residual`; the shape
+    from the sign of the change of the mean. None when either side has less than one return per frame (the range
+    counts judge that zone) or the signatures lack the histogram."""
+    key = f"{zone}/{aspect}"
+    if key not in measured.sums or key not in simulated.sums:
+        return None
+    nm, ns = max(measured.frames, 1), max(simulated.frames, 1)
+
+    def folded(sig: Signature, store: dict) -> np.ndarray:
+        values = store.get(key, sig.sums[key])
+        return values.reshape(3, -1).sum(axis=0)
+
+    m, m_sq = folded(measured, measured.sums), folded(measured, measured.squares)
+    s, s_sq = folded(simulated, simulated.sums), folded(simulated, simulated.squares)
+    if m.sum() / nm < 1.0 or s.sum() / ns < 1.0:
+        return None
+    k = (m.sum() / nm) / (s.sum() / ns)  # the simulated returns scaled to the measured count: shape only
+    centres = np.arange(len(m)) + 0.5
+    bands, residual = [], 0.0
+    for i in range(len(m)):
+        band, excess = band_residual(m[i], m_sq[i], k * s[i], k * k * s_sq[i], nm, ns, float(i), float(i + 1))
+        bands.append(band)
+        residual += excess
+    if residual < MIN_SHAPE * m.sum() / nm:  # a shape this close is what a fit's own error leaves
+        residual = 0.0
+    sigma = max((b.sigma for b in bands if b.significant), default=max((b.sigma for b in bands), default=0.0))
+    more, less = ASPECTS[aspect]
+    mean_m, mean_s = float(np.sum(centres * m) / m.sum()), float(np.sum(centres * s) / s.sum())
+    shape = (more if mean_m > mean_s else less) if residual > 0 else "no residual"
+    return ZoneResidual(zone, float(residual), float(sigma), mean_m / mean_s - 1.0, shape, tuple(bands), aspect)
+
+
+def zone_residuals(measured: Signature, simulated: Signature,
+                   calibration: Signature | None = None) -> dict[str, ZoneResidual]:  # fmt: skip
+    """Every zone's :class:`ZoneResidual` (module doc; ``calibration``: :func:`zone_residual`): by zone name for
+    the range counts, ``zone/epw`` and ``zone/intensity`` for the distributions (:func:`distribution_residual`)."""
+    out = {zone: zone_residual(zone, measured, simulated, calibration) for zone in ZONES}
+    for zone in ZONES:
+        for aspect in ASPECTS:
+            residual = distribution_residual(zone, aspect, measured, simulated)
+            if residual is not None:
+                out[f"{zone}/{aspect}"] = residual
+    return out
+
+
+def _of_zones(residuals: dict[str, ZoneResidual], zones: tuple[str, ...]) -> list[str]:
+    """The keys of ``residuals`` (every aspect) in ``zones``."""
+    return [k for k, r in residuals.items() if r.zone in zones]
+
+
+def removes_its_residual(name: str, without: dict[str, ZoneResidual],
+                         with_it: dict[str, ZoneResidual]) -> str | None:  # fmt: skip
+    """Why the effect ``name`` may not be named (None: it may), from the zones' residuals without it and with it
+    (the other accepted effects in place both times): module doc, the naming rule. Effects without zones in
+    :data:`EFFECT_ZONES` (the sensor family) always may."""
+    zones = EFFECT_ZONES.get(name)
+    if zones is None:
+        return None
+    if not any(without[k].significant for k in _of_zones(without, zones)):
+        return f"no residual to remove in its zones ({', '.join(ZONE_LABELS[z] for z in zones)})"
+    empty = ZoneResidual("", 0.0, 0.0, 0.0, "no residual", ())
+    left = [k for k in _of_zones(with_it, zones)
+            if with_it[k].significant and with_it[k].residual > REMAINING * without.get(k, empty).residual]  # fmt: skip
+    if left:
+        return "leaves " + "; ".join(
+            f"{with_it[k].text()} ({with_it[k].sigma:.1f} sigma, {with_it[k].residual:.1f} returns/frame, "
+            f"{without.get(k, empty).residual:.1f} without it)" for k in left)  # fmt: skip
+    return None
+
+
+@dataclass
+class Judgement:
+    """The judgement after the search: which accepted effects are named, which are refused (with why), and the
+    zones the named effects leave unexplained."""
+
+    named: list[Effect] = field(default_factory=list)
+    refused: list[tuple[Effect, str]] = field(default_factory=list)
+    unexplained: list[ZoneResidual] = field(default_factory=list)
+    residuals: dict[str, ZoneResidual] = field(default_factory=dict)  # every zone, with the named effects
+
+    def rule(self) -> dict:
+        return {"sigma": SIGMA, "min_relative": MIN_RELATIVE, "remaining": REMAINING,
+                "effect_zones": {k: list(v) for k, v in EFFECT_ZONES.items()}}  # fmt: skip
+
+
+def judge_effects(accepted: list[Effect], measured: Signature, simulate,
+                  calibration: Signature | None = None) -> Judgement:  # fmt: skip
+    """:class:`Judgement` of the search's ``accepted`` effects against the ``measured`` held-out signature;
+    ``simulate(effects)`` gives the held-out frames' simulated :class:`Signature` with ``effects``; ``calibration``:
+    the measured frames the effects were fitted to (:func:`zone_residual`)."""
+
+    def residuals(effects: list[Effect]) -> dict[str, ZoneResidual]:
+        return zone_residuals(measured, simulate(effects), calibration)
+
+    with_all = residuals(accepted)
+    out = Judgement()
+    for i, effect in enumerate(accepted):
+        reason = None
+        if effect.name in EFFECT_ZONES:
+            without = residuals(accepted[:i] + accepted[i + 1 :])
+            reason = removes_its_residual(effect.name, without, with_all)
+        if reason is None:
+            out.named.append(effect)
+        else:
+            out.refused.append((effect, reason))
+    out.residuals = residuals(out.named) if out.refused else with_all
+    out.unexplained = sorted((r for r in out.residuals.values() if r.significant), key=lambda r: -r.sigma)
+    return out
