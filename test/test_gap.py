@@ -297,20 +297,20 @@ def test_a_right_name_is_still_given_and_nothing_is_left_unexplained(highway, tm
 
 
 @pytest.mark.validation
-def test_a_fog_the_model_cannot_make_is_reported_unexplained_not_named_as_sun(highway, tmp_path):
+def test_a_beer_lambert_fog_without_soft_echoes_is_named_at_its_visual_range(highway, tmp_path):
     """Case 0 of config/generator_draw.yaml: the Beer-Lambert fog of the fixed generator fog_loss (229 m, no soft
-    echoes), 8 frames, budgets 4 / 4 / 2 (~60 s). The search fits a sun to it (a wrong name before the judgement);
-    the sun does not remove the far field's loss, so nothing is named and the loss growing with range is
-    reported unexplained."""
+    echoes), 8 frames, budgets 4 / 4 / 2 (~70 s). Before the fog had a near-field gain and the gap a range-law term
+    the search fitted a sun to it (then refused by the judgement, nothing named). Now the fog is fitted at a low
+    near-field gain (the unit makes no soft echoes of it) and named within 10 % of its visual range; what is left
+    unexplained is how the generator's pulses answer the loss (their widths), no zone's returns."""
     case = yaml.safe_load((config_dir() / "generator_draw.yaml").read_text())["cases"][0]
     assert (case["generator"], case["hide"]) == ("fog_loss", ["atmosphere.fog:visual_range=229.4"])
     make_measured(highway, [parse_effect(h) for h in case["hide"]], tmp_path / "measured", frames=8, seed=case["seed"],
                   profile=case["profile"], generator=case["generator"])  # fmt: skip
     result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", profile=case["profile"], fit_frames=4,
                      heldout_frames=4, screen_frames=2)  # fmt: skip
-    fitted = {e["name"]: e["named"] for e in result["effects"]}
-    assert fitted == {"sensor.sun": False}  # the search's answer, refused
-    assert result["found"] == "no effect"
-    shapes = {(u["zone"], u["shape"]) for u in result["unexplained"]}
-    assert ("far", "loss growing with range") in shapes, shapes
-    assert all(u["zone"] in ("body", "wake", "road", "far") for u in result["unexplained"])  # nothing near the sensor
+    assert [(e["name"], e["named"]) for e in result["effects"]] == [("atmosphere.fog", True)]
+    fog = result["effects"][0]["params"]
+    assert fog["visual_range"] == pytest.approx(229.4, rel=0.1) and fog["near_gain"] <= 0.15, fog
+    assert result["gap_after"] < 0.2 * result["gap_before"]
+    assert all(u["aspect"] != "range" for u in result["unexplained"]), result["unexplained"]  # every zone's counts

@@ -165,3 +165,19 @@ def test_pulses_wider_than_the_models_are_unexplained_and_fewer_pulses_of_the_sa
     bins = zone_residuals(slight, many)["far/epw"].bands
     assert bins[0].significant and bins[2].significant  # each bin alone: 6.1 and 11.3 sigma, beyond 5 %
     assert not zone_residuals(slight, many)["far/epw"].significant
+
+
+def test_the_fog_is_named_on_the_range_law_of_its_loss_and_a_pulse_width_residual_it_leaves_is_reported():
+    """The fog's naming judges its zones' range counts only (EFFECT_ASPECTS): a fog that gives the far field the
+    measured loss growing with range is named though the far pulses stay wider than the model's (the unit's
+    receiver); that residual is still reported unexplained. The sun is judged on every aspect: the same pulse
+    widths left refuse it."""
+    measured = _with_epw(signature(MEASURED | {"near": [0.0]}), "far", [1000.0, 1500.0, 850.0])
+    clear = _with_epw(signature(SIMULATED), "far", [2000.0, 1500.0, 500.0])
+    fitted = _with_epw(signature(MEASURED | {"near": [0.0]}), "far", [1675.0, 1256.0, 419.0])  # the loss, narrower
+    table = {frozenset(): clear, frozenset({FOG.name}): fitted, frozenset({SUN.name}): fitted}
+    judgement = judge_effects([FOG], measured, lambda effects: table[frozenset(e.name for e in effects)])
+    assert judgement.named == [FOG] and judgement.refused == []
+    assert [u.text() for u in judgement.unexplained] == ["far field, wider pulses"]
+    judgement = judge_effects([SUN], measured, lambda effects: table[frozenset(e.name for e in effects)])
+    assert judgement.named == [] and "far field, wider pulses" in judgement.refused[0][1]

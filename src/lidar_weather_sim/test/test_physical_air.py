@@ -129,3 +129,32 @@ def test_drops_see_the_overlap_function_itself_nearer_and_exactly_one_beyond_ful
     assert air._overlap(r).tobytes() == air.volume.overlap(r).tobytes()
     if name == "os1_128_2048":
         assert air._full_overlap_m < 10.0  # the fast path is taken for the dense sensor
+
+
+def test_the_near_field_gain_scales_the_atmospheres_light_within_5_m_and_leaves_it_beyond_10_m():
+    """``near_field_gain`` (a unit's near-range gain, blanking or overlap, fitted by the gap search): the volume's
+    waveform and the drops placed one by one are scaled by it out to ``NEAR_M`` and unchanged from twice that on;
+    at 1 the tables are the profile's optics alone, bit for bit."""
+    weather = (60.0, ("rain", 20.0))
+    plain, one = PhysicalAir(SCALA4_CONE_DC, *weather), PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=1.0)
+    np.testing.assert_array_equal(one.air_volume.far.wave, plain.air_volume.far.wave)
+    for a, b in zip(one.air_volume.near, plain.air_volume.near):
+        np.testing.assert_array_equal(a.wave, b.wave)
+    sigma = plain.volume.sigma_m
+    for gain in (0.0, 0.3):
+        air = PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=gain)
+        tables = zip((air.air_volume.far, *air.air_volume.near), (plain.air_volume.far, *plain.air_volume.near))
+        for k, (scaled, full) in enumerate(tables):
+            r = scaled.range_m
+            near, far = (r > 1.0) & (r < NEAR_M - 6 * sigma), r > 2 * NEAR_M + 6 * sigma
+            assert k == 0 or full.wave[near].min() > 0.0  # the far layer starts at the near field's boundary
+            np.testing.assert_allclose(scaled.wave[near], gain * full.wave[near], rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(scaled.wave[far], full.wave[far], rtol=1e-9)
+    # drops: none placed within 5 m at gain 0, as many beyond 10 m (in front of 40 m hits, 4000 beams)
+    hits = np.full(4000, 40.0)
+    full, _ = plain.scatterers(batch(hits), np.random.default_rng(5))
+    none, _ = PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=0.0).scatterers(batch(hits), np.random.default_rng(5))
+    assert np.sum(full.range_m < NEAR_M) > 100 and np.sum(none.range_m < NEAR_M) == 0
+    assert np.sum(none.range_m > 2 * NEAR_M) == pytest.approx(np.sum(full.range_m > 2 * NEAR_M), rel=0.05)
+    with pytest.raises(ValueError, match="near_field_gain"):
+        PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=1.5)

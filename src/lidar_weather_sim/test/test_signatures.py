@@ -99,3 +99,31 @@ def test_the_counting_noise_of_linearly_binned_returns_is_subtracted_without_bia
         terms.append(systematic_bray_curtis(a.sums["far/epw"], 10, b.sums["far/epw"], 10, False,
                                             a.squares["far/epw"], b.squares["far/epw"]))  # fmt: skip
     assert abs(np.mean(terms)) < 0.012
+
+
+SPARSE_POINTS = 1500
+
+
+def fog_signature(seed: int, visual_range_m: float | None, frames: int = 8) -> Signature:
+    """Street frames seen through a Beer-Lambert fog: each return kept with probability exp(-2 alpha R) (alpha
+    = 3.912 / visual range), none lost without fog."""
+    rng = np.random.default_rng(seed)
+    sig = Signature(channels=CHANNELS)
+    for _ in range(frames):
+        pts = street_frame(rng, single_return=True)[:SPARSE_POINTS]  # a 4-layer unit's frame
+        if visual_range_m is not None:
+            pts = pts[rng.random(len(pts)) < np.exp(-2.0 * 3.912 / visual_range_m * pts["distance"])]
+        sig.add(pts, FrameContext(road_z_m=-1.8))
+    return sig
+
+
+def test_the_range_law_term_sees_a_loss_growing_with_range_band_by_band():
+    """A fog of 150 m takes 23 % of the returns at 5 m and 79 % at 30 m (a sparse unit: 1500 returns a frame, 8
+    frames): each band of the range law is judged alone, so the term is large; a redraw of the same fog scores ~0
+    and a fog a fifth denser is told apart (seeded draws)."""
+    clear, fog = fog_signature(1, None), fog_signature(2, 150.0)
+    terms = gap_terms(fog, clear)
+    assert terms["range_law"] > 0.4, terms
+    redraws = [gap_terms(fog_signature(seed, 150.0), fog)["range_law"] for seed in range(3, 8)]
+    denser = [gap_terms(fog_signature(seed, 120.0), fog)["range_law"] for seed in range(3, 8)]
+    assert max(redraws) < 0.04 and min(denser) > 2.0 * max(redraws), (redraws, denser)  # measured: <= 0.030, >= 0.108

@@ -21,7 +21,13 @@ Over all points it sums the bird's-eye histogram (0.5 m cells, x -100..100 m, y 
 as in the thesis' validation), the channel x range-class counts (the return ratio by
 channel and range) and the later echoes' counts (echo 2 and 3+ x range class): a histogram
 of their own, so that a recording without second echoes (a single-return mode) differs from
-one with them by more than the few per cent of points they are among all returns. Per
+one with them by more than the few per cent of points they are among all returns. The range law of the loss on
+vertical surfaces (the vehicle bodies and the far field: cars, rails, walls) is a histogram of its own: their
+returns in coarse range bands (:data:`RANGE_LAW_EDGES_M`), each band judged alone and the bands averaged
+(:func:`range_law_dissimilarity`), so that a loss growing with range (fog: exp(-2 alpha R) on every surface) counts
+as much in the 60-90 m band's few returns as a change of the 5-10 m band's many (in the zones' 0.5 m bins the
+counting noise of the far bands hides it: a Beer-Lambert fog of 229 m that takes 80 % of the returns beyond 60 m
+left the far zone's range term at 0). Per
 frame it keeps the detections per zone and the 12 per-frame parameters of paper 2 over the
 near field (:mod:`lidar_weather_sim.core.frame_parameters`).
 """
@@ -53,6 +59,8 @@ EPW_EDGES = np.arange(0.0, 3.0 + 1e-9, 0.1)
 BEV_CELL_M = 0.5
 BEV_X, BEV_Y = (-100.0, 100.0), (-50.0, 50.0)
 RANGE_CLASS_EDGES = np.array([0.0, COVER_M, NEAR_M, 15.0, 30.0, 60.0, np.inf])
+RANGE_LAW_EDGES_M = np.array([5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0, 150.0])  # the range law's bands (m)
+RANGE_LAW_ZONES = ("body", "far")  # the vertical surfaces whose loss with range it counts
 ACTOR_ZONE_BEHIND_M = 10.0  # spray flies this far behind a vehicle
 ACTOR_ZONE_MARGIN_M = (1.0, 1.5, 1.5)  # beyond the body: ahead, to the sides, above
 BODY_MARGIN_M = 0.3  # returns this close to a body box belong to the body
@@ -167,6 +175,8 @@ class Signature:
         e = np.minimum(echo[later].astype(np.int64), ECHOES) - 2
         parts["later_echoes"] = np.bincount(e * (len(RANGE_CLASS_EDGES) - 1) + rc[later],
                                             minlength=(ECHOES - 1) * (len(RANGE_CLASS_EDGES) - 1)).astype(np.float64)  # fmt: skip
+        vertical = np.isin(zone, [ZONES.index(z) for z in RANGE_LAW_ZONES])
+        parts["range_law"] = np.histogram(d[vertical], RANGE_LAW_EDGES_M)[0].astype(np.float64)
         linear = {}
         for k, name in enumerate(ZONES):
             m = zone == k
@@ -256,11 +266,27 @@ def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, 
 EVIDENCE_POINTS = 30.0  # a histogram with this many returns in both recordings together counts half
 
 
+def range_law_dissimilarity(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, frames_b: int,
+                            clip: bool = True) -> float:  # fmt: skip
+    """The range law's term (module doc): each band's systematic Bray-Curtis dissimilarity alone
+    (:func:`systematic_bray_curtis` of its one count), averaged over the bands that hold returns with their evidence
+    weights (m / (m + EVIDENCE_POINTS), m the band's returns in both recordings)."""
+    values, weights = [], []
+    for i in np.flatnonzero(sum_a + sum_b > 0):
+        values.append(systematic_bray_curtis(sum_a[i : i + 1], frames_a, sum_b[i : i + 1], frames_b, clip))
+        m = float(sum_a[i] + sum_b[i])
+        weights.append(m / (m + EVIDENCE_POINTS))
+    return float(np.average(values, weights=weights)) if values else 0.0
+
+
 def gap_terms(measured: Signature, simulated: Signature, clip: bool = True) -> dict[str, float]:
-    """Systematic Bray-Curtis dissimilarity of every histogram the two signatures share."""
+    """Systematic Bray-Curtis dissimilarity of every histogram the two signatures share (the range law's by band:
+    :func:`range_law_dissimilarity`)."""
     keys = [k for k in measured.sums if k in simulated.sums]
-    return {k: systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip,
-                                      measured.squares.get(k), simulated.squares.get(k))
+    return {k: (range_law_dissimilarity(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip)
+                if k == "range_law" else
+                systematic_bray_curtis(measured.sums[k], measured.frames, simulated.sums[k], simulated.frames, clip,
+                                       measured.squares.get(k), simulated.squares.get(k)))
             for k in keys}  # fmt: skip
 
 
@@ -278,8 +304,8 @@ def evidence_weights(measured: Signature, simulated: Signature) -> dict[str, flo
 def gap_value(measured: Signature, simulated: Signature, clip: bool = True) -> float:
     """The reality gap (0 = indistinguishable, 1 = disjoint; lower is better): the mean over
     the histograms - per zone the range, intensity and EPW histograms by echo number, plus
-    the bird's-eye, channel x range and later-echo histograms - of their systematic Bray-Curtis
-    dissimilarity times their evidence weight (:func:`evidence_weights`). Every zone with
+    the bird's-eye, channel x range, later-echo and range-law histograms - of their systematic Bray-Curtis
+    dissimilarity (the range law's by band) times their evidence weight (:func:`evidence_weights`). Every zone with
     enough returns counts equally, whatever its number of points, so a missing zone (spray,
     cover returns) weighs as much as a wrong far field. ``clip=False``: the fitting objective
     (see :func:`systematic_bray_curtis`)."""

@@ -33,7 +33,8 @@ total and each bin is a band of the rule above, and what the bins exceed their t
 noise floor (the sun) widens the pulses of every surface more than it changes their count.
 
 **Naming rule** (:func:`judge_effects`). Each weather effect declares the zones that are its physics
-(:data:`EFFECT_ZONES`). An accepted effect is named only when, on the held-out frames, (1) one of its zones has a
+(:data:`EFFECT_ZONES`), and the fog only its range counts (:data:`EFFECT_ASPECTS`: the range law of its loss; how the
+pulses' widths and bytes answer it is the unit's receiver). An accepted effect is named only when, on the held-out frames, (1) one of its zones has a
 significant residual without it (the other accepted effects in place): it had something to explain there; and
 (2) with it, each of its zones' residual is no longer significant or is at most :data:`REMAINING` (20 %) of what it
 was without it. An effect that shrinks the total gap while its own zones keep their residual (or gain one) is
@@ -75,12 +76,14 @@ SHAPES = ("excess returns", "missing returns", "loss growing with range", "loss 
           "narrower pulses", "returns brighter", "returns dimmer", "no residual")  # fmt: skip
 #: the distributions compared besides the range counts (module doc): a zone's histogram of each, echoes summed
 ASPECTS = {"epw": ("wider pulses", "narrower pulses"), "intensity": ("returns brighter", "returns dimmer")}
-#: the zones that are each weather effect's physics (module doc): fog dims every surface more with range and puts
-#: soft echoes in the near field; rain and snow put discrete returns in the near field and dim the far one; a wet
+#: the zones that are each weather effect's physics (module doc): fog dims every surface more with range (its soft
+#: echoes in the near field are the unit's near-field gain as much as the fog's, fitted by the search:
+#: :data:`lidar_weather_sim.gap.search.FOG_NEAR_GAINS`; a near field they leave is reported, not held against the
+#: name); rain and snow put discrete returns in the near field and dim the far one; a wet
 #: road takes the road's returns; dirt or water on the cover returns from the cover and dims every direction; the
 #: sun's false detections and raised threshold act beyond the near field; spray flies in the vehicles' wakes
 EFFECT_ZONES: dict[str, tuple[str, ...]] = {
-    "atmosphere.fog": ("near", *RANGE_ZONES),
+    "atmosphere.fog": RANGE_ZONES,
     "atmosphere.rain": ("near", "far"),
     "atmosphere.snow": ("near", "far"),
     "atmosphere.road_wet": ("road",),
@@ -89,6 +92,12 @@ EFFECT_ZONES: dict[str, tuple[str, ...]] = {
     "sensor.sun": ("road", "far"),
     "spray": ("wake", "body"),
 }
+
+#: the aspects (range counts, :data:`ASPECTS`) an effect's naming judges in its zones, where not all: the fog's
+#: physics is the range law of its loss; how a pulse's width and byte answer a weaker echo is the unit's receiver
+#: (draw case 0, a Beer-Lambert fog whose pulses narrow as sqrt(ln(A/T)): fitted at 232 m for 229, held-out gap
+#: 0.106 -> 0.006, the bodies' pulse widths kept 25 % of their residual, over :data:`REMAINING`)
+EFFECT_ASPECTS: dict[str, tuple[str, ...]] = {"atmosphere.fog": ("range",)}
 
 
 @dataclass(frozen=True)
@@ -273,9 +282,10 @@ def zone_residuals(measured: Signature, simulated: Signature,
     return out
 
 
-def _of_zones(residuals: dict[str, ZoneResidual], zones: tuple[str, ...]) -> list[str]:
-    """The keys of ``residuals`` (every aspect) in ``zones``."""
-    return [k for k, r in residuals.items() if r.zone in zones]
+def _of_zones(residuals: dict[str, ZoneResidual], zones: tuple[str, ...],
+              aspects: tuple[str, ...] | None = None) -> list[str]:  # fmt: skip
+    """The keys of ``residuals`` in ``zones`` (of ``aspects``; None: every aspect)."""
+    return [k for k, r in residuals.items() if r.zone in zones and (aspects is None or r.aspect in aspects)]
 
 
 def removes_its_residual(name: str, without: dict[str, ZoneResidual],
@@ -283,13 +293,13 @@ def removes_its_residual(name: str, without: dict[str, ZoneResidual],
     """Why the effect ``name`` may not be named (None: it may), from the zones' residuals without it and with it
     (the other accepted effects in place both times): module doc, the naming rule. Effects without zones in
     :data:`EFFECT_ZONES` (the sensor family) always may."""
-    zones = EFFECT_ZONES.get(name)
+    zones, aspects = EFFECT_ZONES.get(name), EFFECT_ASPECTS.get(name)
     if zones is None:
         return None
-    if not any(without[k].significant for k in _of_zones(without, zones)):
+    if not any(without[k].significant for k in _of_zones(without, zones, aspects)):
         return f"no residual to remove in its zones ({', '.join(ZONE_LABELS[z] for z in zones)})"
     empty = ZoneResidual("", 0.0, 0.0, 0.0, "no residual", ())
-    left = [k for k in _of_zones(with_it, zones)
+    left = [k for k in _of_zones(with_it, zones, aspects)
             if with_it[k].significant and with_it[k].residual > REMAINING * without.get(k, empty).residual]  # fmt: skip
     if left:
         return "leaves " + "; ".join(
@@ -310,7 +320,8 @@ class Judgement:
 
     def rule(self) -> dict:
         return {"sigma": SIGMA, "min_relative": MIN_RELATIVE, "remaining": REMAINING,
-                "effect_zones": {k: list(v) for k, v in EFFECT_ZONES.items()}}  # fmt: skip
+                "effect_zones": {k: list(v) for k, v in EFFECT_ZONES.items()},
+                "effect_aspects": {k: list(v) for k, v in EFFECT_ASPECTS.items()}}  # fmt: skip
 
 
 def judge_effects(accepted: list[Effect], measured: Signature, simulate,

@@ -71,7 +71,13 @@ LABELS = {"fog": Label.FOG, "rain": Label.RAIN, "snow": Label.SNOW}
 class PhysicalAir:
     """Fog (visual range m, or None) and precipitation ((``rain`` | ``snow``, mm/h), or None) seen by ``profile``."""
 
-    def __init__(self, profile, fog_visual_range_m: float | None, precipitation: tuple[str, float] | None) -> None:
+    def __init__(self, profile, fog_visual_range_m: float | None, precipitation: tuple[str, float] | None,
+                 near_field_gain: float = 1.0) -> None:
+        """``near_field_gain`` (0-1): the share of the atmosphere's light from within ``NEAR_M`` that the receiver
+        turns into signal (module doc); 1 is the profile's optics alone."""
+        if not 0.0 <= near_field_gain <= 1.0:
+            raise ValueError(f"near_field_gain: must be within [0, 1], got {near_field_gain:g}")
+        self.near_field_gain = float(near_field_gain)
         o, det = profile.optics, profile.detection
         wavelength = float(o.wavelength_nm or DEFAULT_WAVELENGTH_NM)
         self.fog = medium("fog", float(fog_visual_range_m), wavelength) if fog_visual_range_m else None
@@ -144,10 +150,20 @@ class PhysicalAir:
             # summed sigma over a slab's beam volume S h: mean beta S h, variance lam E[sigma^2] = mean_s2 S h
             rel_sd = np.sqrt(mean_s2 / (self.area(centres) * width)) / self.beta(centres)
         kind = "fog" if self.fog is not None or self.precip is None else self.precip.kind
-        return air_volume(lambda r: self._sampled.density(r) * self.beta(r), sigma_m=self.volume.sigma_m,
+        return air_volume(lambda r: self._near_gain(r, self._sampled.density(r) * self.beta(r)), sigma_m=self.volume.sigma_m,
                           r_max_m=self.r_max, start_m=start_m, tau_m=self.tau, floor=VOLUME_FLOOR * self.threshold,
                           label=LABELS[kind], slab_edges=edges, rel_sd=rel_sd,
                           seed=[VOLUME_SEED, zlib.crc32(repr(weather).encode())])  # fmt: skip
+
+    def _near_gain(self, range_m: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``values`` at ``range_m`` (m) times the near-field gain: ``near_field_gain`` out to ``NEAR_M``, rising
+        smoothly (cubic smoothstep) to 1 at twice that (a step would ring through the AC coupling as an echo of its
+        own); unchanged at gain 1."""
+        if self.near_field_gain == 1.0:
+            return values
+        t = np.clip((np.asarray(range_m) - NEAR_M) / NEAR_M, 0.0, 1.0)
+        g = self.near_field_gain
+        return (g + (1.0 - g) * t * t * (3.0 - 2.0 * t)) * values
 
     # -- per batch -----------------------------------------------------------------------------------
     def scatterers(self, batch: RayBatch, rng: np.random.Generator) -> tuple[Scatterers | None, list[VolumeTerm]]:
@@ -183,7 +199,7 @@ class PhysicalAir:
             return None
         # ranges by the inverse of the cumulative count, each in front of its beam's hit
         rng_m = np.interp(rng.random(len(beam)) * expected[beam], self._cum, r)
-        share = self._seen_share(rng_m, rng)
+        share = self._near_gain(rng_m, self._seen_share(rng_m, rng))
         seen = share > 0
         beam, rng_m, share = beam[seen], rng_m[seen], share[seen]
         diameter, sigma = m.sample(len(beam), rng, self._on_grid(rng_m, self._d_min))
