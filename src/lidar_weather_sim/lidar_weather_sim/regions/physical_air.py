@@ -29,6 +29,11 @@ and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
   droplets' own fluctuation moves it by tens of centimetres. Drops do not dim the volume behind them (each
   blocks ~1e-4 of the beam).
 
+A unit's near field is its own: ``near_field_gain`` (0-1) scales the volume's density and the drops' share of
+light out to ``NEAR_M``, rising smoothly to 1 at twice that (a near-range gain, blanking or an overlap that
+suppresses the first metres, which no datum sizes beyond scala's; the gap search fits it with the fog). At 1 the
+tables are the profile's optics alone, bit for bit; the near field's realisations keep their seed.
+
 The overlap O(r) is the profile's biaxial geometry (lens separation, receiver field of view, apertures) in its
 ``optics.overlap_model`` (:data:`lidar_weather_sim.physics.overlap.OVERLAP_MODELS`) where its optics give it,
 else the echo stage's smoothstep; it is part of the volume's density. A drop is seen with probability
