@@ -108,8 +108,8 @@ class Diagnosis:
 #: the fog is tried at these near-field gains (region ``atmosphere``'s ``near_field_gain``): its loss is Beer-Lambert
 #: on every sensor, but how much of its light from the first metres a unit turns into soft echoes is its own
 #: (near-range gain, blanking, overlap; sized by no datum but scala's), and a fog whose soft echoes the model puts
-#: on every beam where the unit shows none was screened worse than no fog at all (draw case 0: 0.536 against 0.130);
-#: at 0.15 the model's echoes are gone out to a few hundred metres of visual range and thinned in denser fog
+#: on every beam where the unit shows none scored worse than no fog at all (draw case 0, its 8 frames: 0.536
+#: against 0.130); at 0.15 the model's echoes are gone out to a few hundred metres of visual range and thinned in denser fog
 FOG_NEAR_GAINS = (1.0, 0.15, 0.0)
 
 
