@@ -70,7 +70,7 @@ def test_the_cloud_fields_choose_the_model():
     filt(with_epw)
     assert filt.last_used == "learned" and filt.primary.last_used == "learned"  # the EPW model
     filt(_single(0))
-    assert filt.last_used == "learned" and filt.primary.last_used == "learned-single"
+    assert filt.last_used == "learned-single" and filt.primary.last_used == "learned-single"  # said as it ran
     no_intensity = _single(1)[["x", "y", "z", "channel", "label"]]
     with pytest.warns(UserWarning, match="lacks intensity"):
         filt(no_intensity)

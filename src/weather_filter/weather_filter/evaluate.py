@@ -121,7 +121,7 @@ def evaluate_frames(filt: PointFilter, frames: Iterable[np.ndarray], method: str
             acc.add(points, result.remove, result.elapsed_s)
         except CloudFieldError as exc:
             raise CloudFieldError(f"frame {k}: {exc}") from None
-        fallback_frames += isinstance(filt, FallbackFilter) and filt.last_used != filt.primary.name
+        fallback_frames += isinstance(filt, FallbackFilter) and filt.last_used == filt.fallback.name
     out = acc.result()
     if fallback_frames:
         out["fallback"] = {"method": filt.fallback.name, "frames": fallback_frames}

@@ -18,13 +18,9 @@ from weather_filter.points.fallback import GeometryFallbackWarning
 
 
 def ran(filt: PointFilter) -> str:
-    """The name of the model or method that filtered the latest cloud: through the geometry fallback's wrapper into
-    the learned filter's choice (``learned``: the EPW model, ``learned-single``: the single-return one)."""
-    used = getattr(filt, "last_used", filt.name)
-    primary = getattr(filt, "primary", None)
-    if primary is not None and used == primary.name:
-        used = getattr(primary, "last_used", used)
-    return str(used)
+    """The name of the model or method that filtered the latest cloud (the geometry fallback's wrapper names the
+    learned filter's choice: ``learned``, the EPW model, ``learned-single``, the single-return one)."""
+    return str(getattr(filt, "last_used", filt.name))
 
 
 def weather_keep_mask(filt: PointFilter, points: np.ndarray) -> np.ndarray:

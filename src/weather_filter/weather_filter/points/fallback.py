@@ -16,7 +16,7 @@ class GeometryFallbackWarning(UserWarning):
 class FallbackFilter(PointFilter):
     """``primary`` where the cloud has its fields, else the geometry-only ``fallback`` with a
     :class:`GeometryFallbackWarning` (once per set of missing fields). ``last_used`` names the filter
-    that ran on the latest cloud."""
+    that ran on the latest cloud (the model a primary that chooses one ran: ``learned-single``)."""
 
     required_fields = GEOMETRY_FIELDS
 
@@ -34,8 +34,9 @@ class FallbackFilter(PointFilter):
             if missing not in self._warned:
                 self._warned.add(missing)
                 warnings.warn(fallback_message(self.primary.name, list(missing), self.fallback.name), GeometryFallbackWarning, stacklevel=3)
-        self.last_used = filt.name
-        return filt.remove_mask(points)
+        mask = filt.remove_mask(points)
+        self.last_used = getattr(filt, "last_used", filt.name)  # through a filter that chooses its model itself
+        return mask
 
     def fields_read(self, points: np.ndarray) -> frozenset[str]:
         """The primary's fields where the cloud has them all, else the fallback's."""
