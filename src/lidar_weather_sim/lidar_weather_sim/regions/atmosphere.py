@@ -54,7 +54,8 @@ class AtmosphereParams(ConfigModel):
     road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Overrides weather.road.water_film_mm "
                                              "for this region (mm); both none: eq. 1's film of the rain")
     near_field_gain: float = Field(1.0, ge=0, le=1, description="Share (0-1) of the atmosphere's light from within 5 m "
-                                   "that the receiver turns into signal: 1 the profile's optics alone, lower for a "
+                                   "that the receiver turns into signal, rising smoothly to 1 at 10 m: 1 the "
+                                   "profile's optics alone, lower for a "
                                    "unit whose near-range gain, blanking or overlap suppress it (the fog's soft echoes)")
 
     moved_keys: ClassVar[dict[str, str]] = {
