@@ -2,6 +2,8 @@
 .PHONY: setup demo test test-all coverage clean
 
 FAST := not slow and not validation
+# pytest-xdist workers for test and test-all: auto = one per CPU; JOBS=0 runs the tests in this one process.
+JOBS ?= auto
 
 setup:
 	@bash scripts/setup.sh
@@ -9,11 +11,11 @@ setup:
 demo: setup
 	@bash scripts/demo.sh
 
-test: setup  ## the fast tier: unit tests and quick DDS/CLI integration tests (~10 min on 2 cores)
-	@bash scripts/test.sh -m "$(FAST)" $(PYTEST_ARGS)
+test: setup  ## the fast tier: unit tests and quick DDS/CLI integration tests (~6 min on 2 cores)
+	@bash scripts/test.sh -n $(JOBS) -m "$(FAST)" $(PYTEST_ARGS)
 
 test-all: setup  ## every test: the fast tier plus the slow and validation tiers
-	@bash scripts/test.sh $(PYTEST_ARGS)
+	@bash scripts/test.sh -n $(JOBS) $(PYTEST_ARGS)
 
 coverage: setup  ## both tiers with line coverage per package (log/coverage/)
 	@LWS_COVERAGE=fast bash scripts/test.sh -m "$(FAST)" $(PYTEST_ARGS)

@@ -27,8 +27,15 @@ def _shm_usable(min_free_bytes: int = 64 * 2**20) -> bool:
         return False
 
 
+def _domain_id() -> int:
+    """1-100 from this process's id; pytest-xdist's workers (gw0, gw1, ...) of one run are told apart by the
+    parity of their worker number, so two workers never share a domain even when their ids are 50 apart."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    return 1 + (os.getpid() % 50) * 2 + (int(worker) if worker.isdigit() else 0) % 2
+
+
 def _isolate_dds() -> None:
-    os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
+    os.environ["ROS_DOMAIN_ID"] = str(_domain_id())
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     os.environ.pop("ROS_STATIC_PEERS", None)
