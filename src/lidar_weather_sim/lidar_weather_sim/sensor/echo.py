@@ -48,6 +48,7 @@ from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.points import ReturnType
 from lidar_weather_sim.core.scratch import allocator
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold
+from lidar_weather_sim.sensor.volume_prefix import VolumePrefix, build_prefix, no_prefix, prefix_echoes
 from lidar_weather_sim.sensor.volume_tables import (BLOCK, Volume, empty_volume, fill_block_bounds, fill_volume,
                                                     volume_window)
 
@@ -122,6 +123,7 @@ def detect_echoes(
     segments: tuple[np.ndarray, np.ndarray] | None = None,
     scratch=None,
     volume: Volume | None = None,
+    shared_prefix: bool = True,
 ) -> Echoes:
     """Echoes of candidate returns of the beams of a batch (fastest when grouped by beam).
 
@@ -132,7 +134,9 @@ def detect_echoes(
     of its arrays, valid until its next use. ``volume``
     (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`, its grid step s / 8 of this pulse): volume
     returns added to the waveforms of the beams that carry them (a beam index of the candidates is its row),
-    those beams detected even without candidates.
+    those beams detected even without candidates. ``shared_prefix``: the volume's echoes in front of the hard
+    targets found once per group of beams with the same layers (:mod:`lidar_weather_sim.sensor.volume_prefix`;
+    False: every beam's sampled on its own, the same echoes bit for bit, slower).
     """
     sigma = float(fwhm_m) * FWHM_TO_SIGMA
     if volume is not None:
@@ -151,8 +155,23 @@ def detect_echoes(
         np.ascontiguousarray(object_id, np.uint32),
     )
     detector = Detector(float(threshold.level), sigma, float(resolution_m), int(max_echoes))
-    out = _detect(candidates, detector, scratch, segments, volume)
+    prefix = None
+    if volume is not None and shared_prefix:
+        prefix = build_prefix(volume, detector.threshold, detector.max_echoes, lambda group_volume: _group_echoes(group_volume, detector))
+    out = _detect(candidates, detector, scratch, segments, volume, prefix)
     return Echoes(*out)
+
+
+def _group_echoes(group_volume: Volume, detector: Detector) -> tuple:
+    """(beam, range_m, amplitude, epw_m, label) of the echoes of each row of ``group_volume`` alone, beams
+    ascending (:func:`~lidar_weather_sim.sensor.volume_prefix.build_prefix`'s ``detect``)."""
+    rows, k = group_volume.table.shape[0], detector.max_echoes
+    candidates = Candidates(np.repeat(np.arange(rows, dtype=np.int64), k), np.full(rows * k, np.nan),
+                            np.zeros(rows * k), np.zeros(rows * k, np.uint8), np.zeros(rows * k, np.uint32))  # fmt: skip
+    *arrays, (starts, counts) = _detect(candidates, detector, volume=group_volume)
+    written = np.concatenate([np.arange(a, a + c) for a, c in zip(starts, counts)]).astype(np.int64)
+    beam, _, range_m, amplitude, epw_m, label, _ = (x[written] for x in arrays)
+    return beam, range_m, amplitude, epw_m, label
 
 
 def _with_volume_beams(candidates: tuple, segments, volume: Volume, sigma: float, max_echoes: int) -> tuple:
@@ -467,17 +486,20 @@ def _run_echoes(pulses, c0, c1, thr, s, window, volume, out, out0, room, buf):
 
 
 _EMPTY_VOLUME = empty_volume()
+_NO_PREFIX = no_prefix()
 
 #: Candidates per chunk when a batch is shared between threads (:mod:`lidar_weather_sim.core.workers`):
 #: chunks are cut where the beam changes, every beam is computed the same way.
 CHUNK_CANDIDATES = 8192
 
 
-def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=None, volume: Volume | None = None):
+def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=None, volume: Volume | None = None,
+            prefix: VolumePrefix | None = None):  # fmt: skip
     """The arrays of :class:`Echoes` of ``candidates`` (grouped by beam; only the runs ``segments``
-    (starts, counts) if given) with the beams' ``volume`` layers (None: none), each chunk's written from its
-    first candidate's index on."""
+    (starts, counts) if given) with the beams' ``volume`` layers (None: none) and their groups' echoes
+    ``prefix`` (None: none), each chunk's written from its first candidate's index on."""
     volume = _EMPTY_VOLUME if volume is None else volume
+    prefix = _NO_PREFIX if prefix is None else prefix
     beam = candidates.beam
     n = len(beam)
     cap = n  # a sum of k Gaussians has at most k maxima: never more echoes than candidates (volume beams: see
@@ -493,7 +515,7 @@ def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=N
     else:
         starts, ends = segments[0], segments[0] + segments[1]
     counts = np.array(workers.run_chunks(
-        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out, volume),
+        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out, volume, prefix),
         len(starts),
     ), np.int64)  # fmt: skip
     return (*out, (starts, counts))
@@ -518,10 +540,12 @@ def _beam_starts(beam, cuts):
 
 
 @numba.njit(cache=True, nogil=True)
-def _detect_run(candidates, detector, lo, hi, out, volume):
+def _detect_run(candidates, detector, lo, hi, out, volume, prefix):
     """Echoes of the beams of ``candidates`` lo..hi (whole beams), written into ``out``
     (:class:`EchoBuffers`) from index lo on; returns how many. A beam with layers in ``volume``
-    (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`) goes through :func:`_volume_echoes`."""
+    (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`) takes its group's echoes in front of its hard
+    target from ``prefix`` (:class:`~lidar_weather_sim.sensor.volume_prefix.VolumePrefix`) and goes through
+    :func:`_volume_echoes` from there on."""
     beam, r, a, lab, obj = candidates
     thr, s, resolution, max_echoes = detector
     eb, ee, er, ea, ew, el, eo = out
@@ -548,8 +572,9 @@ def _detect_run(candidates, detector, lo, hi, out, volume):
         if v1 > v0:
             for q in range(m):
                 reach[q] = _reach(ma[q], thr, s)
-            found, samples = _volume_echoes(pulses, m, detector, (volume, beam[i], v0, v1, v_bound), out, count,
-                                            buf, samples)  # fmt: skip
+            taken, v0 = prefix_echoes(prefix, volume, beam[i], pulses, m, detector, v0, v1, out, count)
+            found, samples = _volume_echoes(pulses, m, detector, (volume, beam[i], v0, v1, v_bound, taken), out,
+                                            count, buf, samples)  # fmt: skip
             for k in range(found):
                 eb[count + k] = beam[i]
                 ee[count + k] = k + 1
@@ -592,17 +617,16 @@ def _volume_echoes(pulses, m, detector, beam_volume, out, out0, buf, samples):
     """Echoes of one beam's merged ``pulses`` (m, their reach set) plus its volume, written into ``out`` from out0
     on; returns (how many, ``samples`` grown if they had to be). ``beam_volume``: (the
     :class:`~lidar_weather_sim.sensor.volume_tables.Volume`, the beam, the samples [v0, v1) where its volume may be
-    non-zero, a bound on its value).
+    non-zero, a bound on its value, the echoes already written in front of v0 (counted in the result)).
 
     Clusters of pulses (as in :func:`_detect_run`) that end before the volume's window or start after it are
     found as on a beam without a volume; the volume's window and the clusters reaching into it are one waveform,
     sampled on the grid of the volume's tables (``k dx`` from the sensor) by :func:`_run_echoes`."""
     r, a, reach, lab, obj = pulses
     thr, s, resolution, max_echoes = detector
-    volume, b, v0, v1, v_bound = beam_volume
+    volume, b, v0, v1, v_bound, found = beam_volume
     dx = s / 8.0
     v_lo, v_hi = v0 * dx, (v1 - 1) * dx
-    found = 0
     c0 = 0
     done = False
     while (c0 < m or not done) and found < max_echoes:

@@ -401,6 +401,18 @@ def volume_window(volume, b):
 
 
 @numba.njit(cache=True, nogil=True)
+def uncut_end(volume, b):
+    """The first sample of beam b where a layer's cut rows begin (k - REACH of :func:`_cut_index`): in front of
+    it :func:`fill_volume` reads every layer as ``scale * wave``, as for a beam without a hard target."""
+    end = 1 << 62
+    for layer in range(volume.table.shape[1]):
+        t, _, _, _, k, _ = _layer(volume, b, layer)
+        if t >= 0 and k >= 0:
+            end = min(end, k - REACH)
+    return end
+
+
+@numba.njit(cache=True, nogil=True)
 def fill_block_bounds(volume, b, first_block, n, bounds):
     """Into bounds[:n], for beam b's blocks first_block..first_block + n (block q: samples q BLOCK .. q BLOCK +
     BLOCK - 1): a bound on the magnitude of its volume (:func:`fill_volume`) there, the sum over its layers of the
@@ -439,9 +451,8 @@ def fill_volume(volume, b, first, n, values, labels):
             continue
         # in front of k - REACH the three rows are the waveform; behind k + 2 + REACH all are 0 (adds nothing)
         i1 = min(max(k - REACH - first, i0), min(hi - first, n))
-        for i in range(i0, i1):
-            w = wave[w0 + first + i]
-            v = scale * (g0 * w + g1 * w + g2 * w)
+        for i in range(i0, i1):  # the three rows' weights sum to 1: the waveform, as in front of no cut
+            v = scale * wave[w0 + first + i]
             if v > values[i]:
                 labels[i] = label[w0 + first + i]
             values[i] += v
