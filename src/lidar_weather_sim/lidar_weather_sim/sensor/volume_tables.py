@@ -352,19 +352,6 @@ def _cut_index(volume, t, hit_m):
 
 
 @numba.njit(cache=True, inline="always")
-def _row(wave, cut, w0, c0, c_first, c_end, k, j):
-    """A table's waveform at sample j (inside the support) in front of boundary row k: its samples at w0 + j of
-    ``wave``, its boundary rows c_first <= k < c_end at c0 + k of ``cut`` (:class:`Volume`'s ``origin[t]``,
-    ``cut_origin[t]``, ``cut_first[t]``, ``cut_end[t]``; the arrays passed alone, as the kernel's loop reads them
-    without touching the tuple)."""
-    if j < k - REACH:
-        return wave[w0 + j]
-    if j >= k + REACH or k < c_first or k >= c_end:
-        return 0.0  # behind the cut, or a row whose samples all lie outside the support
-    return cut[c0 + k, j - k + REACH]
-
-
-@numba.njit(cache=True, inline="always")
 def _layer(volume, b, layer):
     """(table, scale, support start, support end, cut row K, fraction f) of beam b's layer (see :func:`_cut_index`);
     table -1: the beam has no such layer (no table, or scale 0)."""
@@ -456,12 +443,50 @@ def fill_volume(volume, b, first, n, values, labels):
             if v > values[i]:
                 labels[i] = label[w0 + first + i]
             values[i] += v
-        for i in range(i1, min(min(hi, k + 2 + REACH) - first, n)):
-            j = first + i
-            v = scale * (g0 * _row(wave, cut, w0, c0, c_first, c_end, k, j)
-                         + g1 * _row(wave, cut, w0, c0, c_first, c_end, k + 1, j)
-                         + g2 * _row(wave, cut, w0, c0, c_first, c_end, k + 2, j))
-            if v > values[i]:
-                labels[i] = label[w0 + j]
-            values[i] += v
+        # from k - REACH on, in five spans where each row K = k + d is the waveform (in front of K - REACH), its
+        # cut row (to K + REACH; 0 for a row outside c_first..c_end) or 0 (behind): span s starts at k - REACH + s
+        # (s <= 2) or k + REACH + s - 3, and row d is the waveform in spans s < d, its cut row in d..d + 2
+        i_end = min(min(hi, k + 2 + REACH) - first, n)
+        m0, m1, m2 = _row_mode(k, c_first, c_end), _row_mode(k + 1, c_first, c_end), _row_mode(k + 2, c_first, c_end)
+        for span in range(5):
+            i_a = max(i1, (k - REACH + span if span <= 2 else k + REACH + span - 3) - first)
+            i_b = i_end if span == 4 else min(i_end, (k - REACH + span + 1 if span <= 1 else k + REACH + span - 2) - first)
+            d0 = 1 if span < 0 else (m0 if span <= 2 else 0)
+            d1 = 1 if span < 1 else (m1 if span <= 3 else 0)
+            d2 = 1 if span < 2 else m2
+            if d0 == 2 and d1 == 2 and d2 == 2:  # most of the samples: the three cut rows, without a branch
+                for i in range(i_a, i_b):
+                    j = first + i
+                    v = scale * (g0 * cut[c0 + k, j - k + REACH] + g1 * cut[c0 + k + 1, j - k - 1 + REACH]
+                                 + g2 * cut[c0 + k + 2, j - k - 2 + REACH])
+                    if v > values[i]:
+                        labels[i] = label[w0 + j]
+                    values[i] += v
+                continue
+            for i in range(i_a, i_b):
+                j = first + i
+                v = scale * (g0 * _row_value(d0, wave, cut, w0 + j, c0 + k, j - k + REACH)
+                             + g1 * _row_value(d1, wave, cut, w0 + j, c0 + k + 1, j - k - 1 + REACH)
+                             + g2 * _row_value(d2, wave, cut, w0 + j, c0 + k + 2, j - k - 2 + REACH))
+                if v > values[i]:
+                    labels[i] = label[w0 + j]
+                values[i] += v
     return values
+
+
+@numba.njit(cache=True, inline="always")
+def _row_mode(k, c_first, c_end):
+    """How :func:`fill_volume` reads boundary row k where it is cut: 2 its cut row, 0 none (a row outside
+    c_first..c_end: its samples all lie outside the support)."""
+    return 2 if c_first <= k < c_end else 0
+
+
+@numba.njit(cache=True, inline="always")
+def _row_value(mode, wave, cut, at, row, column):
+    """A cut row's value in :func:`fill_volume`'s spans: 0 (mode 0), the waveform's sample ``wave[at]`` (1) or
+    ``cut[row, column]`` (2)."""
+    if mode == 2:
+        return cut[row, column]
+    if mode == 1:
+        return wave[at]
+    return 0.0
