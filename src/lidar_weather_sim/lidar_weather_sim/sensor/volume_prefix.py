@@ -177,7 +177,7 @@ def _over_intervals(volume, thr):
     return origin, np.array(first, np.int64), np.array(end, np.int64)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, inline="always")
 def prefix_echoes(prefix, volume, b, pulses, m, detector, v0, v1, out, out0):
     """Beam b's echoes from its group's (module doc), written into ``out`` (the echo stage's buffers) from out0
     on: returns (how many, the sample from which the echo stage samples the beam's volume instead of ``v0``).
