@@ -572,9 +572,10 @@ def _detect_run(candidates, detector, lo, hi, out, volume, prefix):
         if v1 > v0:
             for q in range(m):
                 reach[q] = _reach(ma[q], thr, s)
-            taken, v0 = prefix_echoes(prefix, volume, beam[i], pulses, m, detector, v0, v1, out, count)
-            found, samples = _volume_echoes(pulses, m, detector, (volume, beam[i], v0, v1, v_bound, taken), out,
-                                            count, buf, samples)  # fmt: skip
+            found, v0 = prefix_echoes(prefix, volume, beam[i], pulses, m, detector, v0, v1, out, count)
+            if v0 < v1:
+                found, samples = _volume_echoes(pulses, m, detector, (volume, beam[i], v0, v1, v_bound, found), out,
+                                                count, buf, samples)  # fmt: skip
             for k in range(found):
                 eb[count + k] = beam[i]
                 ee[count + k] = k + 1

@@ -11,7 +11,8 @@ sampled once per group and batch instead of once per beam.
 
 A beam takes the echoes of its group that end in front of the last two samples ``W - 2, W - 1`` in that common
 part which are both below the threshold; the echo stage samples the beam's waveform from ``W`` on (its window
-then begins at ``W - 2`` or ``W - 1``, below the threshold). The echoes are therefore those the echo stage finds
+then begins at ``W - 2`` or ``W - 1``, below the threshold); a beam without pulses whose layers are not cut takes
+all of its group's echoes and is done. The echoes are therefore those the echo stage finds
 on the whole waveform, bit for bit (``test_volume_prefix.py`` compares both on fog, rain and snow batches).
 """
 
@@ -180,7 +181,8 @@ def _over_intervals(volume, thr):
 @numba.njit(cache=True, inline="always")
 def prefix_echoes(prefix, volume, b, pulses, m, detector, v0, v1, out, out0):
     """Beam b's echoes from its group's (module doc), written into ``out`` (the echo stage's buffers) from out0
-    on: returns (how many, the sample from which the echo stage samples the beam's volume instead of ``v0``).
+    on: returns (how many, the sample from which the echo stage samples the beam's volume instead of ``v0``; v1
+    when nothing is left to find: no room, or a beam without pulses whose whole volume is its group's).
     ``pulses``: its m merged pulses (range_m, amplitude); [v0, v1): where its volume may be non-zero."""
     g = prefix.group[b] if b < len(prefix.group) else -1
     if g < 0:
@@ -188,6 +190,7 @@ def prefix_echoes(prefix, volume, b, pulses, m, detector, v0, v1, out, out0):
     thr, s, max_echoes = detector.threshold, detector.sigma, detector.max_echoes
     dx = s / 8.0
     end = min(uncut_end(volume, b), v1 - 1)  # the samples in front of end are the group's
+    whole = end == v1 - 1 and m == 0  # ... and every sample, the beam having no pulses
     r, a = pulses.range_m, pulses.amplitude
     floor, total, r_min = thr * NEGLIGIBLE, 0.0, 1e300
     for q in range(m):
@@ -210,6 +213,7 @@ def prefix_echoes(prefix, volume, b, pulses, m, detector, v0, v1, out, out0):
         c = prefix.over_first[i] - 1
     if c + 1 <= v0:
         return 0, v0
+    every = taken == prefix.interval_origin[g + 1] - i0
     e0 = prefix.echo_origin[g]
     taken = min(taken, prefix.echo_origin[g + 1] - e0, max_echoes)
     for k in range(taken):
@@ -218,4 +222,6 @@ def prefix_echoes(prefix, volume, b, pulses, m, detector, v0, v1, out, out0):
         out.epw_m[out0 + k] = prefix.epw_m[e0 + k]
         out.label[out0 + k] = prefix.label[e0 + k]
         out.object_id[out0 + k] = 0
+    if taken == max_echoes or (whole and every):
+        return taken, v1
     return taken, c + 1
