@@ -65,8 +65,10 @@ def build_prefix(volume: Volume, threshold: float, max_echoes: int, detect: Call
     epw_m, label), beams ascending, each beam's echoes in range order. A group whose echoes are not one per
     interval above the threshold (up to ``max_echoes``) is not used (its beams are sampled on their own)."""
     n, layers = volume.table.shape
-    if layers == 0 or n < 2:
+    if layers == 0 or n < 2 or len(volume.peak) == 0:
         return no_prefix(n)
+    if (np.nan_to_num(volume.scale).max(axis=0) * volume.peak.max()).sum() <= threshold:
+        return no_prefix(n)  # no beam's layers reach the threshold (rain's, snow's volumes): nothing to share
     scale_bits = np.ascontiguousarray(volume.scale, np.float64).view(np.int64)
     group, rows = _groups(volume.table, volume.scale, scale_bits, volume.peak, float(threshold))
     if len(rows) == 0:
