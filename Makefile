@@ -2,8 +2,9 @@
 .PHONY: setup demo test test-all coverage clean
 
 FAST := not slow and not validation
-# pytest-xdist workers for test and test-all: auto = one per CPU; JOBS=0 runs the tests in this one process.
-JOBS ?= auto
+# pytest-xdist workers for test and test-all: one per CPU this process may use (nproc, as the simulator counts
+# them), at most 8; JOBS=N for N, JOBS=0 runs the tests in this one process.
+JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); echo $$(( n < 8 ? n : 8 )))
 
 setup:
 	@bash scripts/setup.sh
