@@ -83,8 +83,8 @@ def only(calls, beams_of) -> list[tuple[tuple, dict]]:
         volume = kwargs["volume"]
         keep = beams_of(volume)
         rows = keep[args[0]]
-        out.append((tuple(x[rows] for x in args),
-                    {**kwargs, "volume": volume._replace(table=np.where(keep[:, None], volume.table, -1))}))  # fmt: skip
+        table = np.where(keep[:, None], volume.table, -1)
+        out.append((tuple(x[rows] for x in args), {**kwargs, "volume": volume._replace(table=table)}))
     return out
 
 

@@ -157,7 +157,8 @@ def detect_echoes(
     detector = Detector(float(threshold.level), sigma, float(resolution_m), int(max_echoes))
     prefix = None
     if volume is not None and shared_prefix:
-        prefix = build_prefix(volume, detector.threshold, detector.max_echoes, lambda group_volume: _group_echoes(group_volume, detector))
+        prefix = build_prefix(volume, detector.threshold, detector.max_echoes,
+                              lambda group_volume: _group_echoes(group_volume, detector))  # fmt: skip
     out = _detect(candidates, detector, scratch, segments, volume, prefix)
     return Echoes(*out)
 
@@ -166,8 +167,9 @@ def _group_echoes(group_volume: Volume, detector: Detector) -> tuple:
     """(beam, range_m, amplitude, epw_m, label) of the echoes of each row of ``group_volume`` alone, beams
     ascending (:func:`~lidar_weather_sim.sensor.volume_prefix.build_prefix`'s ``detect``)."""
     rows, k = group_volume.table.shape[0], detector.max_echoes
-    candidates = Candidates(np.repeat(np.arange(rows, dtype=np.int64), k), np.full(rows * k, np.nan),
-                            np.zeros(rows * k), np.zeros(rows * k, np.uint8), np.zeros(rows * k, np.uint32))  # fmt: skip
+    n = rows * k
+    candidates = Candidates(np.repeat(np.arange(rows, dtype=np.int64), k), np.full(n, np.nan), np.zeros(n),
+                            np.zeros(n, np.uint8), np.zeros(n, np.uint32))  # fmt: skip
     *arrays, (starts, counts) = _detect(candidates, detector, volume=group_volume)
     written = np.concatenate([np.arange(a, a + c) for a, c in zip(starts, counts)]).astype(np.int64)
     beam, _, range_m, amplitude, epw_m, label, _ = (x[written] for x in arrays)

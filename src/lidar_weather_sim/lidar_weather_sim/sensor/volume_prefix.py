@@ -92,8 +92,8 @@ def build_prefix(volume: Volume, threshold: float, max_echoes: int, detect: Call
 
 @numba.njit(cache=True, nogil=True)
 def _groups(table, scale, bits, peak, thr):
-    """(group (N,), rows (G,)): the beams whose layers (``table``, ``scale`` and its ``bits`` as int64, each (N, L); a layer without a
-    table or with scale <= 0 is none) may together exceed ``thr`` (the sum of scale times the table's ``peak``),
+    """(group (N,), rows (G,)): the beams whose layers (``table``, ``scale`` and its ``bits`` as int64, each (N, L);
+    a layer without a table or with scale <= 0 is none) may together exceed ``thr`` (the sum of scale times the table's ``peak``),
     grouped by equal layers; groups of two beams or more are numbered in the order of their first beam (rows:
     it), the other beams are -1."""
     n, layers = table.shape

@@ -449,9 +449,9 @@ def fill_volume(volume, b, first, n, values, labels):
         i_end = min(min(hi, k + 2 + REACH) - first, n)
         m0, m1, m2 = _row_mode(k, c_first, c_end), _row_mode(k + 1, c_first, c_end), _row_mode(k + 2, c_first, c_end)
         for span in range(5):
-            i_a = max(i1, (k - REACH + span if span <= 2 else k + REACH + span - 3) - first)
-            i_b = i_end if span == 4 else min(i_end, (k - REACH + span + 1 if span <= 1 else k + REACH + span - 2) - first)
-            d0 = 1 if span < 0 else (m0 if span <= 2 else 0)
+            i_a = max(i1, _span_start(k, span) - first)
+            i_b = min(i_end, _span_start(k, span + 1) - first)
+            d0 = m0 if span <= 2 else 0
             d1 = 1 if span < 1 else (m1 if span <= 3 else 0)
             d2 = 1 if span < 2 else m2
             if d0 == 2 and d1 == 2 and d2 == 2:  # most of the samples: the three cut rows, without a branch
@@ -472,6 +472,13 @@ def fill_volume(volume, b, first, n, values, labels):
                     labels[i] = label[w0 + j]
                 values[i] += v
     return values
+
+
+@numba.njit(cache=True, inline="always")
+def _span_start(k, span):
+    """The first sample of :func:`fill_volume`'s span 0-5 behind cut row k: k - REACH + span, then k + REACH + span
+    - 3 (span 5 starts where the three rows have ended)."""
+    return k - REACH + span if span <= 2 else k + REACH + span - 3
 
 
 @numba.njit(cache=True, inline="always")
