@@ -287,8 +287,8 @@ def test_gap_reads_weak_channels_and_elevation_offsets_off_the_recording(highway
 @pytest.mark.validation
 def test_a_right_name_is_still_given_and_nothing_is_left_unexplained(highway, tmp_path):
     """The model's own fog of 80 m (8 frames, budgets 4 / 4 / 2: ~60 s): the search names it at the model's own
-    near-field gain (1: the soft echoes are there) and the judgement after it reports no unexplained zone
-    (lidar_weather_sim.gap.unexplained). Hidden rain of 10 mm/h was this test's case until the fog's near-field gains
+    backscatter gain (1: the soft echoes are there) and the judgement after it reports no unexplained zone
+    (lidar_weather_sim.gap.unexplained). Hidden rain of 10 mm/h was this test's case until the fog's gains
     and the range-law term: on 4 calibration frames its Brent fit stops at 12.1 mm/h and a snow of 0.38 mm/h wins the
     held-out frames by 0.002 (on all 8 frames the rain at 10 scores 0.0000, the snow 0.0029): noise at this budget;
     test_gap_names_exactly_the_hidden_effects_and_recovers_them[atmosphere.rain] names the rain on more frames."""
@@ -296,7 +296,7 @@ def test_a_right_name_is_still_given_and_nothing_is_left_unexplained(highway, tm
     result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", fit_frames=4, heldout_frames=4, screen_frames=2)
     assert [(e["name"], e["named"]) for e in result["effects"]] == [("atmosphere.fog", True)]
     params = result["effects"][0]["params"]
-    assert params["visual_range"] == pytest.approx(80.0, rel=0.1) and "near_gain" not in params, params
+    assert params["visual_range"] == pytest.approx(80.0, rel=0.1) and "gain" not in params, params
     assert result["unexplained"] == [] and result["found"].startswith("atmosphere.fog (visual_range=")
     assert "| none | - | - | - | - |" in (tmp_path / "gap" / "report.md").read_text()
 
@@ -304,9 +304,9 @@ def test_a_right_name_is_still_given_and_nothing_is_left_unexplained(highway, tm
 @pytest.mark.validation
 def test_a_beer_lambert_fog_without_soft_echoes_is_named_at_its_visual_range(highway, tmp_path):
     """Case 0 of config/generator_draw.yaml: the Beer-Lambert fog of the fixed generator fog_loss (229 m, no soft
-    echoes), 8 frames, budgets 4 / 4 / 2 (~70 s). Before the fog had a near-field gain and the gap a range-law term
+    echoes), 8 frames, budgets 4 / 4 / 2 (~70 s). Before the fog had a backscatter gain and the gap a range-law term
     the search fitted a sun to it (then refused by the judgement, nothing named). Now the fog is fitted at a low
-    near-field gain (the unit makes no soft echoes of it) and named within 10 % of its visual range; what is left
+    backscatter gain (the unit makes no soft echoes of it) and named within 10 % of its visual range; what is left
     unexplained is how the generator's pulses answer the loss (their widths), no zone's returns."""
     case = yaml.safe_load((config_dir() / "generator_draw.yaml").read_text())["cases"][0]
     assert (case["generator"], case["hide"]) == ("fog_loss", ["atmosphere.fog:visual_range=229.4"])
@@ -316,6 +316,6 @@ def test_a_beer_lambert_fog_without_soft_echoes_is_named_at_its_visual_range(hig
                      heldout_frames=4, screen_frames=2)  # fmt: skip
     assert [(e["name"], e["named"]) for e in result["effects"]] == [("atmosphere.fog", True)]
     fog = result["effects"][0]["params"]
-    assert fog["visual_range"] == pytest.approx(229.4, rel=0.1) and fog["near_gain"] <= 0.15, fog
+    assert fog["visual_range"] == pytest.approx(229.4, rel=0.1) and fog["gain"] <= 0.15, fog
     assert result["gap_after"] < 0.2 * result["gap_before"]
     assert all(u["aspect"] != "range" for u in result["unexplained"]), result["unexplained"]  # every zone's counts

@@ -622,21 +622,21 @@ def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_ref
     assert rain_of(search.joint_round([snow, dirt])).heldout_gap > 3 * required
 
 
-def test_the_fog_is_screened_at_each_near_field_gain_and_its_gain_patches_the_atmosphere():
-    """The fog's soft echoes are the unit's near-field gain as much as the fog's: the search offers the fog once per
-    gain of FOG_NEAR_GAINS (1: no key, the model's optics alone), the gain goes to region atmosphere's
-    near_field_gain, outlives a new value and is refused outside 0-1."""
+def test_the_fog_is_screened_at_each_backscatter_gain_and_its_gain_patches_the_atmosphere():
+    """The fog's soft echoes are the unit's backscatter gain as much as the fog's: the search offers the fog once per
+    gain of FOG_GAINS (1: no key, the model's optics alone), the gain goes to region atmosphere's
+    fog_backscatter_gain, outlives a new value and is refused outside 0-1."""
     from lidar_weather_sim.scenario.effects import apply_effects
 
     resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
     fogs = [e for e in search_module.candidate_effects(resim) if e.name == "atmosphere.fog"]
-    assert [e.params.get("near_gain", 1.0) for e in fogs] == list(search_module.FOG_NEAR_GAINS)
-    assert 1.0 in search_module.FOG_NEAR_GAINS and 0.0 in search_module.FOG_NEAR_GAINS
+    assert [e.params.get("gain", 1.0) for e in fogs] == list(search_module.FOG_GAINS)
+    assert 1.0 in search_module.FOG_GAINS and 0.0 in search_module.FOG_GAINS
     assert all(search_module.same_effect(fogs[0], f) for f in fogs)  # one effect: accepted once, excluded once
-    fog = parse_effect("atmosphere.fog:visual_range=120,near_gain=0")
-    assert fog.with_value(90.0).params == {"visual_range": 90.0, "near_gain": 0.0}
+    fog = parse_effect("atmosphere.fog:visual_range=120,gain=0")
+    assert fog.with_value(90.0).params == {"visual_range": 90.0, "gain": 0.0}
     params = apply_effects(load_scenario("highway_clear"), [fog.with_value(90.0)]).region_params["atmosphere"]
-    assert params["visual_range_m"] == 90.0 and params["near_field_gain"] == 0.0
-    assert "near_field_gain" not in apply_effects(load_scenario("highway_clear"), [FOG]).region_params["atmosphere"]
-    with pytest.raises(ValueError, match="'near_gain' is a share of the near field's light, within \\[0, 1\\], got 1.5"):
-        parse_effect("atmosphere.fog:visual_range=120,near_gain=1.5")
+    assert params["visual_range_m"] == 90.0 and params["fog_backscatter_gain"] == 0.0
+    assert "fog_backscatter_gain" not in apply_effects(load_scenario("highway_clear"), [FOG]).region_params["atmosphere"]
+    with pytest.raises(ValueError, match="'gain' is a share of the fog's backscatter, within \\[0, 1\\], got 1.5"):
+        parse_effect("atmosphere.fog:visual_range=120,gain=1.5")

@@ -131,30 +131,35 @@ def test_drops_see_the_overlap_function_itself_nearer_and_exactly_one_beyond_ful
         assert air._full_overlap_m < 10.0  # the fast path is taken for the dense sensor
 
 
-def test_the_near_field_gain_scales_the_atmospheres_light_within_5_m_and_leaves_it_beyond_10_m():
-    """``near_field_gain`` (a unit's near-range gain, blanking or overlap, fitted by the gap search): the volume's
-    waveform and the drops placed one by one are scaled by it out to ``NEAR_M`` and unchanged from twice that on;
-    at 1 the tables are the profile's optics alone, bit for bit."""
-    weather = (60.0, ("rain", 20.0))
-    plain, one = PhysicalAir(SCALA4_CONE_DC, *weather), PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=1.0)
+def test_the_fog_backscatter_gain_scales_the_fogs_volume_at_every_range_and_leaves_the_drops():
+    """``fog_backscatter_gain`` (a unit's pulse discrimination, near-range gain or blanking, fitted by the gap
+    search): the fog's volume, near-field realisations and far layer alike, is the gain times the full one at
+    every range (OS1's DC receiver: its fog echo is metres long), the extinction is untouched, the drops placed one by
+    one are the same, gain 0 leaves no volume at all, and gain 1 is the profile's optics alone, bit for bit."""
+    weather = (60.0, None)
+    plain, one = PhysicalAir(SCALA4_CONE_DC, *weather), PhysicalAir(SCALA4_CONE_DC, *weather, fog_backscatter_gain=1.0)
     np.testing.assert_array_equal(one.air_volume.far.wave, plain.air_volume.far.wave)
     for a, b in zip(one.air_volume.near, plain.air_volume.near):
         np.testing.assert_array_equal(a.wave, b.wave)
-    sigma = plain.volume.sigma_m
     for gain in (0.0, 0.3):
-        air = PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=gain)
-        tables = zip((air.air_volume.far, *air.air_volume.near), (plain.air_volume.far, *plain.air_volume.near))
-        for k, (scaled, full) in enumerate(tables):
-            r = scaled.range_m
-            near, far = (r > 1.0) & (r < NEAR_M - 6 * sigma), r > 2 * NEAR_M + 6 * sigma
-            assert k == 0 or full.wave[near].min() > 0.0  # the far layer starts at the near field's boundary
-            np.testing.assert_allclose(scaled.wave[near], gain * full.wave[near], rtol=1e-9, atol=1e-12)
-            np.testing.assert_allclose(scaled.wave[far], full.wave[far], rtol=1e-9)
-    # drops: none placed within 5 m at gain 0, as many beyond 10 m (in front of 40 m hits, 4000 beams)
-    hits = np.full(4000, 40.0)
-    full, _ = plain.scatterers(batch(hits), np.random.default_rng(5))
-    none, _ = PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=0.0).scatterers(batch(hits), np.random.default_rng(5))
-    assert np.sum(full.range_m < NEAR_M) > 100 and np.sum(none.range_m < NEAR_M) == 0
-    assert np.sum(none.range_m > 2 * NEAR_M) == pytest.approx(np.sum(full.range_m > 2 * NEAR_M), rel=0.05)
-    with pytest.raises(ValueError, match="near_field_gain"):
-        PhysicalAir(SCALA4_CONE_DC, *weather, near_field_gain=1.5)
+        air = PhysicalAir(SCALA4_CONE_DC, *weather, fog_backscatter_gain=gain)
+        assert air.alpha == plain.alpha
+        tables = list(zip((air.air_volume.far, *air.air_volume.near), (plain.air_volume.far, *plain.air_volume.near)))
+        assert len(tables) == (1 if gain == 0.0 else 1 + len(plain.air_volume.near))
+        for scaled, full in tables:
+            peak = np.abs(full.density).max()
+            np.testing.assert_allclose(scaled.density, gain * full.density, rtol=1e-9, atol=1e-12 * peak)
+            if full is plain.air_volume.far:
+                assert np.abs(full.density[full.range_m > 2 * NEAR_M]).max() > 1e-3 * peak  # beyond the near field too
+    # rain beside the fog: its drops are the same at every gain (same seed; the volume's terms draw from the batch's
+    # generator too, so the drops are drawn alone)
+    rainy, hits = (60.0, ("rain", 20.0)), np.full(4000, 40.0)
+    w = np.asarray(batch(hits).weights, np.float64)
+    full = PhysicalAir(SCALA4_CONE_DC, *rainy)._drops(hits, w, np.random.default_rng(5))
+    assert np.sum(full.range_m < NEAR_M) > 100
+    for gain in (0.0, 0.3):
+        drops = PhysicalAir(SCALA4_CONE_DC, *rainy, fog_backscatter_gain=gain)._drops(hits, w, np.random.default_rng(5))
+        np.testing.assert_array_equal(drops.range_m, full.range_m)
+        np.testing.assert_array_equal(drops.reflectance, full.reflectance)
+    with pytest.raises(ValueError, match="fog_backscatter_gain"):
+        PhysicalAir(SCALA4_CONE_DC, *weather, fog_backscatter_gain=1.5)

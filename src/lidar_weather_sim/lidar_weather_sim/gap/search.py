@@ -105,12 +105,13 @@ class Diagnosis:
         return [c.effect for c, _ in self.accepted]
 
 
-#: the fog is tried at these near-field gains (region ``atmosphere``'s ``near_field_gain``): its loss is Beer-Lambert
-#: on every sensor, but how much of its light from the first metres a unit turns into soft echoes is its own
-#: (near-range gain, blanking, overlap; sized by no datum but scala's), and a fog whose soft echoes the model puts
-#: on every beam where the unit shows none scored worse than no fog at all (draw case 0, its 8 frames: 0.536
-#: against 0.130); at 0.15 the model's echoes are gone out to a few hundred metres of visual range and thinned in denser fog
-FOG_NEAR_GAINS = (1.0, 0.15, 0.0)
+#: the fog is tried at these backscatter gains (region ``atmosphere``'s ``fog_backscatter_gain``): its loss is
+#: Beer-Lambert on every sensor, but how much of its backscatter a unit turns into soft echoes is its own (pulse
+#: discrimination, near-range gain, blanking, overlap; sized by no datum but scala's), and a fog whose soft echoes the
+#: model puts on every beam where the unit shows none scored worse than no fog at all (draw case 0, its 8 frames:
+#: 0.536 against 0.130); at 0.15 the model's echoes are gone out to a few hundred metres of visual range and thinned
+#: in denser fog
+FOG_GAINS = (1.0, 0.15, 0.0)
 
 
 def same_effect(a: Effect, b: Effect) -> bool:
@@ -119,8 +120,8 @@ def same_effect(a: Effect, b: Effect) -> bool:
 
 
 def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weather",)) -> list[Effect]:
-    """One untuned effect per name of ``families`` (the spray once per vehicle, the fog once per near-field gain of
-    :data:`FOG_NEAR_GAINS`), at the middle of its bounds;
+    """One untuned effect per name of ``families`` (the spray once per vehicle, the fog once per backscatter gain of
+    :data:`FOG_GAINS`), at the middle of its bounds;
     not the effects read off the data (:attr:`~lidar_weather_sim.gap.evaluation.GapEvaluator.data_candidates`)."""
     out = []
     for name, spec in EFFECTS.items():
@@ -132,7 +133,7 @@ def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weath
         elif name == "spray":
             out += [Effect(name, {spec.main: mid, "actor": actor}) for actor in spray_candidates(resim.scenario)]
         elif name == "atmosphere.fog":
-            out += [Effect(name, {spec.main: mid, **({"near_gain": g} if g != 1.0 else {})}) for g in FOG_NEAR_GAINS]
+            out += [Effect(name, {spec.main: mid, **({"gain": g} if g != 1.0 else {})}) for g in FOG_GAINS]
         else:
             out.append(Effect(name, {spec.main: mid}))
     return out

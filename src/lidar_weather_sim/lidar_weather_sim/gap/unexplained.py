@@ -77,8 +77,8 @@ SHAPES = ("excess returns", "missing returns", "loss growing with range", "loss 
 #: the distributions compared besides the range counts (module doc): a zone's histogram of each, echoes summed
 ASPECTS = {"epw": ("wider pulses", "narrower pulses"), "intensity": ("returns brighter", "returns dimmer")}
 #: the zones that are each weather effect's physics (module doc): fog dims every surface more with range (its soft
-#: echoes in the near field are the unit's near-field gain as much as the fog's, fitted by the search:
-#: :data:`lidar_weather_sim.gap.search.FOG_NEAR_GAINS`; a near field they leave is reported, not held against the
+#: echoes are the unit's backscatter gain as much as the fog's, fitted by the search:
+#: :data:`lidar_weather_sim.gap.search.FOG_GAINS`; a near field they leave is reported, not held against the
 #: name); rain and snow put discrete returns in the near field and dim the far one; a wet
 #: road takes the road's returns; dirt or water on the cover returns from the cover and dims every direction; the
 #: sun's false detections and raised threshold act beyond the near field; spray flies in the vehicles' wakes

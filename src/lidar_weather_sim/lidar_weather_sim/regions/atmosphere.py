@@ -53,13 +53,14 @@ class AtmosphereParams(ConfigModel):
     air: bool = Field(True, description="Extinction and scatterers in the air; false: only the road surface changes")
     road_water_film_mm: float | None = Field(None, ge=0, le=10, description="Overrides weather.road.water_film_mm "
                                              "for this region (mm); both none: eq. 1's film of the rain")
-    near_field_gain: float = Field(1.0, ge=0, le=1, description="Share (0-1) of the atmosphere's light from within 5 m "
-                                   "that the receiver turns into signal, rising smoothly to 1 at 10 m: 1 the "
-                                   "profile's optics alone, lower for a "
-                                   "unit whose near-range gain, blanking or overlap suppress it (the fog's soft echoes)")
+    fog_backscatter_gain: float = Field(1.0, ge=0, le=1, description="Share (0-1) of the fog's backscatter that the "
+                                        "receiver turns into signal, at every range, its extinction untouched: 1 the "
+                                        "profile's optics alone, 0 a fog that is loss only (a unit whose pulse "
+                                        "discrimination, near-range gain or blanking keeps the fog's soft echoes out)")
 
     moved_keys: ClassVar[dict[str, str]] = {
         "road_texture_depth_mm": "moved to weather.road.texture_depth_mm",
+        "near_field_gain": "replaced by fog_backscatter_gain (the fog's alone, at every range)",
         **{key: FITTED_REMOVED for key in ("fit_file", "weather_class", "near_field_max_m", "path_gap_m", "splash_depth_m")},
     }
 
@@ -97,7 +98,7 @@ class AtmosphereRegion:
         self._snow_refl = mats["snow"].reflectivity
         fog = self.visual_range_m if self.visual_range_m < PHYSICAL_FOG_LIMIT_M else None
         precip = (self.precipitation, self.intensity) if self.precipitation != "dry" and self.intensity > 0 else None
-        self.physical = PhysicalAir(context.profile, fog, precip, params.near_field_gain)
+        self.physical = PhysicalAir(context.profile, fog, precip, params.fog_backscatter_gain)
         self.alpha = self.physical.alpha
 
     def step(self, t0_s: float, t1_s: float) -> None:

@@ -29,10 +29,12 @@ and threshold. Per batch of beams (world-frame rays, ranges in m along the ray):
   droplets' own fluctuation moves it by tens of centimetres. Drops do not dim the volume behind them (each
   blocks ~1e-4 of the beam).
 
-A unit's near field is its own: ``near_field_gain`` (0-1) scales the volume's density and the drops' share of
-light out to ``NEAR_M``, rising smoothly to 1 at twice that (a near-range gain, blanking or an overlap that
-suppresses the first metres, which no datum sizes beyond scala's; the gap search fits it with the fog). At 1 the
-tables are the profile's optics alone, bit for bit; the near field's realisations keep their seed.
+How much of the fog's backscatter a unit turns into detections is its own: ``fog_backscatter_gain`` (0-1)
+scales the fog's backscatter (the volume's density and its near-field fluctuation alike) at every range, its
+extinction untouched: 1 is the profile's optics alone (bit for bit), 0 a fog that is loss only (a unit whose
+pulse discrimination, near-range gain or blanking keeps the fog's soft echoes out; no datum sizes it beyond
+scala's; the gap search fits it with the fog). A DC-coupled receiver's fog echo is metres long (OS1 in fog 100 m:
+12-16 m), so a gain limited to the first metres left most of it. The drops of rain and snow are not scaled.
 
 The overlap O(r) is the profile's biaxial geometry (lens separation, receiver field of view, apertures) in its
 ``optics.overlap_model`` (:data:`lidar_weather_sim.physics.overlap.OVERLAP_MODELS`) where its optics give it,
@@ -77,12 +79,12 @@ class PhysicalAir:
     """Fog (visual range m, or None) and precipitation ((``rain`` | ``snow``, mm/h), or None) seen by ``profile``."""
 
     def __init__(self, profile, fog_visual_range_m: float | None, precipitation: tuple[str, float] | None,
-                 near_field_gain: float = 1.0) -> None:
-        """``near_field_gain`` (0-1): the share of the atmosphere's light from within ``NEAR_M`` that the receiver
-        turns into signal (module doc); 1 is the profile's optics alone."""
-        if not 0.0 <= near_field_gain <= 1.0:
-            raise ValueError(f"near_field_gain: must be within [0, 1], got {near_field_gain:g}")
-        self.near_field_gain = float(near_field_gain)
+                 fog_backscatter_gain: float = 1.0) -> None:
+        """``fog_backscatter_gain`` (0-1): the share of the fog's backscatter the receiver turns into signal, at
+        every range (module doc); 1 is the profile's optics alone."""
+        if not 0.0 <= fog_backscatter_gain <= 1.0:
+            raise ValueError(f"fog_backscatter_gain: must be within [0, 1], got {fog_backscatter_gain:g}")
+        self.fog_gain = float(fog_backscatter_gain)
         o, det = profile.optics, profile.detection
         wavelength = float(o.wavelength_nm or DEFAULT_WAVELENGTH_NM)
         self.fog = medium("fog", float(fog_visual_range_m), wavelength) if fog_visual_range_m else None
@@ -132,19 +134,20 @@ class PhysicalAir:
         return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(r))]), d_min
 
     def beta(self, range_m: np.ndarray) -> np.ndarray:
-        """The volume's backscatter (1/(m sr)) at ``range_m`` (m): the fog's and the drops' too small to be placed."""
+        """The volume's backscatter (1/(m sr)) at ``range_m`` (m) that the receiver sees: the fog's (times
+        ``fog_gain``) and the drops' too small to be placed."""
         beta = np.zeros(np.shape(range_m))
         if self.precip is not None:
             beta += self.precip.beta_below(np.interp(range_m, self._grid, self._d_min))
         if self.fog is not None:
-            beta += self.fog.beta
+            beta += self.fog_gain * self.fog.beta
         return beta
 
     def _air_volume(self, start_m: float, weather: tuple) -> AirVolume:
         """The volume's tables: its mean ``C pi beta(r) O(r) exp(-2 alpha r) / r^2`` and, with fog, the near field's
         slabs of one pulse sigma, each fluctuating with the droplets in it (module doc), seeded by the weather."""
         edges, rel_sd = np.zeros(0), np.zeros(0)
-        if self.fog is not None:
+        if self.fog is not None and self.fog_gain > 0.0:
             f = self.fog
             mean_s2 = float(np.sum(0.5 * (f.density[1:] * f.sigma_back[1:] ** 2 + f.density[:-1] * f.sigma_back[:-1] ** 2)
                                    * np.diff(f.diameters)))  # number x E[sigma^2], per m^3  # fmt: skip
@@ -152,23 +155,14 @@ class PhysicalAir:
             near = centres <= NEAR_M
             centres, width = centres[near], width[near]
             edges = np.append(centres - 0.5 * width, centres[-1] + 0.5 * width[-1]) if len(centres) else edges
-            # summed sigma over a slab's beam volume S h: mean beta S h, variance lam E[sigma^2] = mean_s2 S h
-            rel_sd = np.sqrt(mean_s2 / (self.area(centres) * width)) / self.beta(centres)
+            # summed sigma over a slab's beam volume S h: mean beta S h, variance lam E[sigma^2] = mean_s2 S h (the
+            # fog's share scaled by its gain)
+            rel_sd = self.fog_gain * np.sqrt(mean_s2 / (self.area(centres) * width)) / self.beta(centres)
         kind = "fog" if self.fog is not None or self.precip is None else self.precip.kind
-        return air_volume(lambda r: self._near_gain(r, self._sampled.density(r) * self.beta(r)), sigma_m=self.volume.sigma_m,
+        return air_volume(lambda r: self._sampled.density(r) * self.beta(r), sigma_m=self.volume.sigma_m,
                           r_max_m=self.r_max, start_m=start_m, tau_m=self.tau, floor=VOLUME_FLOOR * self.threshold,
                           label=LABELS[kind], slab_edges=edges, rel_sd=rel_sd,
                           seed=[VOLUME_SEED, zlib.crc32(repr(weather).encode())])  # fmt: skip
-
-    def _near_gain(self, range_m: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """``values`` at ``range_m`` (m) times the near-field gain: ``near_field_gain`` out to ``NEAR_M``, rising
-        smoothly (cubic smoothstep) to 1 at twice that (a step would ring through the AC coupling as an echo of its
-        own); unchanged at gain 1."""
-        if self.near_field_gain == 1.0:
-            return values
-        t = np.clip((np.asarray(range_m) - NEAR_M) / NEAR_M, 0.0, 1.0)
-        g = self.near_field_gain
-        return (g + (1.0 - g) * t * t * (3.0 - 2.0 * t)) * values
 
     # -- per batch -----------------------------------------------------------------------------------
     def scatterers(self, batch: RayBatch, rng: np.random.Generator) -> tuple[Scatterers | None, list[VolumeTerm]]:
@@ -204,7 +198,7 @@ class PhysicalAir:
             return None
         # ranges by the inverse of the cumulative count, each in front of its beam's hit
         rng_m = np.interp(rng.random(len(beam)) * expected[beam], self._cum, r)
-        share = self._near_gain(rng_m, self._seen_share(rng_m, rng))
+        share = self._seen_share(rng_m, rng)
         seen = share > 0
         beam, rng_m, share = beam[seen], rng_m[seen], share[seen]
         diameter, sigma = m.sample(len(beam), rng, self._on_grid(rng_m, self._d_min))

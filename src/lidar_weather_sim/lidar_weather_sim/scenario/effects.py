@@ -6,7 +6,7 @@ An effect is a name and parameters; its first parameter is the main one, in thes
 name                       main parameter  model
 =========================  ==============  ==================================================
 atmosphere.fog             visual_range    m; region ``atmosphere``, fog class (Koschmieder);
-                                           ``near_gain`` (0-1, default 1): its ``near_field_gain``
+                                           ``gain`` (0-1, default 1): its ``fog_backscatter_gain``
 atmosphere.rain            intensity       mm/h; region ``atmosphere``, rain class
 atmosphere.snow            intensity       mm/h water equivalent; ``atmosphere``, snow class
 atmosphere.road_wet        water_film      mm on the road; ``atmosphere`` with ``air: false``
@@ -89,7 +89,7 @@ class EffectSpec:
 EFFECTS: dict[str, EffectSpec] = {
     s.name: s
     for s in (
-        EffectSpec("atmosphere.fog", "visual_range", "m", (15.0, 1000.0), True, ("near_gain",)),
+        EffectSpec("atmosphere.fog", "visual_range", "m", (15.0, 1000.0), True, ("gain",)),
         EffectSpec("atmosphere.rain", "intensity", "mm/h", (0.2, 100.0), True),
         EffectSpec("atmosphere.snow", "intensity", "mm/h", (0.05, 10.0), True),
         EffectSpec("atmosphere.road_wet", "water_film", "mm", (0.03, 5.0), True),
@@ -196,8 +196,8 @@ def parse_effect(text: str) -> Effect:
             raise ValueError(f"--hide {text!r}: '{key}' must be a finite number ({spec.unit}), got {value}")
         if key == spec.main and not spec.signed and not 0.0 < params[key] < float("inf"):
             raise ValueError(f"--hide {text!r}: '{key}' must be a finite number above 0 ({spec.unit}), got {value}")
-        if key == "near_gain" and not 0.0 <= params[key] <= 1.0:
-            raise ValueError(f"--hide {text!r}: 'near_gain' is a share of the near field's light, within [0, 1], got {value}")
+        if key == "gain" and not 0.0 <= params[key] <= 1.0:
+            raise ValueError(f"--hide {text!r}: 'gain' is a share of the fog's backscatter, within [0, 1], got {value}")
         if key == spec.main and spec.main in ("transmission", "probability") and params[key] > 1.0:
             raise ValueError(f"--hide {text!r}: '{key}' is a {spec.main}, at most 1, got {value}")
     if spec.main not in params:
@@ -310,8 +310,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
         v = e.value
         if e.name == "atmosphere.fog":
             region("atmosphere")["visual_range_m"] = v
-            if "near_gain" in e.params:
-                region("atmosphere")["near_field_gain"] = float(e.params["near_gain"])
+            if "gain" in e.params:
+                region("atmosphere")["fog_backscatter_gain"] = float(e.params["gain"])
         elif e.name in PRECIPITATION:
             atmo = region("atmosphere")
             atmo["precipitation_type"] = e.name.split(".")[1]
