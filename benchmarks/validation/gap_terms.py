@@ -10,12 +10,14 @@ intensity. Terms below 0.01 in every column are left out; ``gap``: the weighted 
     python benchmarks/validation/gap_terms.py BAG --scenario highway_clear [--profile scala4]
         --effects "atmosphere.fog:visual_range=62.5" --effects "atmosphere.fog:visual_range=1000" [--frames 10]
 
-A set is effects joined by ``,`` in make-measured's ``--hide`` syntax.
+A set is effects joined by ``,`` in make-measured's ``--hide`` syntax (``atmosphere.fog:visual_range=200,gain=0,cover.dirt:
+transmission=0.6``: a new effect starts where a name with ``:`` follows the comma).
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 import numpy as np
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=10, help="held-out frames (as gap --heldout-frames)")
     args = ap.parse_args(argv)
     try:
-        sets = {"nothing": []} | {text: [parse_effect(e) for e in text.split(",")] for text in args.effects}
+        sets = {"nothing": []} | {text: [parse_effect(e) for e in re.split(r",(?=[\w.]+:)", text)] for text in args.effects}
         recording = Recording.load(args.bag, args.topic)
         resim = GapResimulator(recording, load_scenario(args.scenario), args.profile)
     except (ValueError, OSError) as exc:

@@ -622,6 +622,72 @@ def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_ref
     assert rain_of(search.joint_round([snow, dirt])).heldout_gap > 3 * required
 
 
+class ValleySearch(ValueSearch):
+    """A fog of 200 m behind a dirt of 0.6 (draw case 5): both dim the returns (``loss``), only the fog's loss grows
+    with range (``law``: a range-law term that holds the fog's visual range within ~20 %, as flat beyond as a
+    histogram's saturated dissimilarity); the fog alone fits at 99 m, taking the dirt's loss too."""
+
+    def gap(self, effects, split, redraw=0):
+        v = {e.name: e.value for e in effects}
+        fog = v.get("atmosphere.fog", np.inf)
+        loss = 100.0 / fog - np.log(v.get("cover.dirt", 1.0)) - (0.5 - np.log(0.6))
+        law = 0.2 * (1.0 - np.exp(-((np.log(fog / 200.0) / 0.3) ** 2)))
+        return loss**2 + law + 1e-4 * len(set(v) - {"cover.dirt", "atmosphere.fog"})
+
+
+def test_a_joint_round_refines_the_accepted_effect_its_best_screen_moved(monkeypatch):
+    """The fog accepted alone took the dirt's loss too (99 m for 200); in the joint round the dirt screens best with
+    the fog moved to a grid value (122 or 350 m), where the pair does not qualify: refining the fog there too
+    (between its grid neighbours, the dirt at its fit) finds the fog's range law and the dirt qualifies, the fog
+    near 200 m as its companion (the acceptance's joint refit then fits both)."""
+    search = ValleySearch()
+    fog = search.descend([parse_effect("atmosphere.fog:visual_range=100")])[0]
+    assert fog.value == pytest.approx(99.0, rel=0.05)
+    required = search.gap_to_beat(search.gap([fog], "heldout"))
+
+    def dirt_of(candidates):
+        return min((c for c in candidates if c.effect.name == "cover.dirt"), key=lambda c: c.heldout_gap)
+
+    dirt = dirt_of(search.joint_round([fog]))
+    assert dirt.heldout_gap <= 0.5 * required, (dirt, required)
+    (companion,) = dirt.companions
+    assert companion.name == "atmosphere.fog" and companion.value == pytest.approx(200.0, rel=0.15), companion
+    assert any("refined to atmosphere.fog" in line for line in search.log)
+    # the accepted effect left on its grid value: the dirt does not qualify
+    monkeypatch.setattr(ValleySearch, "polish_moved", lambda self, screened, fits: {r: (*f, screened[r][1]) for r, f in fits.items()})
+    assert dirt_of(search.joint_round([fog])).heldout_gap > required
+
+
+class GainSearch(ValueSearch):
+    """Draw case 5's first round: a fog of 200 m on a unit without soft echoes (gain 0: a narrow minimum between the
+    fog's grid values 122 and 350 m); at gain 0.15 a broad, worse one at 97 m; a dirt alone helps a little."""
+
+    def gap(self, effects, split, redraw=0):
+        v = {e.name: e for e in effects}
+        if "atmosphere.fog" in v:
+            fog = v["atmosphere.fog"]
+            if fog.params.get("gain", 1.0) == 0.0:
+                return 0.001 + 0.3 * (1.0 - np.exp(-((np.log(fog.value / 200.0) / 0.2) ** 2)))
+            return 0.06 + 0.02 * np.log(fog.value / 97.0) ** 2 + (0.2 if "gain" not in fog.params else 0.0)
+        return 0.11 if "cover.dirt" in v else 0.17
+
+
+def test_a_plain_round_refines_every_gain_of_its_best_effects(monkeypatch):
+    """The fog at gain 0 screens behind the fog at gain 0.15 and a dirt (its minimum lies between two grid values);
+    refined with the fog's other gains it is the round's best, at its visual range. Refining only the two best
+    screened (the dirt and the fog at 0.15), it stayed on its grid and lost to the fog at 0.15."""
+    def fog_at_gain_0(candidates):
+        (fog,) = [c for c in candidates if c.effect.name == "atmosphere.fog" and c.effect.params.get("gain") == 0.0]
+        return fog
+
+    candidates = GainSearch().screen_round([])
+    fog = fog_at_gain_0(candidates)
+    assert fog is min(candidates, key=lambda c: c.heldout_gap) and fog.heldout_gap < 0.01
+    assert fog.effect.value == pytest.approx(200.0, rel=0.05)
+    monkeypatch.setattr(search_module, "refined_variants", lambda ranked, refine: list(range(min(refine, len(ranked)))))
+    assert fog_at_gain_0(GainSearch().screen_round([])).heldout_gap > 0.1
+
+
 def test_the_fog_is_screened_at_each_backscatter_gain_and_its_gain_patches_the_atmosphere():
     """The fog's soft echoes are the unit's backscatter gain as much as the fog's: the search offers the fog once per
     gain of FOG_GAINS (1: no key, the model's optics alone), the gain goes to region atmosphere's
@@ -638,5 +704,5 @@ def test_the_fog_is_screened_at_each_backscatter_gain_and_its_gain_patches_the_a
     params = apply_effects(load_scenario("highway_clear"), [fog.with_value(90.0)]).region_params["atmosphere"]
     assert params["visual_range_m"] == 90.0 and params["fog_backscatter_gain"] == 0.0
     assert "fog_backscatter_gain" not in apply_effects(load_scenario("highway_clear"), [FOG]).region_params["atmosphere"]
-    with pytest.raises(ValueError, match="'gain' is a share of the fog's backscatter, within \\[0, 1\\], got 1.5"):
+    with pytest.raises(ValueError, match="'gain' is a share of the light the unit reports, within \\[0, 1\\], got 1.5"):
         parse_effect("atmosphere.fog:visual_range=120,gain=1.5")

@@ -112,6 +112,11 @@ class Diagnosis:
 #: 0.536 against 0.130); at 0.15 the model's echoes are gone out to a few hundred metres of visual range and thinned
 #: in denser fog
 FOG_GAINS = (1.0, 0.15, 0.0)
+#: dirt on the cover is tried at these return gains (region ``cover``'s ``texture_return_gain``): the thesis' samples
+#: put multipath returns at 0-0.5 m at a rate growing with the dirt, but whether a unit reports them (or blanks its
+#: cover zone) is its own; a unit without them lost the dirt's name to the fog in front of it (draw case 5)
+DIRT_GAINS = (1.0, 0.0)
+GAINS = {"atmosphere.fog": FOG_GAINS, "cover.dirt": DIRT_GAINS}
 
 
 def same_effect(a: Effect, b: Effect) -> bool:
@@ -120,8 +125,8 @@ def same_effect(a: Effect, b: Effect) -> bool:
 
 
 def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weather",)) -> list[Effect]:
-    """One untuned effect per name of ``families`` (the spray once per vehicle, the fog once per backscatter gain of
-    :data:`FOG_GAINS`), at the middle of its bounds;
+    """One untuned effect per name of ``families`` (the spray once per vehicle, the fog and the dirt once per gain of
+    :data:`GAINS`), at the middle of its bounds;
     not the effects read off the data (:attr:`~lidar_weather_sim.gap.evaluation.GapEvaluator.data_candidates`)."""
     out = []
     for name, spec in EFFECTS.items():
@@ -132,8 +137,8 @@ def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weath
             out.append(Effect(name, {spec.main: spec.choices[0]}))
         elif name == "spray":
             out += [Effect(name, {spec.main: mid, "actor": actor}) for actor in spray_candidates(resim.scenario)]
-        elif name == "atmosphere.fog":
-            out += [Effect(name, {spec.main: mid, **({"gain": g} if g != 1.0 else {})}) for g in FOG_GAINS]
+        elif name in GAINS:
+            out += [Effect(name, {spec.main: mid, **({"gain": g} if g != 1.0 else {})}) for g in GAINS[name]]
         else:
             out.append(Effect(name, {spec.main: mid}))
     return out
@@ -146,6 +151,19 @@ def refined_ranks(swaps: list[bool], refine: int) -> list[int]:
     on its 5 values in place of a refitted snow, behind a spray at its floor and water in place of the dirt);
     refined, it may win. Conflicts are few (rain or snow, dirt or water), so are replacements."""
     return list(range(min(refine, len(swaps)))) + [r for r, swap in enumerate(swaps) if swap and r >= refine]
+
+
+def refined_variants(ranked: list[Effect], refine: int) -> list[int]:
+    """Which of the screened candidates ``ranked`` (best first) a plain round refines: the best ``refine`` effects,
+    each with all its variants (the fog at each of its backscatter gains, the dirt at each return gain, in their
+    rank order). A variant's screen on a coarse grid and a few frames does not rank the gains: draw case 5 (fog
+    200 m without soft echoes behind dirt) screened its fog at gain 0 behind gain 0.15 and a dirt, which took the
+    two refinements, and the fog was accepted at gain 0.15 with soft echoes the recording does not have."""
+    top: list[Effect] = []
+    for e in ranked:
+        if len(top) < refine and not any(same_effect(e, t) for t in top):
+            top.append(e)
+    return [r for r, e in enumerate(ranked) if any(same_effect(e, t) for t in top)]
 
 
 def reachable_gap(xs: np.ndarray, row: list[float], k: int) -> float:
@@ -208,7 +226,8 @@ class GapSearch(GapEvaluator):
 
     def screen_round(self, accepted: list[Effect], excluded: list[Effect] = ()) -> list[Candidate]:
         """Screen every candidate (but those ``excluded``) on its grid, refine the best ``refine`` (with the sensor
-        family the most promising: :func:`reachable_gap`), score all on the held-out frames; the evaluations of
+        family the most promising: :func:`reachable_gap`) with every variant of theirs (:func:`refined_variants`),
+        score all on the held-out frames; the evaluations of
         each step are independent (and run on the workers when there are some)."""
         options = [c for c, _ in self.round_candidates(accepted, excluded)]
         grids = [self.grid_of(c) for c in options]
@@ -220,7 +239,9 @@ class GapSearch(GapEvaluator):
             rank = reachable_gap(xs, row, k) if "sensor" in self.families and not c.spec.categorical else row[k]
             screened.append((c, self.at_value(c, xs[k]), row[k], xs, k, rank))
         order = sorted(range(len(screened)), key=lambda i: screened[i][5])
-        best = [(accepted, screened[i][0], screened[i][3], screened[i][4]) for i in order[: self.refine]]
+        refined = refined_variants([screened[i][0] for i in order], self.refine)
+        order = [order[r] for r in refined] + [i for r, i in enumerate(order) if r not in refined]
+        best = [(accepted, screened[i][0], screened[i][3], screened[i][4]) for i in order[: len(refined)]]
         fits = self.fits(best)
         fitted = [(fits[rank] if rank < len(fits) else (screened[i][1], screened[i][2], 0)) for rank, i in enumerate(order)]
         heldout = self.gaps([(accepted + [effect], "heldout") for effect, _, _ in fitted])
@@ -243,36 +264,55 @@ class GapSearch(GapEvaluator):
         its place (:meth:`round_candidates`): the first of two effects that cannot go together may have been
         accepted for the other (snow at 0.7 mm/h for rain at 21 mm/h behind a dirty cover), which then can no
         longer be tried."""
-        sets = []  # per candidate: (it, its grid, [(the accepted effects of a job, its grid index in that job)], swap)
+        sets = []  # per candidate: (it, its grid, [(the accepted effects of a job, its grid index, the one moved)], swap)
         for c, base in self.round_candidates(accepted, excluded, swaps=True):
             xs = self.grid_of(c)
-            variants = [(list(base), k) for k in range(len(xs))]
+            variants = [(list(base), k, None) for k in range(len(xs))]
             for i, e in enumerate(base):
                 if e.spec.family == "weather" and not e.spec.categorical:
-                    variants += [(base[:i] + [self.at_value(e, y)] + base[i + 1 :], k)
-                                 for y in self.grid_of(e) for k in range(len(xs))]  # fmt: skip
+                    variants += [(base[:i] + [self.at_value(e, y)] + base[i + 1 :], k, (i, j))
+                                 for j, y in enumerate(self.grid_of(e)) for k in range(len(xs))]  # fmt: skip
             if len(variants) > len(xs) or len(base) < len(accepted):
                 sets.append((c, xs, variants, len(base) < len(accepted)))
         gaps = iter(self.gaps([(others + [self.at_value(c, xs[k])], "screen")
-                               for c, xs, variants, _ in sets for others, k in variants]))  # fmt: skip
+                               for c, xs, variants, _ in sets for others, k, _ in variants]))  # fmt: skip
         screened = []
         for c, xs, variants, swap in sets:
             row = [next(gaps) for _ in variants]
             j = int(np.argmin(row))
-            others, k = variants[j]
-            screened.append((c, others, xs, k, row[j], len(row), swap))
+            others, k, moved = variants[j]
+            screened.append((c, others, xs, k, row[j], len(row), swap, moved))
         screened.sort(key=lambda s: s[4])
         chosen = refined_ranks([s[6] for s in screened], self.refine)
         jobs = [(others, c, xs, k) for c, others, xs, k, *_ in (screened[r] for r in chosen)]
         fits = dict(zip(chosen, self.fits(jobs)))
-        fitted = [(others, *(fits[r] if r in fits else (self.at_value(c, xs[k]), gap, 0)), n)
-                  for r, (c, others, xs, k, gap, n, _) in enumerate(screened)]  # fmt: skip
+        fits = self.polish_moved(screened, fits)
+        fitted = [(fits[r][3] if r in fits else others, *(fits[r][:3] if r in fits else (self.at_value(c, xs[k]), gap, 0)), n)
+                  for r, (c, others, xs, k, gap, n, *_) in enumerate(screened)]  # fmt: skip
         heldout = self.gaps([(others + [effect], "heldout") for others, effect, _, _, _ in fitted])
         out = []
         for (others, effect, gap, n, screens), held in zip(fitted, heldout):
             out.append(Candidate(effect, gap, held, screens + n, tuple(others)))
             self.progress(f"{effect.label()} with {', '.join(e.label() for e in others) or 'nothing'} free: "
                           f"held-out gap {held:.4f}")  # fmt: skip
+        return out
+
+    def polish_moved(self, screened: list[tuple], fits: dict[int, tuple]) -> dict[int, tuple]:
+        """The refined candidates of a joint round whose best screening point moved an accepted effect to another
+        grid value: that effect refined too (Brent between its grid neighbours, the candidate at its fit), else it
+        stays on a grid too coarse for two effects that trade off (fog of 200 m behind a dirt of 0.61 between the
+        fog's grid values 122 and 348 m: with either, the dirt fitted no better than a sun beside a fog of 88 m).
+        ``fits``: rank -> (candidate, fit gap, evaluations); returns rank -> (candidate, fit gap, evaluations, the
+        accepted effects as polished)."""
+        polish = [(r, *screened[r][7]) for r in fits if screened[r][7] is not None]
+        jobs = [(screened[r][1][:i] + screened[r][1][i + 1 :] + [fits[r][0]], screened[r][1][i],
+                 self.grid_of(screened[r][1][i]), j) for r, i, j in polish]  # fmt: skip
+        out = {r: (*fit, screened[r][1]) for r, fit in fits.items()}
+        for (r, i, _), (effect, gap, n) in zip(polish, self.fits(jobs) if jobs else []):
+            others = screened[r][1]
+            if gap <= fits[r][1]:
+                out[r] = (fits[r][0], gap, fits[r][2] + n, others[:i] + [effect] + others[i + 1 :])
+            self.progress(f"{fits[r][0].label()}: {others[i].label()} refined to {effect.label()}, fit gap {gap:.4f}")
         return out
 
     def swap_round(self, accepted: list[Effect], excluded: list[Effect] = ()) -> list[Candidate]:

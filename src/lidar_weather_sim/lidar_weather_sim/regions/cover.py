@@ -9,7 +9,8 @@ Per sub-ray (sensor frame direction -> u, v over the field of view):
 - Monte-Carlo range noise (Table II): extra Gaussian sigma
   ``sigma0 sqrt((1 + increase)^2 - 1)`` on scene hits, sigma0 = the profile's noise;
 - near-field cover returns (0-0.5 m, exponential, bypassing the biaxial overlap)
-  at a rate that grows with dirt or water (:mod:`lidar_weather_sim.regions.near_field`), plus the
+  at a rate that grows with dirt or water (:mod:`lidar_weather_sim.regions.near_field`; times
+  ``texture_return_gain``: a unit may blank them, which no datum of the thesis sizes), plus the
   sensor's own near-field ghosts at ``near_field_ghost_per_beam``: the same returns from the clean
   window and housing (multiple reflection inside the sensor, thesis lines 329 and 498), the effect
   ``sensor.near_field_ghost`` of the gap search. Only those beyond the profile's minimum range
@@ -43,6 +44,9 @@ class CoverParams(ConfigModel):
     blend_start_s: float = Field(0.0, ge=0, description="Simulated time the blend starts (s)")
     blend_duration_s: float = Field(0.0, ge=0, description="Duration of the blend (s); 0 = switch at blend_start_s")
     texture_seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of the texture realisation (hierarchical random field)")
+    texture_return_gain: float = Field(1.0, ge=0, le=1, description="Share (0-1) of the cover returns the texture's "
+                                       "dirt or water makes (multipath at 0-0.5 m) that the unit reports: 1 the thesis "
+                                       "samples' rate, 0 a unit that blanks them (its transmission loss untouched)")
     near_field_scale_m: float = Field(0.1, gt=0, description="Exponential range scale of cover returns (m)")
     near_field_amplitude: float = Field(3.0, gt=0, description="Median cover-return peak over the dark threshold")
     near_field_sigma_ln: float = Field(0.8, ge=0, description="Log-sd of the cover-return peak amplitude")
@@ -145,7 +149,7 @@ class CoverRegion:
         t = t * _forward_scatter_factors(np.asarray(batch.weights, dtype=np.float64), mix("forward_share"))[None, :]
         extra = mix("extra_range_sigma_m")
         offset = rng.normal(0.0, extra, (n, s)) if extra > 0 else None
-        texture_rate, ghosts = mix("near_field_per_beam"), self.p.near_field_ghost_per_beam
+        texture_rate, ghosts = mix("near_field_per_beam") * self.p.texture_return_gain, self.p.near_field_ghost_per_beam
         rate = texture_rate + ghosts
         scatterers = None
         if rate > 0:
