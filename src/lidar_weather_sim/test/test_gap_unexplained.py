@@ -8,6 +8,7 @@ from lidar_weather_sim.gap.signatures import RANGE_EDGES, Signature, gap_value
 from lidar_weather_sim.gap.unexplained import (
     BANDS,
     MIN_RELATIVE,
+    at_weak_end,
     judge_effects,
     removes_its_residual,
     zone_residuals,
@@ -89,6 +90,23 @@ def test_an_effect_that_removes_its_zones_residual_is_named_and_leaves_only_the_
     table = {frozenset(): SIMULATED, frozenset({FOG.name}): with_fog}
     judgement = judge_effects([FOG], measured, _simulate(table))
     assert judgement.named == [FOG] and judgement.refused == [] and judgement.unexplained == []
+
+
+def test_a_weather_effect_at_the_weak_end_of_its_range_is_not_named_whatever_it_removes():
+    """The fog of the test above fitted at 1000 m (its largest visual range: no fog the search can tell from none) is
+    refused although it removes its zones' residual; at 900 m it is named. The weak end is each effect's own: the
+    largest transmission of dirt, the smallest rate of rain; the sensor family has none."""
+    measured = signature(MEASURED | {"road": [1000.0] * 4})
+    with_fog = SIMULATED | {"far": [1000.0, 948.0, 805.0, 596.0], "near": [96.0]}
+    table = {frozenset(): SIMULATED, frozenset({FOG.name}): with_fog}
+    weak = FOG.with_value(1000.0)
+    judgement = judge_effects([weak], measured, _simulate(table))
+    assert judgement.named == [] and judgement.refused[0][1].startswith("at the weak end of its range (visual_range 1000 m)")
+    assert {r.zone for r in judgement.unexplained} == {"far", "near"}  # what the fog took is reported
+    assert judge_effects([FOG.with_value(900.0)], measured, _simulate(table)).named == [FOG.with_value(900.0)]
+    assert at_weak_end(parse_effect("cover.dirt:transmission=0.995")) and not at_weak_end(DIRT)
+    assert at_weak_end(parse_effect("atmosphere.rain:intensity=0.2")) and not at_weak_end(parse_effect("atmosphere.rain:intensity=100"))
+    assert at_weak_end(parse_effect("sensor.range_noise:sigma=0.003")) is None
 
 
 def test_an_effect_with_no_residual_in_its_zones_is_not_named_and_a_partial_removal_must_reach_the_stated_share():

@@ -39,7 +39,10 @@ significant residual without it (the other accepted effects in place): it had so
 (2) with it, each of its zones' residual is no longer significant or is at most :data:`REMAINING` (20 %) of what it
 was without it. An effect that shrinks the total gap while its own zones keep their residual (or gain one) is
 refused: it stays in the search's fit (``effects`` of gap.json, the patched scenario) but is not named, and the
-zones the named effects leave significant are reported as unexplained. The sensor family's effects (read off the
+zones the named effects leave significant are reported as unexplained. A weather effect fitted at the weak end of its
+search range (:func:`at_weak_end`: fog of 1000 m, dirt of 0.995, rain of 0.2 mm/h) is refused too: the search
+could not tell it from no such effect, and what it took is something else's (draw case 4: a fog of 1000 m took the
+extinction of a snow whose drops the model fitted at 0.16 mm/h for 4.4). The sensor family's effects (read off the
 data, or the unit's response) have no zones here and are named as the search accepts them.
 
 Cost: one held-out re-simulation with all accepted effects, one without each accepted weather effect, and one with
@@ -61,6 +64,7 @@ MIN_RELATIVE = 0.05
 #: a distribution's residual counts when it is at least this share of the zone's returns: the model's own fog at 80.2 m
 #: and sun at 404 W/m^2 fitted to 80 m and 400 W/m^2 leave 6 % of the near field's 1740 returns/frame in its EPW bins
 MIN_SHAPE = 0.10
+WEAK_END = 0.01  # a main parameter within this share of its weakest bound is at the weak end of the range
 REMAINING = 0.2  # with the effect, its zones' residual must be gone or at most this share of what it was without it
 MIN_TREND_RETURNS = 20.0  # bands with fewer returns (both sides) do not enter the trend of the ratio
 RANGE_ZONES = ("body", "wake", "road", "far")
@@ -308,6 +312,20 @@ def removes_its_residual(name: str, without: dict[str, ZoneResidual],
     return None
 
 
+def at_weak_end(effect: Effect) -> str | None:
+    """Why the weather effect ``effect`` may not be named because it sits at the weak end of its search range (within
+    :data:`WEAK_END` of the bound where it is closest to absent: the largest visual range or transmission, the
+    smallest rate, film or irradiance), else None (module doc)."""
+    spec = effect.spec
+    if spec.family != "weather" or spec.categorical:
+        return None
+    weak = spec.bounds[1] if spec.main in ("visual_range", "transmission") else spec.bounds[0]
+    if abs(effect.value / weak - 1.0) > WEAK_END:
+        return None
+    return (f"at the weak end of its range ({spec.main} {effect.value:.4g} {spec.unit}): "
+            "not told apart from none, it stands for something else")
+
+
 @dataclass
 class Judgement:
     """The judgement after the search: which accepted effects are named, which are refused (with why), and the
@@ -336,8 +354,8 @@ def judge_effects(accepted: list[Effect], measured: Signature, simulate,
     with_all = residuals(accepted)
     out = Judgement()
     for i, effect in enumerate(accepted):
-        reason = None
-        if effect.name in EFFECT_ZONES:
+        reason = at_weak_end(effect)
+        if reason is None and effect.name in EFFECT_ZONES:
             without = residuals(accepted[:i] + accepted[i + 1 :])
             reason = removes_its_residual(effect.name, without, with_all)
         if reason is None:
