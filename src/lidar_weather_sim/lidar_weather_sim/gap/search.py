@@ -286,9 +286,11 @@ class GapSearch(GapEvaluator):
         chosen = refined_ranks([s[6] for s in screened], self.refine)
         jobs = [(others, c, xs, k) for c, others, xs, k, *_ in (screened[r] for r in chosen)]
         fits = dict(zip(chosen, self.fits(jobs)))
-        fits = self.polish_moved(screened, fits)
-        fitted = [(fits[r][3] if r in fits else others, *(fits[r][:3] if r in fits else (self.at_value(c, xs[k]), gap, 0)), n)
-                  for r, (c, others, xs, k, gap, n, *_) in enumerate(screened)]  # fmt: skip
+        refined = self.polish_moved(screened, fits)  # rank -> (effect, fit gap, evaluations, accepted as polished)
+        fitted = []
+        for r, (c, others, xs, k, gap, n, *_) in enumerate(screened):
+            effect, fit_gap, evaluations, others = refined.get(r, (self.at_value(c, xs[k]), gap, 0, others))
+            fitted.append((others, effect, fit_gap, evaluations, n))
         heldout = self.gaps([(others + [effect], "heldout") for others, effect, _, _, _ in fitted])
         out = []
         for (others, effect, gap, n, screens), held in zip(fitted, heldout):
