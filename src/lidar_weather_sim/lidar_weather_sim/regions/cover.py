@@ -5,7 +5,11 @@ Per sub-ray (sensor frame direction -> u, v over the field of view):
 - one-way ``transmission`` from the texture (the echo stage squares it: two-way
   loss ~ T^2, thesis line 1333), so dirt shortens range where it sits;
 - forward scattering (samples 3, 5): a share of the beam energy leaves the core
-  sub-ray(s) and is spread over the outer ones (a wider beam, same total energy);
+  sub-ray(s) and is spread over the outer ones (a wider beam, same total energy). It acts once,
+  on the way out: the return crosses the cover at its transmission alone (the receiver takes what
+  the cover passes over its aperture, as the integrating sphere of the measurement did), so the
+  one-way transmission carries the square root of each sub-ray's factor and an extended target
+  behind a uniform dirt returns T^2 (thesis line 1333), whatever the share;
 - Monte-Carlo range noise (Table II): extra Gaussian sigma
   ``sigma0 sqrt((1 + increase)^2 - 1)`` on scene hits, sigma0 = the profile's noise;
 - near-field cover returns (0-0.5 m, exponential, bypassing the biaxial overlap)
@@ -130,13 +134,13 @@ class CoverRegion:
 
     def beam_two_way(self) -> np.ndarray:
         """(columns, channels) two-way transmission through the cover of what a weather spread along each beam of
-        the scan pattern returns, with the first texture (before any blend): the beam's mean T^2 over its
-        sub-rays (weighted by their share of its energy) times (1 - forward share)^2. The light the cover
-        scatters forward leaves the receiver's field of view, on the way out and on the way back; the
-        fast atmosphere puts its volume return on the core sub-ray, which :meth:`apply` dims by that share."""
+        the scan pattern returns, with the first texture (before any blend): the mean over the beam's sub-rays
+        (weighted by their share of its energy) of T^2 times the forward-scatter factor, as :meth:`apply` gives
+        them and the simulator's volume returns read them (a weather fills every sub-ray of the beam: the light
+        scattered forward off the core lights the weather on the outer ones)."""
         weights = np.asarray(ScanPattern(self.profile).subray_weight, dtype=np.float64)
-        mean_square = (self._pattern_samples()[0] ** 2 * weights).sum(axis=-1) / weights.sum()
-        return mean_square * (1.0 - self.textures[0].forward_share) ** 2
+        factors = _forward_scatter_factors(weights, self.textures[0].forward_share)
+        return (self._pattern_samples()[0] ** 2 * factors * weights).sum(axis=-1) / weights.sum()
 
     def apply(self, batch: RayBatch, rng: np.random.Generator) -> RegionEffect:
         n, s = batch.shape
@@ -146,7 +150,8 @@ class CoverRegion:
         t = samples[0] if len(tex) == 1 else (1 - w) * samples[0] + w * samples[1]
         wm = float(w.mean())
         mix = lambda attr: getattr(tex[0], attr) * (1 - wm) + (getattr(tex[1], attr) * wm if len(tex) > 1 else 0.0)  # noqa: E731
-        t = t * _forward_scatter_factors(np.asarray(batch.weights, dtype=np.float64), mix("forward_share"))[None, :]
+        factors = _forward_scatter_factors(np.asarray(batch.weights, dtype=np.float64), mix("forward_share"))
+        t = t * np.sqrt(factors)[None, :]  # the echo stage squares it: the factor once, on the way out
         extra = mix("extra_range_sigma_m")
         offset = rng.normal(0.0, extra, (n, s)) if extra > 0 else None
         texture_rate, ghosts = mix("near_field_per_beam") * self.p.texture_return_gain, self.p.near_field_ghost_per_beam

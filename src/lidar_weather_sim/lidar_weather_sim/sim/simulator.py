@@ -576,18 +576,21 @@ class LidarSimulator:
 def _volume(rays: RayBatch | None, effect: RegionEffect | None) -> Volume | None:
     """The volume returns of ``effect`` on the batch's beams as the echo kernel reads them (None: none): each
     term one layer (each beam its table of the term's), cut at its hit (default: the central sub-ray's scene hit
-    moved by the range offset, inf on a miss) and scaled by the central sub-ray's two-way transmission and the light
-    its scatterers leave (each as if in front of the whole volume: the cover's returns are; a drop blocks ~1e-4)."""
+    moved by the range offset, inf on a miss) and scaled by the beam's two-way transmission (its sub-rays' mean,
+    weighted by their share of the energy: the volume fills them all) and the light the central sub-ray's
+    scatterers leave (each as if in front of the whole volume: the cover's returns are; a drop blocks ~1e-4)."""
     if effect is None or not effect.volume:
         return None
     core = int(np.argmax(rays.weights))
     distance = rays.distance[:, core]
     scene_hit = np.where(np.isfinite(distance), distance + effect.range_offset_m[:, core], np.inf)
-    two_way = effect.transmission[:, core] ** 2
+    t = effect.transmission
+    weights = np.asarray(rays.weights, dtype=np.float64)
+    uniform = (t == t[:, :1]).all(axis=1)  # the core's square exactly where every sub-ray passes the same light
+    two_way = np.where(uniform, t[:, core] ** 2, t**2 @ (weights / weights.sum()))
     sc = effect.scatterers
     if sc is not None:  # what the central sub-ray's scatterers leave of its light (the cover's returns lie in front)
         on_core = (sc.subray == core) & (sc.occlusion > 0)
-        two_way = two_way.copy()
         np.multiply.at(two_way, sc.beam[on_core], (1.0 - sc.occlusion[on_core]) ** 2)
     tables = list({id(t): t for term in effect.volume for t in term.tables}.values())
     index = {id(table): k for k, table in enumerate(tables)}
