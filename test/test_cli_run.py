@@ -86,16 +86,24 @@ def test_counts_and_rates_below_their_range_are_refused_naming_the_option(tmp_pa
 
 @pytest.mark.slow
 def test_make_measured_on_a_recording_refuses_options_it_cannot_honour(tmp_path, cli):
-    """--on uses every frame of its recording at the scenario's seed: --frames/--seed were silently ignored."""
+    """--on uses every frame of its recording at the scenario's seed: --frames/--seed were silently ignored; a
+    recording has no ground truth to keep; --beams-per-frame is the reference's, --intensity-scale a recording's."""
     out = tmp_path / "o"
     for extra, reason in ((["--frames", "1"], "--frames and --seed apply only without --on"),
                           (["--seed", "5"], "--frames and --seed apply only without --on"),
+                          (["--labels"], "--labels applies only without --on"),
+                          (["--beams-per-frame", "64"], "--beams-per-frame is the reference's"),
                           ([], "needs at least one --hide")):  # fmt: skip
         hide = [] if not extra else ["--hide", "atmosphere.fog:visual_range=60"]
         result = subprocess.run([*cli, "make-measured", "highway_clear", "--on", str(tmp_path), *hide, *extra,
                                  "--out", str(out)], capture_output=True, text=True, timeout=120)  # fmt: skip
         _one_line_error(result, reason)
         assert not out.exists()
+    result = subprocess.run([*cli, "make-measured", "highway_clear", "--hide", "atmosphere.fog:visual_range=60",
+                             "--intensity-scale", "reflectivity", "--out", str(out)],
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    _one_line_error(result, "--intensity-scale", "needs --on BAG")
+    assert not out.exists()
 
 
 def test_a_bag_output_named_like_a_file_is_refused(tmp_path, cli):

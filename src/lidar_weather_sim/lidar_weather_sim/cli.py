@@ -208,9 +208,13 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
     from lidar_weather_sim.scenario.schema import load_scenario
 
     effects = [parse_effect(text) for text in args.hide]
-    if args.on and (args.generator != "fast" or args.labels or args.beams_per_frame):
-        raise ValueError("--on puts the project's own effects on a recording: --reference / --generator, --labels "
-                         "and --beams-per-frame apply only without --on")  # fmt: skip
+    if args.on and args.labels:
+        raise ValueError("--on puts effects on a recording, which has no ground truth: --labels applies only "
+                         "without --on")  # fmt: skip
+    if args.beams_per_frame and args.generator != "reference":
+        raise ValueError("--beams-per-frame is the reference's: it needs --reference")
+    if args.intensity_scale != "profile" and not args.on:
+        raise ValueError("--intensity-scale says what a recording's intensity is: it needs --on BAG")
     if args.with_actors and not args.on:
         raise ValueError("--with-actors puts the scenario's actors on a recording: it needs --on BAG")
     if args.on:
@@ -223,10 +227,13 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
             raise ValueError("--on needs at least one --hide effect to put on top of the recording")
 
         frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
-                                   topic=args.topic, overwrite=args.overwrite, with_actors=args.with_actors)  # fmt: skip
+                                   topic=args.topic, overwrite=args.overwrite, with_actors=args.with_actors,
+                                   generator=args.generator, beams_per_frame=args.beams_per_frame,
+                                   reflectivity=args.intensity_scale == "reflectivity")  # fmt: skip
         actors = " and the scenario's actors" if args.with_actors else ""
-        print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)}{actors} on top to "
-              f"{args.out}")  # fmt: skip
+        by = "" if args.generator == "fast" else f" (weather by the {args.generator} generator)"
+        print(f"wrote {frames} frames of {args.on} with {', '.join(e.label() for e in effects)}{by}{actors} on top "
+              f"to {args.out}")  # fmt: skip
         return 0
     report = make_measured(load_scenario(args.scenario), effects, args.out, frames=args.frames, seed=args.seed,
                            profile=args.profile, overwrite=args.overwrite, generator=args.generator,
@@ -437,8 +444,14 @@ def build_parser() -> argparse.ArgumentParser:
     measured.add_argument("--seed", type=seed_int, help="seed of the measurement (default: the scenario's + 1000)")
     measured.add_argument("--profile", help="sensor profile overriding the scenario's")
     measured.add_argument("--on", metavar="BAG", help="put the effects on top of this (real) recording's frames "
-                                                        "instead of simulating the scenario (see augment.py)")
+                                                        "instead of simulating the scenario (see augment/weather.py; "
+                                                        "the weather by --generator's generator)")
     measured.add_argument("--topic", help="PointCloud2 topic of --on (default: /lidar/points or the only one)")
+    measured.add_argument("--intensity-scale", choices=("profile", "reflectivity"), default="profile",
+                          help="with --on: what the recording's intensity is: the profile's byte (default) or a "
+                               "calibrated reflectivity in percent (Ouster's, import-ouster's), turned into the "
+                               "profile's scale by its LIDAR equation at each return's range; the output holds the "
+                               "profile's scale")  # fmt: skip
     measured.add_argument("--with-actors", action="store_true",
                           help="with --on: also put the scenario's actors on the recording (returns behind them "
                                "removed), e.g. the car that throws spray on a real street")  # fmt: skip

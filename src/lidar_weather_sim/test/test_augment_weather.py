@@ -67,6 +67,33 @@ def test_make_measured_on_the_real_recording(tmp_path):
         assert np.count_nonzero(f.points["distance"] > 60.0) < 0.75 * np.count_nonzero(r.points["distance"] > 60.0)
 
 
+@pytest.mark.slow
+def test_the_reference_puts_fog_on_the_real_recording_by_each_returns_signal(tmp_path):
+    """`make-measured --on BAG --reference`: the drop-by-drop reference's fog on the real frames (its sampled beams
+    re-drawn, the others dimmed). Read as the profile's bytes, Ouster's reflectivity makes every return a barely
+    detected one and a 150 m fog removes most returns beyond 20 m; with ``--intensity-scale reflectivity`` each
+    keeps the signal its reflectivity and range give, and most stay."""
+    bag = cache_dir() / "ouster_real" / "os1_128_street"
+    if not bag.exists():
+        pytest.skip(f"real recording {bag} absent (make setup imports it)")
+    from lidar_weather_sim.io.recording import Recording
+
+    far = {}
+    for scale in ("profile", "reflectivity"):
+        out = tmp_path / scale
+        done = subprocess.run([sys.executable, "-m", "lidar_weather_sim.cli", "make-measured", "ouster_street",
+                               "--on", str(bag), "--reference", "--intensity-scale", scale,
+                               "--hide", "atmosphere.fog:visual_range=150", "--out", str(out)],
+                              capture_output=True, text=True)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        assert "weather by the reference generator" in done.stdout
+        frames = Recording.load(out).frames
+        assert len(frames) == 3 and frames[0].points.dtype == Recording.load(bag).frames[0].points.dtype
+        far[scale] = sum(np.count_nonzero(f.points["distance"] > 20.0) for f in frames)
+    real = sum(np.count_nonzero(f.points["distance"] > 20.0) for f in Recording.load(bag).frames)
+    assert far["reflectivity"] > 0.7 * real and far["profile"] < 0.3 * real, (far, real)
+
+
 def test_actors_are_put_on_the_frame_and_hide_what_lies_behind_them():
     """With the scenario's actors (a car the recording lacks): its returns are added, the real returns behind it on
     its beams go, and nearer real returns and the real returns of other beams stay."""
@@ -121,3 +148,29 @@ def test_spray_and_the_car_throwing_it_on_the_real_recording(tmp_path):
                            "--with-actors", "--hide", "spray:water_film=2.0", "--out", str(tmp_path / "no")],
                           capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 2 and "--with-actors" in done.stderr and not (tmp_path / "no").exists()
+
+
+def test_a_generator_dims_a_recorded_return_by_the_signal_its_reflectivity_gives():
+    """``through_generator`` (make-measured --on BAG --generator G): the generator takes the recording's frame in
+    the project's layout and gives it back in the recording's (no EPW here). A 10 % reflectivity at 20 m on
+    os1_128_1024 (byte 99 on the profile's scale, --intensity-scale reflectivity) through fog_loss at a visual
+    range of 60 m (2 alpha R = 2.61) keeps its return, 72 bytes dimmer (255 x 2.61 / ln 1e4); read as the
+    profile's byte 10 it is lost."""
+    from lidar_weather_sim.augment.weather import through_generator
+    from lidar_weather_sim.references.measured import weather_transform
+    from lidar_weather_sim.scenario.effects import parse_effect
+    from lidar_weather_sim.scenario.schema import load_scenario
+    from lidar_weather_sim.sensor.profile import load_profile
+    from lidar_weather_sim.sensor.radiometry import reflectivity_intensity
+
+    scenario = load_scenario("ouster_street")
+    _, transform = weather_transform(scenario, [parse_effect("atmosphere.fog:visual_range=60")], "fog_loss",
+                                     "os1_128_1024", 0)  # fmt: skip
+    real = _points([(5, 0.1, 20.0, 0), (6, 0.2, 20.0, 0)], POINT_DTYPE_NO_EPW)
+    real["intensity"] = 10
+    assert len(through_generator(real, transform, 0)) == 0  # byte 10 on the profile's scale: below the loss
+    real["intensity"] = reflectivity_intensity(real["intensity"], real["distance"], load_profile("os1_128_1024"))
+    out = through_generator(real, transform, 0)
+    assert out.dtype == real.dtype and len(out) == 2
+    assert (real["intensity"] == 99).all() and (out["intensity"] == 99 - 72).all()
+    np.testing.assert_array_equal(out["distance"], real["distance"])

@@ -53,3 +53,25 @@ def test_threshold_rises_with_sun_and_intensity_spans_the_dynamic_range():
     assert rad.intensity_byte(span, span) == 255
     assert rad.intensity_byte(0.5 * span, span) in (127, 128)
     assert rad.intensity_byte(2 * span, span) == 255 and rad.intensity_byte(-1.0, span) == 0
+
+
+def test_a_calibrated_reflectivity_is_the_byte_the_simulator_gives_that_surface():
+    """``reflectivity_intensity`` (make-measured --on --intensity-scale reflectivity, for Ouster's calibrated
+    reflectivity): a recorded reflectivity of rho percent at R m is the intensity the simulator reports for a
+    Lambertian wall of reflectance rho hit square-on at R m; 10 % at 20 m on os1_128_1024 is byte 99 (C 576000:
+    255 ln(576000 x 0.1 / 20^2 / 4) / ln 1e4), not the barely detected return byte 10 would be on that scale."""
+    import yaml
+
+    from lidar_weather_sim.core.paths import config_dir
+    from lidar_weather_sim.sim.simulator import LidarSimulator
+    from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
+
+    concrete = yaml.safe_load((config_dir() / "materials.yaml").read_text())["materials"]["concrete"]
+    profile = simple_profile()
+    points = one_frame(LidarSimulator(profile, scene_of(wall(20.0, "concrete", 1)), seed=0)).points
+    square_on = points[np.argmin(np.abs(points["azimuth"]))]
+    assert abs(square_on["azimuth"]) < 1e-6 and square_on["distance"] == pytest.approx(20.0, abs=1e-4)
+    byte = rad.reflectivity_intensity(100.0 * concrete["reflectivity"], 20.0, profile)
+    assert byte == square_on["intensity"] and 0 < byte < 255
+    os1 = load_profile("os1_128_1024")
+    assert rad.reflectivity_intensity(np.array([10.0]), np.array([20.0]), os1)[0] == 99

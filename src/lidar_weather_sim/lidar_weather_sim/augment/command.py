@@ -10,7 +10,7 @@ import numpy as np
 
 from lidar_weather_sim.augment.kinds import parse_kinds
 from lidar_weather_sim.augment.obstacles import AugmentSummary, augment_bag, check_profile, profile_for_cloud
-from lidar_weather_sim.augment.weather import augment_frame
+from lidar_weather_sim.augment.weather import augment_frame, through_generator
 from lidar_weather_sim.core.names import TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC
 from lidar_weather_sim.io.bags import BagWriter, read_messages
 from lidar_weather_sim.io.recording import Recording
@@ -19,14 +19,27 @@ from lidar_weather_sim.replay import Resimulator
 from lidar_weather_sim.scenario.effects import Effect, apply_effects
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.sensor.profile import load_profile
+from lidar_weather_sim.sensor.radiometry import reflectivity_intensity
 from lidar_weather_sim.sensor.response import apply_response
 
 
 def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect], output: str | Path, *,
                       profile: str | None = None, topic: str | None = None, overwrite: bool = False,
-                      with_actors: bool = False) -> int:  # fmt: skip
+                      with_actors: bool = False, generator: str = "fast", beams_per_frame: int | None = None,
+                      reflectivity: bool = False) -> int:  # fmt: skip
     """Write ``path`` with ``effects`` simulated on top of its frames to ``output`` (``with_actors``: the
-    scenario's actors too); returns the frames written."""
+    scenario's actors too); returns the frames written. ``generator`` (make-measured's): who makes the weather
+    it makes (:func:`~lidar_weather_sim.references.measured.made_by`), on every merged frame at the scenario's
+    seed; the simulator makes the other effects (``beams_per_frame``: the reference's sampled beams).
+    ``reflectivity``: the recording's intensity is a calibrated reflectivity (percent), turned into the profile's
+    intensity scale first (:func:`~lidar_weather_sim.sensor.radiometry.reflectivity_intensity`), so that a loss
+    dims each real return by its own signal; the output holds the profile's scale."""
+    from lidar_weather_sim.references.measured import made_by, weather_transform
+
+    transform = None
+    if generator != "fast":
+        _, transform = weather_transform(scenario, effects, generator, profile, scenario.seed, beams_per_frame)
+        effects = [e for e in effects if e.name not in made_by(generator)]
     recording = Recording.load(path, topic)
     resim = Resimulator(recording, scenario, profile)
     columns = resim.world.profile.scan.columns
@@ -41,7 +54,13 @@ def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect
         for m in read_messages(path, [TOPIC_CLOCK, TOPIC_TF, TOPIC_TF_STATIC]):
             bag.write(m.topic, m.msg, m.log_time_ns)
         for k, (frame, b, e) in enumerate(zip(recording.frames, base, with_effects)):
-            points = augment_frame(frame.points, b, e, columns, actors)
+            real = frame.points
+            if reflectivity:
+                real = real.copy()
+                real["intensity"] = reflectivity_intensity(real["intensity"], real["distance"], resim.world.profile)
+            points = augment_frame(real, b, e, columns, actors)
+            if transform is not None:
+                points = through_generator(points, transform, k)
             rng = np.random.default_rng(region_entropy(scenario.seed, k, "sensor_response", 0))
             points = apply_response(points, response, rng, min_range)
             bag.write_cloud(recording.topic, points, frame.stamp_ns, frame.frame_id, log_time_ns=frame.log_time_ns)

@@ -15,6 +15,10 @@ With ``with_actors`` (a recording that lacks the scenario's actors, e.g. a car t
 street) the returns of the scenario's actors in the effect run are added too, and real returns of their
 beams that lie behind them are removed (the actor hides them).
 
+With a weather generator other than the simulator (``make-measured --on BAG --reference`` or ``--generator G``,
+:func:`through_generator`), the generator's weather goes on the merged frame: it takes each beam's returns as its
+clear scene (real returns as label UNKNOWN), and what it writes comes back in the recording's layout.
+
 Real returns are otherwise kept as they are (intensity, range), so what remains of the
 real recording's own reality gap stays in the result. Sensor-family effects (``sensor.intensity_*``,
 ``range_*``, ``ray_drop``: the unit's response) act on every output point, real or added, as they
@@ -26,8 +30,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS
+from typing import Callable
+
+from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS, empty_points
 from lidar_weather_sim.replay import beam_keys, nearest_returns
+from lidar_weather_sim.sim.simulator import Frame
 
 
 def augment_frame(real: np.ndarray, base: np.ndarray, effect: np.ndarray, columns: int,
@@ -60,3 +67,21 @@ def _behind(points: np.ndarray, occluders: np.ndarray, columns: int) -> np.ndarr
     k = beam_keys(points, columns)
     at = np.clip(np.searchsorted(keys, k), 0, len(keys) - 1)
     return (keys[at] == k) & (points["distance"] > nearest[at])
+
+
+def through_generator(points: np.ndarray, transform: Callable[[Frame], np.ndarray], index: int) -> np.ndarray:
+    """``points`` (frame ``index`` of a recording, its layout) in a weather generator's weather: ``transform``
+    (:func:`lidar_weather_sim.references.measured.weather_transform`) takes and gives the project's layout with
+    ground truth; the recording's returns enter with label UNKNOWN (a real scene) and, where the layout has none,
+    EPW 0 (the generator then reads each return's peak from its intensity alone); the result comes back in
+    ``points``' layout (fields it lacks, such as the EPW, left out)."""
+    full = empty_points(len(points))
+    for name in points.dtype.names:
+        if name in full.dtype.names:
+            full[name] = points[name]
+    made = transform(Frame(index, 0.0, full, 0))
+    out = np.zeros(len(made), dtype=points.dtype)
+    for name in points.dtype.names:
+        if name in made.dtype.names:
+            out[name] = made[name]
+    return out

@@ -58,6 +58,15 @@ FIXED_WEATHER = {"fog_loss": ("atmosphere.fog",), "fog_spread": ("atmosphere.fog
                  "fog_shell": ("atmosphere.fog",), "precip_dsd": ("atmosphere.rain", "atmosphere.snow")}
 
 
+def made_by(generator: str) -> tuple[str, ...]:
+    """The effects ``generator`` makes itself (the simulator makes the others): none for ``fast``."""
+    if generator in FIXED_WEATHER:
+        return FIXED_WEATHER[generator] + ("cover.dirt",)
+    from lidar_weather_sim.references.droplets import ATMOSPHERE_EFFECTS
+
+    return ATMOSPHERE_EFFECTS if generator in ("reference", "hahner") else ()
+
+
 def degrade(points: np.ndarray, sigma_m: float, rng: np.random.Generator, ground_truth: bool = False) -> np.ndarray:
     """Points (without ground truth unless ``ground_truth``), each moved along its beam by N(0, sigma_m) (m)."""
     out = points.copy() if ground_truth else strip_ground_truth(points)

@@ -110,6 +110,20 @@ def overlap_at(range_m, start_m, full_m):
     return u * u * (3.0 - 2.0 * u)
 
 
+def reflectivity_intensity(reflectivity_percent, range_m, profile) -> np.ndarray:
+    """Intensity bytes (0-255, ``profile``'s scale) of returns a sensor reported as a calibrated reflectivity
+    (percent of a Lambertian target at normal incidence, > 100 for retro-reflectors: Ouster's REFLECTIVITY
+    channel, which ``import-ouster`` writes as intensity): the peak ``A = C rho / max(R, R_min)^2 O(R)`` of a
+    full beam in clear air (``R`` the range, m) on the profile's log scale over its dark threshold."""
+    det, optics = profile.detection, profile.optics
+    rho = np.asarray(reflectivity_percent, dtype=np.float64) / 100.0
+    r = np.asarray(range_m, dtype=np.float64)
+    peak = peak_amplitude(det.power_constant, 1.0, rho, r, 1.0, overlap_factor(r, optics.overlap_start_m,
+                                                                               optics.overlap_full_m))
+    log_ratio = np.log(np.maximum(peak, 1e-300) / dark_level(det))
+    return np.clip(np.rint(255.0 * log_ratio / np.log(det.intensity_dynamic_range)), 0, 255).astype(np.uint8)
+
+
 @numba.njit(cache=True, inline="always")
 def intensity_byte(log_ratio, log_span):
     """Intensity 0-255 of an echo whose peak is exp(``log_ratio``) times the dark threshold;
