@@ -59,6 +59,28 @@ def budgets(frames: int) -> dict[str, int]:
     return {"fit_frames": fit, "heldout_frames": fit, "screen_frames": min(BUDGETS["screen_frames"], max(1, fit // 2))}
 
 
+def judged(result: dict) -> tuple[dict[str, float], dict[str, float], list[str]]:
+    """(named, fitted and not named, unexplained zones) of a gap result (gap.json's content): each effect by its
+    main parameter, each zone as "label, shape (N sigma)"."""
+    named: dict[str, float] = {}
+    fitted: dict[str, float] = {}
+    for e in result["effects"]:
+        (named if e.get("named", True) else fitted).setdefault(e["name"], float(e["params"][EFFECTS[e["name"]].main]))
+    return named, fitted, [f"{u['label']}, {u['shape']} ({u['sigma']:.0f} sigma)" for u in result.get("unexplained", [])]
+
+
+def effects_text(effects: dict[str, float]) -> str:
+    """``name value, ...`` or ``nothing``."""
+    return ", ".join(f"{k} {v:.4g}" for k, v in effects.items()) or "nothing"
+
+
+def append_row(path: str | None, row: dict) -> None:
+    """Append ``row`` to the JSON-lines file ``path`` (none: nothing)."""
+    if path:
+        with open(path, "a") as f:
+            f.write(json.dumps(row) + "\n")
+
+
 def run_case(case: dict, work: Path, frames: int = FRAMES) -> dict:
     """Make the case's bag of ``frames`` frames, search it, and score it."""
     start = time.perf_counter()
@@ -69,11 +91,7 @@ def run_case(case: dict, work: Path, frames: int = FRAMES) -> dict:
                   generator=case["generator"], overwrite=True)  # fmt: skip
     result = run_gap(bag, scenario, work / f"gap_{case['index']:02d}", profile=case["profile"], **budgets(frames))
     hidden = {e.name: e.value for e in effects}
-    named: dict[str, float] = {}
-    fitted: dict[str, float] = {}
-    for e in result["effects"]:
-        (named if e.get("named", True) else fitted).setdefault(e["name"], float(e["params"][EFFECTS[e["name"]].main]))
-    unexplained = [f"{u['label']}, {u['shape']} ({u['sigma']:.0f} sigma)" for u in result.get("unexplained", [])]
+    named, fitted, unexplained = judged(result)
     return {"index": case["index"], "generator": case["generator"], "profile": case["profile"], "hidden": hidden,
             "named": named, "fitted_not_named": fitted, "unexplained": unexplained,
             "verdict": verdict(hidden, named, unexplained), "gap_before": result["gap_before"],
@@ -102,14 +120,12 @@ def main() -> None:
         work.mkdir(parents=True, exist_ok=True)
         for case in cases:
             row = run_case(case, work, args.frames)
-            text = lambda d: ", ".join(f"{k} {v:.4g}" for k, v in d.items()) or "nothing"  # noqa: E731
+            text = effects_text
             print(f"| {row['index']} | {row['generator']} | {row['profile']} | {text(row['hidden'])} | "
                   f"{text(row['named'])} | {text(row['fitted_not_named'])} | {'; '.join(row['unexplained']) or '-'} | "
                   f"{row['verdict']} | {row['gap_before']:.4f} -> {row['gap_after']:.4f} | "
                   f"{row['seconds']:.0f} |", flush=True)  # fmt: skip
-            if args.json:
-                with open(args.json, "a") as f:
-                    f.write(json.dumps(row) + "\n")
+            append_row(args.json, row)
 
 
 if __name__ == "__main__":
