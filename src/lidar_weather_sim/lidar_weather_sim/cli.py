@@ -226,9 +226,15 @@ def _cmd_make_measured(args: argparse.Namespace) -> int:
         if not effects:
             raise ValueError("--on needs at least one --hide effect to put on top of the recording")
 
-        frames = augment_recording(args.on, load_scenario(args.scenario), effects, args.out, profile=args.profile,
-                                   topic=args.topic, overwrite=args.overwrite, with_actors=args.with_actors,
-                                   generator=args.generator, beams_per_frame=args.beams_per_frame,
+        scenario, weather, simulated = load_scenario(args.scenario), None, effects
+        if args.generator != "fast":  # its weather on each merged frame, at the scenario's seed
+            from lidar_weather_sim.references.measured import made_by, weather_transform
+
+            _, weather = weather_transform(scenario, effects, args.generator, args.profile, scenario.seed,
+                                           args.beams_per_frame)  # fmt: skip
+            simulated = [e for e in effects if e.name not in made_by(args.generator)]
+        frames = augment_recording(args.on, scenario, simulated, args.out, profile=args.profile, topic=args.topic,
+                                   overwrite=args.overwrite, with_actors=args.with_actors, transform=weather,
                                    reflectivity=args.intensity_scale == "reflectivity")  # fmt: skip
         actors = " and the scenario's actors" if args.with_actors else ""
         by = "" if args.generator == "fast" else f" (weather by the {args.generator} generator)"

@@ -5,6 +5,7 @@ synthetic obstacles (``augment``, :func:`augment_obstacles`; :mod:`.obstacles`).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -21,25 +22,21 @@ from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.sensor.profile import load_profile
 from lidar_weather_sim.sensor.radiometry import reflectivity_intensity
 from lidar_weather_sim.sensor.response import apply_response
+from lidar_weather_sim.sim.simulator import Frame
 
 
 def augment_recording(path: str | Path, scenario: Scenario, effects: list[Effect], output: str | Path, *,
                       profile: str | None = None, topic: str | None = None, overwrite: bool = False,
-                      with_actors: bool = False, generator: str = "fast", beams_per_frame: int | None = None,
+                      with_actors: bool = False, transform: Callable[[Frame], np.ndarray] | None = None,
                       reflectivity: bool = False) -> int:  # fmt: skip
     """Write ``path`` with ``effects`` simulated on top of its frames to ``output`` (``with_actors``: the
-    scenario's actors too); returns the frames written. ``generator`` (make-measured's): who makes the weather
-    it makes (:func:`~lidar_weather_sim.references.measured.made_by`), on every merged frame at the scenario's
-    seed; the simulator makes the other effects (``beams_per_frame``: the reference's sampled beams).
+    scenario's actors too); returns the frames written. ``transform``: a weather generator's frame transform
+    (``make-measured --on --reference`` or ``--generator G``, which the command line takes from
+    :func:`lidar_weather_sim.references.measured.weather_transform`; the effects it makes are then not in
+    ``effects``), run on every merged frame (:func:`.weather.through_generator`).
     ``reflectivity``: the recording's intensity is a calibrated reflectivity (percent), turned into the profile's
     intensity scale first (:func:`~lidar_weather_sim.sensor.radiometry.reflectivity_intensity`), so that a loss
     dims each real return by its own signal; the output holds the profile's scale."""
-    from lidar_weather_sim.references.measured import made_by, weather_transform
-
-    transform = None
-    if generator != "fast":
-        _, transform = weather_transform(scenario, effects, generator, profile, scenario.seed, beams_per_frame)
-        effects = [e for e in effects if e.name not in made_by(generator)]
     recording = Recording.load(path, topic)
     resim = Resimulator(recording, scenario, profile)
     columns = resim.world.profile.scan.columns
