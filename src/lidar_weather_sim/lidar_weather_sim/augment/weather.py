@@ -28,9 +28,9 @@ act on a simulated frame (:func:`lidar_weather_sim.sensor.response.apply_respons
 
 from __future__ import annotations
 
-import numpy as np
-
 from typing import Callable
+
+import numpy as np
 
 from lidar_weather_sim.core.points import SOLID_LABELS, WEATHER_LABELS, empty_points
 from lidar_weather_sim.replay import beam_keys, nearest_returns

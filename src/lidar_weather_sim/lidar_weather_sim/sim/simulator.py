@@ -584,10 +584,12 @@ def _volume(rays: RayBatch | None, effect: RegionEffect | None) -> Volume | None
     core = int(np.argmax(rays.weights))
     distance = rays.distance[:, core]
     scene_hit = np.where(np.isfinite(distance), distance + effect.range_offset_m[:, core], np.inf)
-    t = effect.transmission
-    weights = np.asarray(rays.weights, dtype=np.float64)
-    uniform = (t == t[:, :1]).all(axis=1)  # the core's square exactly where every sub-ray passes the same light
-    two_way = np.where(uniform, t[:, core] ** 2, t**2 @ (weights / weights.sum()))
+    one_way = effect.transmission
+    two_way = one_way[:, core] ** 2  # exact where every sub-ray passes the same light
+    mixed = np.flatnonzero((one_way != one_way[:, :1]).any(axis=1))
+    if len(mixed):
+        weights = np.asarray(rays.weights, dtype=np.float64)
+        two_way[mixed] = one_way[mixed] ** 2 @ (weights / weights.sum())
     sc = effect.scatterers
     if sc is not None:  # what the central sub-ray's scatterers leave of its light (the cover's returns lie in front)
         on_core = (sc.subray == core) & (sc.occlusion > 0)
