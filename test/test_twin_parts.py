@@ -12,7 +12,7 @@ from lidar_weather_sim.scenario.player import ScenarioPlayer
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.scene.opendrive import RoadNetwork
-from lidar_weather_sim.scene.surveyed import bin_values, read_face_reflectivity, surveyed_materials, write_surveyed_ply
+from lidar_weather_sim.scene.surveyed import bin_values, read_surveyed_faces, surveyed_materials, write_surveyed_ply
 from lidar_weather_sim.testing.bags import points_at
 
 
@@ -141,11 +141,16 @@ def test_surveyed_ply_round_trip_and_materials(tmp_path):
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
     t = np.array([[0, 1, 2], [1, 3, 2]])
     path = write_surveyed_ply(tmp_path / "m.ply", v, t, np.array([0.02, 0.5]))
-    assert np.allclose(read_face_reflectivity(path), [0.02, 0.5])
+    reflectivity, recorded_range = read_surveyed_faces(path)
+    assert np.allclose(reflectivity, [0.02, 0.5]) and recorded_range is None
     mesh = load_static_mesh(path, 0, 1)
     assert np.allclose(mesh.vertices, v) and np.array_equal(mesh.triangles, t)
+    ranged = write_surveyed_ply(tmp_path / "r.ply", v, t, np.array([0.02, 0.5]), np.array([12.5, 40.0]))
+    reflectivity, recorded_range = read_surveyed_faces(ranged)
+    assert np.allclose(reflectivity, [0.02, 0.5]) and np.allclose(recorded_range, [12.5, 40.0])
+    assert np.array_equal(load_static_mesh(ranged, 0, 1).triangles, t)  # trimesh reads the extra property
     trimesh.creation.box().export(tmp_path / "plain.ply")
-    assert read_face_reflectivity(tmp_path / "plain.ply") is None
+    assert read_surveyed_faces(tmp_path / "plain.ply") is None
     table, material = surveyed_materials(MaterialTable.default(), np.array([0.02, 0.5, 0.0, 2.0]))
     values = table.reflectivity[material]
     assert np.allclose(values[:2], [0.02, 0.5], rtol=0.03) and values[2] == bin_values()[0] and values[3] == 1.0
@@ -166,7 +171,7 @@ def test_reflectivity_inverts_the_simulated_intensity():
     intensity = np.rint(255.0 * np.log(peak / dark_level(det)) / np.log(det.intensity_dynamic_range))
     got = point_reflectivity(intensity, r, cos, profile)
     assert np.allclose(got, rho, rtol=0.03)
-    per, summary = triangle_reflectivity(np.zeros(len(got), np.int64), got, 2)
+    per, _, summary = triangle_reflectivity(np.zeros(len(got), np.int64), got, 2)
     assert per[0] == pytest.approx(rho, rel=0.03) and summary["triangles_without_points"] == 1
 
 

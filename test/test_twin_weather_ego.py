@@ -238,7 +238,7 @@ def test_the_twin_writes_the_ego_part_into_its_scenario(tmp_path, capsys):
     from lidar_weather_sim.sim.offline import run_scenario
     from lidar_weather_sim.sim.simulator import LidarSimulator
     from lidar_weather_sim.twin.reconstruct import distances_to_mesh
-    from lidar_weather_sim.scene.surveyed import read_face_reflectivity
+    from lidar_weather_sim.scene.surveyed import read_surveyed_faces
 
     assert run_scenario(_room_with_a_part(tmp_path), tmp_path / "bag", frames=8).frames == 8
     rec = Recording.load(tmp_path / "bag")
@@ -257,7 +257,7 @@ def test_the_twin_writes_the_ego_part_into_its_scenario(tmp_path, capsys):
 
     scenario = load_scenario(out / "scenario.yaml")  # round trip through the loader
     assert [p.mesh for p in scenario.sensor.fixed_parts] == [str((out / "ego_part.ply").resolve())]
-    assert read_face_reflectivity(out / "ego_part.ply") is not None
+    assert read_surveyed_faces(out / "ego_part.ply") is not None
 
     import trimesh
 

@@ -3,7 +3,7 @@
 (issue 51, item 4), every case reported.
 
     python benchmarks/validation/real_weather_gap.py [--only 0,3] [--bag B] [--beams-per-frame N] [--out DIR]
-        [--json F]
+        [--json F] [--reuse-measured]
 
 Per case, each step through the project's own command line:
 
@@ -15,6 +15,9 @@ Per case, each step through the project's own command line:
 2. ``twin`` builds the scene from that weathered recording (even / odd frame split; the weather filter runs on
    every frame before meshing), not from Ouster's mesh;
 3. ``gap --scenario TWIN/scenario.yaml`` fits on the calibration frames and scores the held-out one.
+
+``--reuse-measured`` skips step 1 for a case whose weathered recording ``--out`` already holds (the reference takes
+~1 min a frame on every OS1 beam): a change to the twin or the search re-runs on the same weather.
 
 One row per case: what was hidden, what gap named, what it fitted and did not name, the zones it left
 unexplained, the verdict (generator_draw.py's: right = exactly the hidden effect named, its main parameter
@@ -53,12 +56,14 @@ def cli(*args: str) -> None:
         sys.exit(f"lidar-weather-sim {' '.join(args)} exited {done.returncode}: {done.stderr.strip()[-400:]}")
 
 
-def run_case(index: int, hide: str, bag: Path, work: Path, beams: int) -> dict:
-    """Weather on the recording, its twin, and the search on the twin; the case's row."""
+def run_case(index: int, hide: str, bag: Path, work: Path, beams: int, reuse: bool = False) -> dict:
+    """Weather on the recording (unless ``reuse`` finds it made), its twin, and the search on the twin; the case's
+    row."""
     start = time.perf_counter()
     measured, twin, gap = (work / f"{name}_{index}" for name in ("measured", "twin", "gap"))
-    cli("make-measured", "ouster_street", "--on", str(bag), "--reference", "--intensity-scale", "reflectivity",
-        "--hide", hide, "--out", str(measured), "--overwrite", "--beams-per-frame", str(beams))  # fmt: skip
+    if not (reuse and (measured / "metadata.yaml").is_file()):
+        cli("make-measured", "ouster_street", "--on", str(bag), "--reference", "--intensity-scale", "reflectivity",
+            "--hide", hide, "--out", str(measured), "--overwrite", "--beams-per-frame", str(beams))  # fmt: skip
     cli("twin", str(measured), "--split", "frames", "--out", str(twin), "--overwrite")
     cli("gap", str(measured), "--scenario", str(twin / "scenario.yaml"), "--out", str(gap))
     result = json.loads((gap / "gap.json").read_text())
@@ -80,6 +85,8 @@ def main() -> None:
                         "every beam of the scenario's profile)")
     parser.add_argument("--out", help="keep bags, twins and gap reports here (default: a temporary directory)")
     parser.add_argument("--json", help="append each case's row to this JSON-lines file")
+    parser.add_argument("--reuse-measured", action="store_true", help="keep a case's weathered recording when --out "
+                        "holds it (module doc)")
     args = parser.parse_args()
     if not Path(args.bag).is_dir():
         sys.exit(f"{args.bag}: no such recording (make setup imports it)")
@@ -92,7 +99,7 @@ def main() -> None:
         work = Path(args.out or tmp)
         work.mkdir(parents=True, exist_ok=True)
         for index in sorted(keep):
-            row = run_case(index, CASES[index], Path(args.bag), work, beams)
+            row = run_case(index, CASES[index], Path(args.bag), work, beams, args.reuse_measured)
             text = effects_text
             pearson = "-" if row["bev_pearson"] is None else f"{row['bev_pearson']:.3f}"
             print(f"| {index} | {text(row['hidden'])} | {text(row['named'])} | {text(row['fitted_not_named'])} | "

@@ -64,17 +64,26 @@ class RecordedPoses:
 
 
 class Resimulator:
-    """Casts a recording's frames again with ``scenario`` plus effects (see module doc)."""
+    """Casts a recording's frames again with ``scenario`` plus effects (see module doc). ``through_air``: the
+    effects' air is taken to be the recording's, which a twin's surveyed reflectivity was measured through
+    (:class:`~lidar_weather_sim.sim.simulator.LidarSimulator`'s ``reflectivity_through_air``)."""
 
     def __init__(self, recording: Recording, scenario: Scenario, profile: str | None = None,
-                 backend: str | None = None) -> None:  # fmt: skip
+                 backend: str | None = None, through_air: bool = False) -> None:  # fmt: skip
         self.recording = recording
         self.scenario = scenario
         self.world = World.build(scenario, profile)
         self.poses = RecordedPoses(recording, self.world)
         self.sim = LidarSimulator.of_world(self.world, backend=backend, regions=[])
+        self.sim.reflectivity_through_air = through_air
         self.channels = len(self.world.profile.beams)
         self.casts = 0  # frames cast so far (for progress and cost reports)
+
+    @property
+    def is_twin(self) -> bool:
+        """The scene holds reflectivity read off a recording through its air (a twin's mesh) and the effects' air
+        is taken for that air (``through_air``)."""
+        return self.sim.reflectivity_through_air and self.world.scene.recorded_range_m is not None
 
     def frames(self, effects: list[Effect], indices, redraw: int = 0) -> list[np.ndarray]:
         """Points of the recording's frames ``indices`` simulated with ``effects``; ``redraw`` > 0: another,

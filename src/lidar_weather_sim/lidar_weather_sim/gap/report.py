@@ -180,7 +180,10 @@ def write_gap(out: Path, diagnosis, measured: Signature, before: Signature, afte
                   f"A zone is unexplained when a range band's measured returns differ from the simulated ones by "
                   f"{SIGMA_TEXT.format(**result['naming_rule'])}. An effect is named only when it removes the "
                   f"residual of the zones that are its physics (gone, or at most {result['naming_rule']['remaining']:.0%} "
-                  "of it left), not only the total gap.", "",
+                  "of it left), not only the total gap."
+                  + (" The scene is a twin of the recording, whose reflectivity holds the weather's loss on its "
+                     "surfaces: the atmosphere is judged on its own echoes, the near field."
+                     if result["naming_rule"].get("twin") else ""), "",
                   "| zone | shape | residual (sigma) | returns/frame beyond the noise | measured / simulated |",
                   "|---|---|---:|---:|---:|"]  # fmt: skip
         for r in result["unexplained"]:

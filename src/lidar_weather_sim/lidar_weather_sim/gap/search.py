@@ -388,7 +388,7 @@ class GapSearch(GapEvaluator):
         measured = self._measured["heldout"]
         keep = self.point_mask("heldout")
         judgement = judge_effects(diag.effects, measured, lambda effects: self.resim.signature(effects, self.held_idx, keep),
-                                  self._measured["fit"])  # fmt: skip
+                                  self._measured["fit"], twin=self.resim.is_twin)  # fmt: skip
         for effect, reason in judgement.refused:
             self.progress(f"{effect.label()} not named: {reason}")
         for residual in judgement.unexplained:

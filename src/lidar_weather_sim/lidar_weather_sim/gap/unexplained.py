@@ -45,6 +45,12 @@ could not tell it from no such effect, and what it took is something else's (dra
 extinction of a snow whose drops the model fitted at 0.16 mm/h for 4.4). The sensor family's effects (read off the
 data, or the unit's response) have no zones here and are named as the search accepts them.
 
+**On a twin of the recording** (a scene whose reflectivity was read off the recording's own returns, through the air
+it had: :attr:`~lidar_weather_sim.scene.scene.Scene.recorded_range_m`, which the search gives back for every weather
+it tries) the surfaces' loss is in the scene: any fog or rain returns the recorded surfaces as recorded, and what
+tells the weather is what the twin could not mesh, its own echoes. The atmosphere's effects are then judged on the
+near field (:data:`TWIN_EFFECT_ZONES`); a wet road darkens only what the twin already holds dark, and is not named.
+
 Cost: one held-out re-simulation with all accepted effects, one without each accepted weather effect, and one with
 the named effects only when one is refused.
 """
@@ -95,6 +101,17 @@ EFFECT_ZONES: dict[str, tuple[str, ...]] = {
     "cover.water": ("cover", "road", "far"),
     "sensor.sun": ("road", "far"),
     "spray": ("wake", "body"),
+}
+
+#: the zones that are an effect's physics on a twin of the recording (module doc), where not :data:`EFFECT_ZONES`:
+#: the real OS1-128 street with the reference's fog of 50 m visual range, through its twin: the fog fitted at 49.85 m
+#: and the held-out near field re-simulated at 124 814 returns for 125 220 recorded, while the far field, road and
+#: bodies came back as recorded with any fog
+TWIN_EFFECT_ZONES: dict[str, tuple[str, ...]] = {
+    "atmosphere.fog": ("near",),
+    "atmosphere.rain": ("near",),
+    "atmosphere.snow": ("near",),
+    "atmosphere.road_wet": (),
 }
 
 #: the aspects (range counts, :data:`ASPECTS`) an effect's naming judges in its zones, where not all: the fog's
@@ -292,14 +309,22 @@ def _of_zones(residuals: dict[str, ZoneResidual], zones: tuple[str, ...],
     return [k for k, r in residuals.items() if r.zone in zones and (aspects is None or r.aspect in aspects)]
 
 
-def removes_its_residual(name: str, without: dict[str, ZoneResidual],
-                         with_it: dict[str, ZoneResidual]) -> str | None:  # fmt: skip
+def effect_zones(name: str, twin: bool = False) -> tuple[str, ...] | None:
+    """The zones that are the effect ``name``'s physics (None: it has none, the sensor family), on a twin of the
+    recording when ``twin`` (module doc)."""
+    return TWIN_EFFECT_ZONES.get(name, EFFECT_ZONES.get(name)) if twin else EFFECT_ZONES.get(name)
+
+
+def removes_its_residual(name: str, without: dict[str, ZoneResidual], with_it: dict[str, ZoneResidual],
+                         twin: bool = False) -> str | None:  # fmt: skip
     """Why the effect ``name`` may not be named (None: it may), from the zones' residuals without it and with it
-    (the other accepted effects in place both times): module doc, the naming rule. Effects without zones in
-    :data:`EFFECT_ZONES` (the sensor family) always may."""
-    zones, aspects = EFFECT_ZONES.get(name), EFFECT_ASPECTS.get(name)
+    (the other accepted effects in place both times): module doc, the naming rule (``twin``: on a twin of the
+    recording). Effects without zones (the sensor family) always may."""
+    zones, aspects = effect_zones(name, twin), EFFECT_ASPECTS.get(name)
     if zones is None:
         return None
+    if not zones:
+        return "a twin of the recording holds what it changes in its reflectivity: not told apart from the scene"
     if not any(without[k].significant for k in _of_zones(without, zones, aspects)):
         return f"no residual to remove in its zones ({', '.join(ZONE_LABELS[z] for z in zones)})"
     empty = ZoneResidual("", 0.0, 0.0, 0.0, "no residual", ())
@@ -336,28 +361,31 @@ class Judgement:
     unexplained: list[ZoneResidual] = field(default_factory=list)
     residuals: dict[str, ZoneResidual] = field(default_factory=dict)  # every zone, with the named effects
 
+    twin: bool = False  # judged as on a twin of the recording (module doc)
+
     def rule(self) -> dict:
-        return {"sigma": SIGMA, "min_relative": MIN_RELATIVE, "remaining": REMAINING,
-                "effect_zones": {k: list(v) for k, v in EFFECT_ZONES.items()},
+        return {"sigma": SIGMA, "min_relative": MIN_RELATIVE, "remaining": REMAINING, "twin": self.twin,
+                "effect_zones": {k: list(effect_zones(k, self.twin)) for k in EFFECT_ZONES},
                 "effect_aspects": {k: list(v) for k, v in EFFECT_ASPECTS.items()}}  # fmt: skip
 
 
-def judge_effects(accepted: list[Effect], measured: Signature, simulate,
-                  calibration: Signature | None = None) -> Judgement:  # fmt: skip
+def judge_effects(accepted: list[Effect], measured: Signature, simulate, calibration: Signature | None = None,
+                  twin: bool = False) -> Judgement:  # fmt: skip
     """:class:`Judgement` of the search's ``accepted`` effects against the ``measured`` held-out signature;
     ``simulate(effects)`` gives the held-out frames' simulated :class:`Signature` with ``effects``; ``calibration``:
-    the measured frames the effects were fitted to (:func:`zone_residual`)."""
+    the measured frames the effects were fitted to (:func:`zone_residual`); ``twin``: the scene is a twin of the
+    recording (module doc)."""
 
     def residuals(effects: list[Effect]) -> dict[str, ZoneResidual]:
         return zone_residuals(measured, simulate(effects), calibration)
 
     with_all = residuals(accepted)
-    out = Judgement()
+    out = Judgement(twin=twin)
     for i, effect in enumerate(accepted):
         reason = at_weak_end(effect)
         if reason is None and effect.name in EFFECT_ZONES:
             without = residuals(accepted[:i] + accepted[i + 1 :])
-            reason = removes_its_residual(effect.name, without, with_all)
+            reason = removes_its_residual(effect.name, without, with_all, twin)
         if reason is None:
             out.named.append(effect)
         else:

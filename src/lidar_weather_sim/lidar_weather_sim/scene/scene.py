@@ -18,7 +18,7 @@ from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.scene.materials import MaterialTable
 from lidar_weather_sim.scene.mesh import TriangleMesh, box_mesh
 from lidar_weather_sim.scene.opendrive import RoadNetwork
-from lidar_weather_sim.scene.surveyed import read_face_reflectivity, surveyed_materials
+from lidar_weather_sim.scene.surveyed import read_surveyed_faces, surveyed_materials
 
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 # glTF is y-up with the asset's front along +z and +x to its left: (x, y, z)_ros = (z, x, y)_gltf.
@@ -148,6 +148,10 @@ class Scene:
     actor_labels: dict[int, Label] = field(default_factory=dict)  # ground-truth label per actor id
     #: structure fixed to the sensor (sensor frame, m): cast at every column wherever the sensor is
     sensor_parts: TriangleMesh = field(default_factory=TriangleMesh.empty)
+    #: per static triangle, the mean range (m) its surveyed reflectivity was measured from (NaN: not surveyed);
+    #: None when no mesh carries one. A twin's reflectivity holds the recording's air: the simulator can undo it
+    #: (:attr:`~lidar_weather_sim.sim.simulator.LidarSimulator.reflectivity_through_air`).
+    recorded_range_m: np.ndarray | None = None
 
     @classmethod
     def from_xodr(cls, path: str | Path, materials: MaterialTable | None = None, *,
@@ -173,9 +177,14 @@ class Scene:
             raise ValueError(f"{name}: material index {int(mesh.material.max())} not in {self.materials}")
         self.object_names.update({i: name for i in ids})
 
-    def add_static(self, mesh: TriangleMesh, name: str = "static mesh") -> None:
-        """Append map-frame triangles (their object ids must be new)."""
+    def add_static(self, mesh: TriangleMesh, name: str = "static mesh", recorded_range_m: np.ndarray | None = None) -> None:
+        """Append map-frame triangles (their object ids must be new), with the range (T,) m their surveyed
+        reflectivity was measured from if known (:attr:`recorded_range_m`)."""
         self._claim(mesh, name)
+        if recorded_range_m is not None or self.recorded_range_m is not None:
+            before = np.full(len(self.static.triangles), np.nan) if self.recorded_range_m is None else self.recorded_range_m
+            added = np.full(len(mesh.triangles), np.nan) if recorded_range_m is None else recorded_range_m
+            self.recorded_range_m = np.concatenate([before, np.asarray(added, dtype=np.float64)])
         self.static = TriangleMesh.concatenate([self.static, mesh])
 
     def add_mesh_file(self, path: str | Path, name: str) -> None:
@@ -183,18 +192,20 @@ class Scene:
         id; a digital twin's mesh (:mod:`~lidar_weather_sim.scene.surveyed`) keeps its surveyed reflectivity per
         triangle instead."""
         mesh = load_static_mesh(path, self.materials.index("concrete"), self.next_object_id())
-        reflectivity = read_face_reflectivity(path)
-        if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
-            self.materials, mesh.material = surveyed_materials(self.materials, reflectivity)
-        self.add_static(mesh, name)
+        faces = read_surveyed_faces(path)
+        recorded_range = None
+        if faces is not None and len(faces[0]) == len(mesh.triangles):
+            self.materials, mesh.material = surveyed_materials(self.materials, faces[0])
+            recorded_range = faces[1]
+        self.add_static(mesh, name, recorded_range)
 
     def add_mesh_file_to_sensor(self, path: str | Path, name: str, material: str = "car_paint") -> None:
         """Append the sensor-frame mesh file ``path`` as a fixed part of the sensor (:meth:`add_sensor_part`), of
         ``material`` unless it is a surveyed PLY with its reflectivity per triangle."""
         mesh = load_static_mesh(path, self.materials.index(material), self.next_object_id())
-        reflectivity = read_face_reflectivity(path)
-        if reflectivity is not None and len(reflectivity) == len(mesh.triangles):
-            self.materials, mesh.material = surveyed_materials(self.materials, reflectivity)
+        faces = read_surveyed_faces(path)
+        if faces is not None and len(faces[0]) == len(mesh.triangles):
+            self.materials, mesh.material = surveyed_materials(self.materials, faces[0])
         self.add_sensor_part(mesh, name)
 
     def add_sensor_part(self, mesh: TriangleMesh, name: str = "fixed part", label: Label = Label.STATIC) -> None:

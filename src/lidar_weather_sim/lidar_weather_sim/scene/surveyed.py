@@ -1,9 +1,11 @@
 """Meshes with a measured reflectivity per triangle (a digital twin's, ``lidar-weather-sim twin``).
 
 File: a binary little-endian PLY whose ``face`` element has, after ``vertex_indices`` (triangles only),
-a ``float reflectivity`` property: the diffuse (Lambertian) NIR albedo of the triangle, 0-1. Vertices
-are ``double x, y, z`` in m (the map frame of the scenario). :func:`write_surveyed_ply` writes it,
-:func:`read_face_reflectivity` reads the property back (None for any other mesh file), and
+a ``float reflectivity`` property: the diffuse (Lambertian) NIR albedo of the triangle, 0-1, and optionally a
+``float recorded_range``: the mean range (m) of the returns the reflectivity was measured from (a twin's: the air
+between held whatever weather the recording had, see :attr:`~lidar_weather_sim.scene.scene.Scene.recorded_range_m`).
+Vertices are ``double x, y, z`` in m (the map frame of the scenario). :func:`write_surveyed_ply` writes it,
+:func:`read_surveyed_faces` reads the properties back (None for any other mesh file), and
 :func:`surveyed_materials` turns the values into material indices: the table gets
 :data:`REFLECTIVITY_BINS` extra materials ``surveyed_NNN``, log-spaced between
 :data:`REFLECTIVITY_RANGE` (about 4.6 % apart, +-0.6 intensity bytes on a 1e4 dynamic range; a real sensor's reflectivity read as this profile's intensity can map far below the shipped materials'), appended once
@@ -44,16 +46,24 @@ def surveyed_materials(table: MaterialTable, reflectivity: np.ndarray) -> tuple[
     return table, (table.index(names[0]) + k).astype(np.uint16)
 
 
-def write_surveyed_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, reflectivity: np.ndarray) -> Path:
-    """Write vertices (V, 3) m, triangles (T, 3) and reflectivity (T,) 0-1 as the PLY of the module doc."""
+def _face_dtype(ranges: bool) -> np.dtype:
+    return np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("r", "<f4")] + ([("range", "<f4")] if ranges else []))
+
+
+def write_surveyed_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, reflectivity: np.ndarray,
+                       recorded_range: np.ndarray | None = None) -> Path:  # fmt: skip
+    """Write vertices (V, 3) m, triangles (T, 3), reflectivity (T,) 0-1 and, if given, the recorded range (T,) m
+    as the PLY of the module doc."""
     path = Path(path)
     vertices = np.ascontiguousarray(vertices, dtype="<f8").reshape(-1, 3)
-    faces = np.zeros(len(triangles), dtype=[("n", "u1"), ("v", "<i4", (3,)), ("r", "<f4")])
+    faces = np.zeros(len(triangles), dtype=_face_dtype(recorded_range is not None))
     faces["n"], faces["v"], faces["r"] = 3, triangles, reflectivity
+    if recorded_range is not None:
+        faces["range"] = recorded_range
     header = ("ply\nformat binary_little_endian 1.0\ncomment lidar_weather_sim surveyed mesh: reflectivity per face\n"
               f"element vertex {len(vertices)}\nproperty double x\nproperty double y\nproperty double z\n"
               f"element face {len(faces)}\nproperty list uchar int vertex_indices\nproperty float reflectivity\n"
-              "end_header\n")  # fmt: skip
+              + ("property float recorded_range\n" if recorded_range is not None else "") + "end_header\n")  # fmt: skip
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
         f.write(header.encode("ascii"))
@@ -62,8 +72,9 @@ def write_surveyed_ply(path: str | Path, vertices: np.ndarray, triangles: np.nda
     return path
 
 
-def read_face_reflectivity(path: str | Path) -> np.ndarray | None:
-    """The ``reflectivity`` (T,) of a PLY written by :func:`write_surveyed_ply`; None for other files."""
+def read_surveyed_faces(path: str | Path) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """The ``reflectivity`` (T,) and ``recorded_range`` (T,) m (None when the file has none) of a PLY written by
+    :func:`write_surveyed_ply`; None for other files."""
     path = Path(path)
     if path.suffix.lower() != ".ply" or not path.is_file():
         return None
@@ -75,11 +86,13 @@ def read_face_reflectivity(path: str | Path) -> np.ndarray | None:
     lines = head[:end].decode("ascii", "replace").splitlines()
     expected = ["property double x", "property double y", "property double z",
                 "property list uchar int vertex_indices", "property float reflectivity"]  # fmt: skip
-    if "format binary_little_endian 1.0" not in lines or [ln for ln in lines if ln.startswith("property")] != expected:
+    properties = [ln for ln in lines if ln.startswith("property")]
+    ranges = properties == [*expected, "property float recorded_range"]
+    if "format binary_little_endian 1.0" not in lines or not (ranges or properties == expected):
         return None
     counts = {ln.split()[1]: int(ln.split()[2]) for ln in lines if ln.startswith("element")}
-    faces = np.fromfile(path, dtype=[("n", "u1"), ("v", "<i4", (3,)), ("r", "<f4")], count=counts["face"],
+    faces = np.fromfile(path, dtype=_face_dtype(ranges), count=counts["face"],
                         offset=end + len(b"end_header\n") + 24 * counts["vertex"])  # fmt: skip
     if len(faces) != counts["face"] or np.any(faces["n"] != 3):
         return None
-    return faces["r"].astype(np.float64)
+    return faces["r"].astype(np.float64), faces["range"].astype(np.float64) if ranges else None

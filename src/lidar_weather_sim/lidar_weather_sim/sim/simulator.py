@@ -128,6 +128,13 @@ class LidarSimulator:
     the head) and above the sensor frame's origin (the pose), in which the points are still reported (a
     driver whose point frame is not the beams' origin, as Ouster's); ``seed`` seeds
     every random stream (same seed and poses, same clouds).
+
+    ``reflectivity_through_air`` (default False): the scene's surveyed reflectivity was measured through the air
+    the regions now put between sensor and surface (a twin re-simulated under the weather its recording is
+    supposed to hold, as the gap search does): a static hit on a triangle with a recorded range R
+    (:attr:`~lidar_weather_sim.scene.scene.Scene.recorded_range_m`) gets its reflectivity back by exp(2 alpha R),
+    alpha the regions' extinction on its sub-ray, so the air's loss counts once. Off, the reflectivity is the
+    surface's own and the air dims it (a twin of a clear recording put in fog).
     """
 
     def __init__(
@@ -170,6 +177,10 @@ class LidarSimulator:
         self._reflectivity = np.append(mats.reflectivity, 0.0)
         self._retro = np.append(mats.retro_share, 0.0)
         self._material_label = np.append(np.asarray(mats.labels, dtype=np.uint8), np.uint8(Label.UNKNOWN))
+        recorded = getattr(scene, "recorded_range_m", None)
+        # per static triangle (a last row for "no static hit", triangle -1): 0 where not surveyed
+        self._recorded_range = None if recorded is None else np.append(np.nan_to_num(recorded, nan=0.0), 0.0)
+        self.reflectivity_through_air = False
         ids = np.array(sorted(scene.actor_labels) or [0])
         self._actor_label = np.full(int(ids.max()) + 1, Label.VEHICLE, dtype=np.uint8)
         for actor_id, label in scene.actor_labels.items():
@@ -484,6 +495,8 @@ class LidarSimulator:
             one_way = effect.transmission
             alpha = effect.extinction_per_m
             t2 = one_way**2 * np.exp(-2.0 * alpha * np.where(hit, rng_m, 0.0))
+            if self.reflectivity_through_air and self._recorded_range is not None:
+                t2 = t2 * np.exp(2.0 * alpha * self._recorded_range[hits.triangle].reshape(n, n_sub))
             scale = np.ascontiguousarray(np.broadcast_to(effect.reflectance_scale, (n, n_sub)), np.float64)
             offset = np.ascontiguousarray(np.broadcast_to(effect.range_offset_m, (n, n_sub)), np.float64)
             t2 = np.ascontiguousarray(np.broadcast_to(t2, (n, n_sub)), np.float64)

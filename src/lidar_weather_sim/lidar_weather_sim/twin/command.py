@@ -38,6 +38,7 @@ from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scene.surveyed import write_surveyed_ply
 from lidar_weather_sim.sensor.profile import SensorProfile
 from lidar_weather_sim.sensor.scan import ScanPattern
+from lidar_weather_sim.twin.carve import CalibrationScan, carve_mesh, cell_centres
 from lidar_weather_sim.twin.ego_part import detect_ego_part, ego_part_mesh, voxel_reflectivity
 from lidar_weather_sim.twin.point_filter import AUTO, FilterChoice, choose_filter, filter_frames
 from lidar_weather_sim.twin.poses import TwinPoses, points_in_map, twin_poses
@@ -108,6 +109,24 @@ def _frame_cloud(recording: Recording, index: int, poses: TwinPoses, part_mask: 
     mid = recording.time_s(frame.stamp_ns) + 0.5 * float(frame.points["time_stamp"].max()) * 1e-9
     channel = frame.points["channel"]
     return FrameCloud(xyz[part_mask], origins[part_mask], poses.frame_pose(mid), channel[part_mask])
+
+
+def _calibration_scan(recording: Recording, index: int, split: DataSplit, keep: np.ndarray, poses: TwinPoses,
+                      profile: SensorProfile, pattern: ScanPattern) -> CalibrationScan:  # fmt: skip
+    """Frame ``index``'s calibration points, every one (weather and vehicles too; ``keep``: the frame's points the
+    weather filter kept), for the carve (:mod:`~lidar_weather_sim.twin.carve`)."""
+    frame = recording.frames[index]
+    part = split.keep(frame.points, "calibration")
+    p = frame.points[part]
+    start = recording.time_s(frame.stamp_ns)
+    first, mid, last = (poses.frame_pose(start + k * profile.period_s) for k in (0.0, 0.5, 1.0))
+    az = cell_centres(pattern.n_columns)
+    centres = np.zeros(len(az), dtype=[("x", np.float64), ("y", np.float64)])
+    centres["x"], centres["y"] = np.cos(az), np.sin(az)
+    scan = recording.scan_index(frame, profile.period_s)
+    return CalibrationScan(np.stack([p["x"], p["y"], p["z"]], axis=-1).astype(np.float64), p["channel"], ~keep[part], mid,
+                           0.5 * float(np.linalg.norm(last[:3, 3] - first[:3, 3])), split.keep(centres, "calibration"),
+                           pattern.direction_table(scan), pattern.active_channels(scan))
 
 
 def _subset(cloud: FrameCloud, keep: np.ndarray) -> FrameCloud:
@@ -197,8 +216,15 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
     rng = np.linalg.norm(ray, axis=1)
     cos = np.einsum("ij,ij->i", ray / np.maximum(rng, 1e-9)[:, None], normals[nearest])
     rho = point_reflectivity(static_intensity, rng, cos, profile)
-    reflectivity, refl_summary = triangle_reflectivity(nearest, rho, len(triangles), v.mean(axis=1))
+    reflectivity, recorded_range, refl_summary = triangle_reflectivity(nearest, rho, len(triangles), v.mean(axis=1), rng)
     timings["reflectivity_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    scans = [_calibration_scan(rec, i, split, keep, poses, profile, pattern) for i, keep in zip(used, keeps)]
+    carved = carve_mesh(vertices, triangles, reflectivity, recorded_range, scans, pattern.n_channels,
+                        profile.detection.max_echoes, profile.range.max_m)  # fmt: skip
+    vertices, triangles, reflectivity, recorded_range = carved.vertices, carved.triangles, carved.reflectivity, carved.recorded_range
+    timings["carve_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
     coverage = _coverage(rec, split, poses, vertices, triangles, static_xyz, settings.seed)
@@ -206,7 +232,7 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    mesh_path = write_surveyed_ply(out / "mesh.ply", vertices, triangles, reflectivity)
+    mesh_path = write_surveyed_ply(out / "mesh.ply", vertices, triangles, reflectivity, recorded_range)
     split.write(out / SPLIT_FILE)
     profile_ref = inp.profile_name
     if inp.profile_how == "derived":
@@ -238,6 +264,7 @@ def build_twin(inp: TwinInput, out: str | Path, settings: ReconstructionSettings
                      "file": EGO_PART_FILE if fixed_parts else None, "note": ego.note},
         "cover_zone": inp.cover_zone,
         "mesh": {"vertices": int(len(vertices)), "triangles": int(len(triangles)), "file": "mesh.ply"},
+        "carve": carved.summary,
         "coverage_within_m": COVERAGE_M,
         **coverage,
         "reflectivity": refl_summary,

@@ -38,24 +38,33 @@ def point_reflectivity(intensity: np.ndarray, range_m: np.ndarray, cos_incidence
 
 
 def triangle_reflectivity(triangle_of_point: np.ndarray, rho: np.ndarray, triangles: int,
-                          centroids: np.ndarray | None = None) -> tuple[np.ndarray, dict]:  # fmt: skip
-    """Per-triangle rho (T,) from the points' ``rho`` and their nearest triangle, and a summary (median,
-    share of points clipped at the range's ends, triangles without points). A triangle without points takes
-    the value of the nearest triangle with points (by ``centroids`` (T, 3) m), else the median of all points."""
+                          centroids: np.ndarray | None = None,
+                          range_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, dict]:  # fmt: skip
+    """Per-triangle rho (T,) from the points' ``rho`` and their nearest triangle, the mean of the points'
+    ``range_m`` (m) per triangle (None without it: the range the reflectivity was measured from, in the same
+    mean: exp(2 alpha R) of the mean range undoes the loss of an air of extinction alpha in the geometric mean),
+    and a summary (median, share of points clipped at the range's ends, triangles without points). A triangle
+    without points takes the values of the nearest triangle with points (by ``centroids`` (T, 3) m), else the
+    median of all points."""
     lo, hi = REFLECTIVITY_RANGE
     log_rho = np.log(np.clip(rho, lo, hi))
     counts = np.bincount(triangle_of_point, minlength=triangles)
-    sums = np.bincount(triangle_of_point, weights=log_rho, minlength=triangles)
-    fill = float(np.median(log_rho)) if len(log_rho) else np.log(0.1)
-    mean = np.where(counts > 0, sums / np.maximum(counts, 1), fill)
     has = counts > 0
+    source = np.arange(triangles)
     if centroids is not None and has.any() and not has.all():
         from scipy.spatial import cKDTree
 
-        nearest = cKDTree(centroids[has]).query(centroids[~has], workers=2)[1]
-        mean[~has] = mean[has][nearest]
-    out = np.exp(mean)
+        source[~has] = np.flatnonzero(has)[cKDTree(centroids[has]).query(centroids[~has], workers=2)[1]]
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        fill = float(np.median(values)) if len(values) else 0.0
+        sums = np.bincount(triangle_of_point, weights=values, minlength=triangles)
+        return np.where(counts > 0, sums / np.maximum(counts, 1), fill)[source]
+
+    fill = float(np.median(log_rho)) if len(log_rho) else np.log(0.1)
+    out = np.exp(mean(log_rho)) if len(log_rho) else np.full(triangles, np.exp(fill))
+    ranges = None if range_m is None else mean(np.asarray(range_m, dtype=np.float64))
     summary = {"median": float(np.exp(fill)), "clipped_high": float(np.mean(rho > hi)) if len(rho) else 0.0,
                "clipped_low": float(np.mean(rho < lo)) if len(rho) else 0.0,
                "triangles_without_points": int(np.count_nonzero(counts == 0))}  # fmt: skip
-    return out, summary
+    return out, ranges, summary
