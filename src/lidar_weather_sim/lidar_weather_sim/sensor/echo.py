@@ -31,7 +31,7 @@ return is also the last return, then the second-strongest return is provided"), 
 one point. ``all`` reports every echo. Ouster's dual return differs: the two strongest echoes, strongest
 first (Ouster firmware "Return Order", default STRONGEST_TO_WEAKEST); it is not one of these modes.
 
-Why one module of ~560 lines: the waveform, the threshold crossing and the echo selection are one
+Why one module of ~830 lines: the waveform, the threshold crossing and the echo selection are one
 algorithm (thesis eq. 3-5) with its numba kernels beside it.
 """
 
@@ -44,13 +44,14 @@ import numba
 import numpy as np
 
 from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.borrow import borrow
 from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.points import ReturnType
 from lidar_weather_sim.core.scratch import allocator
 from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, Threshold
 from lidar_weather_sim.sensor.volume_prefix import VolumePrefix, build_prefix, no_prefix, prefix_echoes
-from lidar_weather_sim.sensor.volume_tables import (BLOCK, Volume, empty_volume, fill_block_bounds, fill_volume,
-                                                    volume_window)
+from lidar_weather_sim.sensor.volume_tables import (BLOCK, INTERPOLATION_GAIN, Volume, empty_volume, fill_block_bounds,
+                                                    fill_volume, volume_window)
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,23 @@ class Pulses(NamedTuple):
     reach: np.ndarray  # (M,) float64
     label: np.ndarray  # (M,) uint8
     object_id: np.ndarray  # (M,) uint32
+
+
+class Work(NamedTuple):
+    """A chunk's working arrays for C candidates, allocated by the caller so that the kernel borrows them
+    (:mod:`lidar_weather_sim.core.borrow`)."""
+
+    pulses: Pulses  # a beam's merged pulses
+    order: np.ndarray  # (C,) int64, its candidates in range order
+    isolated: np.ndarray  # (C,) int64, the echoes of isolated pulses (their EPW in closed form at the end)
+    samples: np.ndarray  # (ESTIMATE_SAMPLES,) a cluster's waveform samples
+
+    @staticmethod
+    def of(size: int) -> "Work":
+        """Empty arrays for ``size`` candidates."""
+        return Work(Pulses(np.empty(size), np.empty(size), np.empty(size), np.empty(size, np.uint8),
+                           np.empty(size, np.uint32)), np.empty(size, np.int64), np.empty(size, np.int64),
+                    np.empty(ESTIMATE_SAMPLES))  # fmt: skip
 
 
 def detect_echoes(
@@ -517,7 +535,8 @@ def _detect(candidates: Candidates, detector: Detector, scratch=None, segments=N
     else:
         starts, ends = segments[0], segments[0] + segments[1]
     counts = np.array(workers.run_chunks(
-        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out, volume, prefix),
+        lambda c: _detect_run(candidates, detector, starts[c], ends[c], out, volume, prefix,
+                              Work.of(ends[c] - starts[c])),
         len(starts),
     ), np.int64)  # fmt: skip
     return (*out, (starts, counts))
@@ -542,26 +561,22 @@ def _beam_starts(beam, cuts):
 
 
 @numba.njit(cache=True, nogil=True)
-def _detect_run(candidates, detector, lo, hi, out, volume, prefix):
+def _detect_run(candidates, detector, lo, hi, out, volume, prefix, work):
     """Echoes of the beams of ``candidates`` lo..hi (whole beams), written into ``out``
     (:class:`EchoBuffers`) from index lo on; returns how many. A beam with layers in ``volume``
     (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`) takes its group's echoes in front of its hard
     target from ``prefix`` (:class:`~lidar_weather_sim.sensor.volume_prefix.VolumePrefix`) and goes through
-    :func:`_volume_echoes` from there on."""
-    beam, r, a, lab, obj = candidates
+    :func:`_volume_echoes` from there on. ``work``: its :class:`Work` arrays, for hi - lo candidates."""
     thr, s, resolution, max_echoes = detector
+    beam, r, a, lab, obj = borrow(candidates)  # the caller's arrays, uncounted (core.borrow)
+    volume, prefix, out = borrow(volume), borrow(prefix), borrow(out)
     eb, ee, er, ea, ew, el, eo = out
-    size = hi - lo
-    idx = np.empty(size, np.int64)
-    mr = np.empty(size)
-    ma = np.empty(size)
-    ml = np.empty(size, np.uint8)
-    mo = np.empty(size, np.uint32)
-    reach = np.empty(size)  # _reach of each merged pulse of the beam
-    pulses = Pulses(mr, ma, reach, ml, mo)
-    buf = np.empty(ESTIMATE_SAMPLES)  # waveform samples of a cluster
+    pulses = borrow(work.pulses)
+    mr, ma, reach, ml, mo = pulses
+    idx = borrow(work.order)
+    buf = borrow(work.samples)
     samples = VolumeScratch(np.empty(0), np.empty(0, np.uint8), np.empty(0))  # a volume beam's, grown when needed
-    isolated = np.empty(size, np.int64)  # echoes of isolated pulses, their EPW in closed form at the end
+    isolated = borrow(work.isolated)
     n_isolated = 0
     count = lo
     i = lo
@@ -571,12 +586,17 @@ def _detect_run(candidates, detector, lo, hi, out, volume, prefix):
             j += 1
         m = _sort_and_merge(r, a, lab, obj, i, j, resolution, idx, mr, ma, ml, mo)
         v0, v1, v_bound = volume_window(volume, beam[i])
+        if v1 > v0 and m == 0 and INTERPOLATION_GAIN * v_bound < thr * (1.0 - 1e-9):
+            i = j  # no pulses, and a volume whose magnitude stays below the threshold: no echo
+            continue
         if v1 > v0:
             for q in range(m):
                 reach[q] = _reach(ma[q], thr, s)
-            found, v0 = prefix_echoes(prefix, volume, beam[i], pulses, m, detector, v0, v1, out, count)
+            found = 0
+            if beam[i] < len(prefix.group) and prefix.group[beam[i]] >= 0:  # (only then: its call costs)
+                found, v0 = prefix_echoes(prefix, volume, beam[i], pulses, m, detector, v0, v1, out, count)
             if v0 < v1:
-                found, samples = _volume_echoes(pulses, m, detector, (volume, beam[i], v0, v1, v_bound, found), out,
+                found, samples = _volume_echoes(pulses, m, detector, volume, (beam[i], v0, v1, v_bound, found), out,
                                                 count, buf, samples)  # fmt: skip
             for k in range(found):
                 eb[count + k] = beam[i]
@@ -616,18 +636,20 @@ def _detect_run(candidates, detector, lo, hi, out, volume, prefix):
 
 
 @numba.njit(cache=True, inline="always")
-def _volume_echoes(pulses, m, detector, beam_volume, out, out0, buf, samples):
+def _volume_echoes(pulses, m, detector, volume, beam_volume, out, out0, buf, samples):
     """Echoes of one beam's merged ``pulses`` (m, their reach set) plus its volume, written into ``out`` from out0
-    on; returns (how many, ``samples`` grown if they had to be). ``beam_volume``: (the
-    :class:`~lidar_weather_sim.sensor.volume_tables.Volume`, the beam, the samples [v0, v1) where its volume may be
+    on; returns (how many, ``samples`` grown if they had to be). ``beam_volume``: (the beam of ``volume``
+    (:class:`~lidar_weather_sim.sensor.volume_tables.Volume`), the samples [v0, v1) where its volume may be
     non-zero, a bound on its value, the echoes already written in front of v0 (counted in the result)).
+    Where the volume's magnitude stays below the threshold, only the samples where the pulses add what it lacks
+    are sampled.
 
     Clusters of pulses (as in :func:`_detect_run`) that end before the volume's window or start after it are
     found as on a beam without a volume; the volume's window and the clusters reaching into it are one waveform,
     sampled on the grid of the volume's tables (``k dx`` from the sensor) by :func:`_run_echoes`."""
     r, a, reach, lab, obj = pulses
     thr, s, resolution, max_echoes = detector
-    volume, b, v0, v1, v_bound, found = beam_volume
+    b, v0, v1, v_bound, found = beam_volume
     dx = s / 8.0
     v_lo, v_hi = v0 * dx, (v1 - 1) * dx
     c0 = 0
@@ -668,10 +690,17 @@ def _volume_echoes(pulses, m, detector, beam_volume, out, out0, buf, samples):
                 bound = s * (np.sqrt(2.0 * np.log(total / thr)) + 1e-6)
                 w_lo, w_hi = min(w_lo, r_min - bound), max(w_hi, r_max + bound)
             got = 0
-            if total + v_bound > thr:
+            need = thr * (1.0 - 1e-9) - INTERPOLATION_GAIN * v_bound  # what the pulses must add to the volume
+            if need > 0.0:  # the volume alone stays below the threshold: an echo lies where the pulses add > need
+                if total > need:
+                    bound = s * (np.sqrt(2.0 * np.log(total / need)) + 1e-6)
+                    w_lo, w_hi = max(w_lo, r_min - bound), min(w_hi, r_max + bound)
+                else:
+                    w_hi = w_lo - 1.0  # nowhere
+            if total + v_bound > thr and w_hi >= w_lo:
                 first = int(np.floor(w_lo / dx)) - 1
                 n = int(np.ceil(w_hi / dx)) + 2 - first
-                got, samples = _open_echoes(pulses, (c0, c1), detector, (volume, b, first, n), out, out0 + found,
+                got, samples = _open_echoes(pulses, (c0, c1), detector, volume, (b, first, n), out, out0 + found,
                                             max_echoes - found, buf, samples)  # fmt: skip
             done = True
         found += got
@@ -704,9 +733,9 @@ def _pulse_bound(r, a, c0, c1, s, x0, x1):
 
 
 @numba.njit(cache=True, inline="always")
-def _open_echoes(pulses, span, detector, window, out, out0, room, buf, scratch):
-    """Echoes of the waveform of ``pulses`` c0..c1 (``span``) plus beam b's volume over the samples first..first
-    + n (``window`` = (volume, b, first, n)), written into ``out`` from out0 on; returns (how many, ``scratch``
+def _open_echoes(pulses, span, detector, volume, window, out, out0, room, buf, scratch):
+    """Echoes of the waveform of ``pulses`` c0..c1 (``span``) plus beam b's ``volume`` over the samples first..first
+    + n (``window`` = (b, first, n)), written into ``out`` from out0 on; returns (how many, ``scratch``
     (:class:`VolumeScratch`) grown if it had to be). Sampled by :func:`_run_echoes` only in the runs of blocks
     (:data:`~lidar_weather_sim.sensor.volume_tables.BLOCK` samples) where the bound of the pulses and the volume
     reaches the threshold, each run with one sample on each side: elsewhere the waveform is below it, so every
@@ -714,7 +743,7 @@ def _open_echoes(pulses, span, detector, window, out, out0, room, buf, scratch):
     r, a = pulses.range_m, pulses.amplitude
     c0, c1 = span
     thr, s = detector.threshold, detector.sigma
-    volume, b, first, n = window
+    b, first, n = window
     dx = s / 8.0
     q0 = first // BLOCK
     nq = (first + n - 1) // BLOCK - q0 + 1
