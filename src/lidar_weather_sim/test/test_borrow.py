@@ -38,8 +38,9 @@ def test_borrowed_views_read_and_write_the_callers_arrays_and_keep_the_scalars()
     np.testing.assert_array_equal(pair.labels, before[1])
 
 
-def test_arrays_stay_alive_after_many_borrowing_calls():
-    """No reference is taken or dropped through a view: the caller's arrays survive repeated calls intact."""
+def test_arrays_stay_alive_and_intact_after_many_borrowing_calls():
+    """The caller's arrays stay its own and hold their values after repeated calls (a view that dropped a
+    reference it never took would free them)."""
     pair = Pair(np.arange(64, dtype=np.float64), np.ones(64, np.uint8), 2.0)
     out = np.empty(64)
     for _ in range(10_000):
