@@ -750,7 +750,8 @@ def _open_echoes(pulses, span, detector, volume, window, out, out0, room, buf, s
     if nq > len(scratch.bound) or n + 2 > len(scratch.value):
         scratch = VolumeScratch(np.empty(max(n + 2, len(scratch.value))), np.empty(max(n + 2, len(scratch.value)),
                                 np.uint8), np.empty(max(nq, len(scratch.bound))))  # fmt: skip
-    bound = fill_block_bounds(volume, b, q0, nq, scratch.bound)
+    value, label, bound = borrow(scratch)  # held by the scratch returned (core.borrow)
+    bound = fill_block_bounds(volume, b, q0, nq, bound)
     limit = thr * (1.0 - 1e-9)  # the bounds' own rounding
     got = 0
     q = 0
@@ -764,9 +765,9 @@ def _open_echoes(pulses, span, detector, volume, window, out, out0, room, buf, s
             q_end += 1
         k0 = max((q0 + q) * BLOCK - 1, first)
         k1 = min((q0 + q_end) * BLOCK + 1, first + n)
-        fill_volume(volume, b, k0 - 1, k1 - k0 + 2, scratch.value, scratch.label)
+        fill_volume(volume, b, k0 - 1, k1 - k0 + 2, value, label)
         got += _run_echoes(pulses, c0, c1, thr, s, (0.0, k0, k1 - k0),
-                           VolumeSamples(scratch.value[: k1 - k0 + 2], scratch.label[: k1 - k0 + 2]),
+                           VolumeSamples(value[: k1 - k0 + 2], label[: k1 - k0 + 2]),
                            out, out0 + got, room - got, buf)  # fmt: skip
         q = q_end
     return got, scratch

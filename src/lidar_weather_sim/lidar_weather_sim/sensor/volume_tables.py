@@ -39,6 +39,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from lidar_weather_sim.core.borrow import borrow
 from lidar_weather_sim.sensor.ac_coupling import highpass_slabs
 
 #: Samples per pulse sigma on the grid (the echo stage's, :func:`lidar_weather_sim.sensor.echo._cluster_echoes`).
@@ -421,7 +422,7 @@ def fill_volume(volume, b, first, n, values, labels):
     values[:n], and the label of the layer contributing most at each into labels[:n]."""
     values[:n] = 0.0
     labels[:n] = 0
-    wave, cut, label = volume.wave, volume.cut, volume.label
+    wave, cut, label = borrow(volume.wave), borrow(volume.cut), borrow(volume.label)  # the caller's (core.borrow)
     for layer in range(volume.table.shape[1]):
         t, scale, lo, hi, k, f = _layer(volume, b, layer)
         if t < 0:
@@ -463,11 +464,12 @@ def fill_volume(volume, b, first, n, values, labels):
                         labels[i] = label[w0 + j]
                     values[i] += v
                 continue
-            for i in range(i_a, i_b):
+            for i in range(i_a, i_b):  # (the arrays read here, not in a helper: a helper's arrays are counted)
                 j = first + i
-                v = scale * (g0 * _row_value(d0, wave, cut, w0 + j, c0 + k, j - k + REACH)
-                             + g1 * _row_value(d1, wave, cut, w0 + j, c0 + k + 1, j - k - 1 + REACH)
-                             + g2 * _row_value(d2, wave, cut, w0 + j, c0 + k + 2, j - k - 2 + REACH))
+                x0 = cut[c0 + k, j - k + REACH] if d0 == 2 else (wave[w0 + j] if d0 == 1 else 0.0)
+                x1 = cut[c0 + k + 1, j - k - 1 + REACH] if d1 == 2 else (wave[w0 + j] if d1 == 1 else 0.0)
+                x2 = cut[c0 + k + 2, j - k - 2 + REACH] if d2 == 2 else (wave[w0 + j] if d2 == 1 else 0.0)
+                v = scale * (g0 * x0 + g1 * x1 + g2 * x2)
                 if v > values[i]:
                     labels[i] = label[w0 + j]
                 values[i] += v
@@ -486,14 +488,3 @@ def _row_mode(k, c_first, c_end):
     """How :func:`fill_volume` reads boundary row k where it is cut: 2 its cut row, 0 none (a row outside
     c_first..c_end: its samples all lie outside the support)."""
     return 2 if c_first <= k < c_end else 0
-
-
-@numba.njit(cache=True, inline="always")
-def _row_value(mode, wave, cut, at, row, column):
-    """A cut row's value in :func:`fill_volume`'s spans: 0 (mode 0), the waveform's sample ``wave[at]`` (1) or
-    ``cut[row, column]`` (2)."""
-    if mode == 2:
-        return cut[row, column]
-    if mode == 1:
-        return wave[at]
-    return 0.0
