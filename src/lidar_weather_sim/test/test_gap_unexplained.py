@@ -4,6 +4,7 @@ simulation): which zones' residuals the counting noise cannot explain, their sha
 import numpy as np
 import pytest
 
+from lidar_weather_sim.gap.search import Candidate, Diagnosis, rivals
 from lidar_weather_sim.gap.signatures import RANGE_EDGES, Signature, gap_value
 from lidar_weather_sim.gap.unexplained import (
     BANDS,
@@ -90,6 +91,27 @@ def test_an_effect_that_removes_its_zones_residual_is_named_and_leaves_only_the_
     table = {frozenset(): SIMULATED, frozenset({FOG.name}): with_fog}
     judgement = judge_effects([FOG], measured, _simulate(table))
     assert judgement.named == [FOG] and judgement.refused == [] and judgement.unexplained == []
+
+
+def test_an_effect_that_does_not_beat_another_by_the_searchs_margin_is_not_named_and_what_it_took_is_reported():
+    """The fog of the test above, but in the round it won a sun came within the margin a new effect must win (the
+    fog's held-out gap not 10 % below the sun's): by the search's own standard the data did not tell them apart, so
+    neither is a name. Candidates of the same effect (the fog at another backscatter gain) and a sun the fog beats
+    by the margin do not count."""
+    measured = signature(MEASURED | {"road": [1000.0] * 4})
+    with_fog = SIMULATED | {"far": [1000.0, 948.0, 805.0, 596.0], "near": [96.0]}
+    table = {frozenset(): SIMULATED, frozenset({FOG.name}): with_fog}
+    fog, other_gain = Candidate(FOG, 0.011, 0.010, 9), Candidate(FOG.with_value(120.0), 0.012, 0.0101, 9)
+    close_sun, far_sun = Candidate(SUN, 0.02, 0.0105, 9), Candidate(SUN, 0.03, 0.0115, 9)
+    diag = Diagnosis(0.1, 0.010, accepted=[(fog, 0.1)], rounds=[[other_gain, fog, close_sun]])
+    found = rivals(diag, lambda gap: 0.9 * gap)  # 0.010 > 0.9 x 0.0105: the fog does not beat this sun by 10 %
+    assert found == [[close_sun]]
+    judgement = judge_effects([FOG], measured, _simulate(table), rivals=found)
+    assert judgement.named == [] and judgement.refused[0][1].startswith("not told apart from sensor.sun")
+    assert {r.zone for r in judgement.unexplained} == {"far", "near"}
+    diag.rounds = [[other_gain, fog, far_sun]]  # 0.010 <= 0.9 x 0.0115
+    assert rivals(diag, lambda gap: 0.9 * gap) == [[]]
+    assert judge_effects([FOG], measured, _simulate(table), rivals=rivals(diag, lambda gap: 0.9 * gap)).named == [FOG]
 
 
 def test_a_weather_effect_at_the_weak_end_of_its_range_is_not_named_whatever_it_removes():

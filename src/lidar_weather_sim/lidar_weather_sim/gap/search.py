@@ -24,7 +24,7 @@
    scenario) that does not conflict with those already accepted is screened: its main parameter is tried on a
    grid of ``grid`` values (5; 7 with the sensor family: :data:`~lidar_weather_sim.gap.evaluation.SENSOR_GRID`)
    over its bounds (log-spaced where the effect spans decades) on ``screen_frames`` of the
-   calibration frames. The ``refine`` candidates that screen best are then fitted on all
+   calibration frames. The ``refine`` (3) candidates that screen best are then fitted on all
    calibration frames by bounded Brent minimisation (scipy) between the grid neighbours of
    their best value (:meth:`~lidar_weather_sim.gap.evaluation.GapEvaluator.fit`). Every candidate is scored on the held-out frames
    at its best value.
@@ -54,7 +54,8 @@
    made redundant by a later one) is dropped and the rest refitted.
 6. Judgement (:meth:`GapSearch.judge`, :mod:`lidar_weather_sim.gap.unexplained`): on the held-out frames, each
    accepted weather effect is named only when it removes the residual of the zones that are its physics (not only
-   the total gap); the zones whose residual the named effects leave above the counting noise are reported as
+   the total gap) and when it beat every other effect of the round it won by the margin a new effect must win
+   (:func:`rivals`); the zones whose residual the named effects leave above the counting noise are reported as
    unexplained, with the shape of the residual. The search's fit (the patched scenario) is unchanged.
 
 Cost: the budgets do not grow with the recording, so a diagnosis casts about
@@ -65,6 +66,7 @@ frames per round, whatever the length of the recording; a round with the accepte
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -122,6 +124,20 @@ GAINS = {"atmosphere.fog": FOG_GAINS, "cover.dirt": DIRT_GAINS}
 def same_effect(a: Effect, b: Effect) -> bool:
     """The same effect (and the same emitter for spray)."""
     return a.name == b.name and a.params.get("actor") == b.params.get("actor")
+
+
+def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[Candidate]]:
+    """Per accepted effect of ``diag``, the candidates of other effects in the last round it won that it does not beat
+    by the margin a new effect must win: its held-out gap above ``gap_to_beat`` of theirs. By the search's own
+    standard the data did not tell them apart."""
+    out = []
+    for candidate, _ in diag.accepted:
+        name = candidate.effect.name
+        won = [r for r in diag.rounds if r and min(r, key=lambda c: c.heldout_gap).effect.name == name]
+        best = min(won[-1], key=lambda c: c.heldout_gap) if won else None
+        out.append([] if best is None else [c for c in won[-1] if c.effect.name != name
+                                            and best.heldout_gap > gap_to_beat(c.heldout_gap)])  # fmt: skip
+    return out
 
 
 def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weather",)) -> list[Effect]:
@@ -388,7 +404,8 @@ class GapSearch(GapEvaluator):
         measured = self._measured["heldout"]
         keep = self.point_mask("heldout")
         judgement = judge_effects(diag.effects, measured, lambda effects: self.resim.signature(effects, self.held_idx, keep),
-                                  self._measured["fit"], twin=self.resim.is_twin)  # fmt: skip
+                                  self._measured["fit"], twin=self.resim.is_twin,
+                                  rivals=rivals(diag, self.gap_to_beat))  # fmt: skip
         for effect, reason in judgement.refused:
             self.progress(f"{effect.label()} not named: {reason}")
         for residual in judgement.unexplained:

@@ -42,8 +42,13 @@ refused: it stays in the search's fit (``effects`` of gap.json, the patched scen
 zones the named effects leave significant are reported as unexplained. A weather effect fitted at the weak end of its
 search range (:func:`at_weak_end`: fog of 1000 m, dirt of 0.995, rain of 0.2 mm/h) is refused too: the search
 could not tell it from no such effect, and what it took is something else's (draw case 4: a fog of 1000 m took the
-extinction of a snow whose drops the model fitted at 0.16 mm/h for 4.4). The sensor family's effects (read off the
-data, or the unit's response) have no zones here and are named as the search accepts them.
+extinction of a snow whose drops the model fitted at 0.16 mm/h for 4.4). So is one that does not beat every other
+effect of the round it won by the margin a new effect must win (:func:`not_told_apart`; its held-out gap not below
+:meth:`~lidar_weather_sim.gap.evaluation.GapEvaluator.gap_to_beat` of theirs): the search would not have taken it in
+place of them, so the data did not tell them apart and a name would be a coin toss (draw case 21: the soft echoes of
+`fog_spread`, fitted beside its fog as a snow of 0.64 mm/h that a rain of 2.2 mm/h matched; case 28: the loss of a
+rain of 6.8 mm/h behind dirt, fitted as a fog of 189 m that a rain of 0.78 mm/h matched). The sensor family's
+effects (read off the data, or the unit's response) have no zones here and are named as the search accepts them.
 
 **On a twin of the recording** (a scene whose reflectivity was read off the recording's own returns, through the air
 it had: :attr:`~lidar_weather_sim.scene.scene.Scene.recorded_range_m`, which the search gives back for every weather
@@ -369,12 +374,23 @@ class Judgement:
                 "effect_aspects": {k: list(v) for k, v in EFFECT_ASPECTS.items()}}  # fmt: skip
 
 
+def not_told_apart(effect: Effect, rivals) -> str | None:
+    """Why the weather effect ``effect`` may not be named because it did not beat other effects by the search's
+    margin (``rivals``: their candidates, with ``effect`` and ``heldout_gap``; module doc), else None."""
+    rivals = [c for c in rivals if c.effect.name != effect.name]
+    if not rivals:
+        return None
+    listed = ", ".join(f"{c.effect.label()} (held-out gap {c.heldout_gap:.4f})" for c in rivals)
+    return f"not told apart from {listed}: not beaten by the margin a new effect must win"
+
+
 def judge_effects(accepted: list[Effect], measured: Signature, simulate, calibration: Signature | None = None,
-                  twin: bool = False) -> Judgement:  # fmt: skip
+                  twin: bool = False, rivals: list | None = None) -> Judgement:  # fmt: skip
     """:class:`Judgement` of the search's ``accepted`` effects against the ``measured`` held-out signature;
     ``simulate(effects)`` gives the held-out frames' simulated :class:`Signature` with ``effects``; ``calibration``:
     the measured frames the effects were fitted to (:func:`zone_residual`); ``twin``: the scene is a twin of the
-    recording (module doc)."""
+    recording (module doc); ``rivals``: per accepted effect, the other effects' candidates it did not beat by the
+    search's margin (:func:`lidar_weather_sim.gap.search.rivals`; None: none)."""
 
     def residuals(effects: list[Effect]) -> dict[str, ZoneResidual]:
         return zone_residuals(measured, simulate(effects), calibration)
@@ -386,6 +402,8 @@ def judge_effects(accepted: list[Effect], measured: Signature, simulate, calibra
         if reason is None and effect.name in EFFECT_ZONES:
             without = residuals(accepted[:i] + accepted[i + 1 :])
             reason = removes_its_residual(effect.name, without, with_all, twin)
+        if reason is None and effect.name in EFFECT_ZONES and rivals is not None:
+            reason = not_told_apart(effect, rivals[i])
         if reason is None:
             out.named.append(effect)
         else:
