@@ -133,7 +133,9 @@ def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[
     out = []
     for candidate, _ in diag.accepted:
         name = candidate.effect.name
-        won = [r for r in diag.rounds if r and min(r, key=lambda c: c.heldout_gap).effect.name == name]
+        # the rounds it won: their best is this effect (the same emitter, for spray)
+        won = [r for r in diag.rounds if r and same_effect(min(r, key=lambda c: c.heldout_gap).effect,
+                                                           candidate.effect)]  # fmt: skip
         best = min(won[-1], key=lambda c: c.heldout_gap) if won else None
         out.append([] if best is None else [c for c in won[-1] if c.effect.name != name
                                             and best.heldout_gap > gap_to_beat(c.heldout_gap)])  # fmt: skip

@@ -377,7 +377,6 @@ class Judgement:
 def not_told_apart(effect: Effect, rivals) -> str | None:
     """Why the weather effect ``effect`` may not be named because it did not beat other effects by the search's
     margin (``rivals``: their candidates, with ``effect`` and ``heldout_gap``; module doc), else None."""
-    rivals = [c for c in rivals if c.effect.name != effect.name]
     if not rivals:
         return None
     listed = ", ".join(f"{c.effect.label()} (held-out gap {c.heldout_gap:.4f})" for c in rivals)
