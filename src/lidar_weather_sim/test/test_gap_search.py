@@ -706,3 +706,30 @@ def test_the_fog_is_screened_at_each_backscatter_gain_and_its_gain_patches_the_a
     assert "fog_backscatter_gain" not in apply_effects(load_scenario("highway_clear"), [FOG]).region_params["atmosphere"]
     with pytest.raises(ValueError, match="'gain' is a share of the light the unit reports, within \\[0, 1\\], got 1.5"):
         parse_effect("atmosphere.fog:visual_range=120,gain=1.5")
+
+
+def test_the_dirt_is_screened_at_each_return_gain_and_forward_share_and_its_share_patches_the_cover():
+    """What a dirt scatters forward is its type's (the thesis' heavy samples 3 and 5 widen the beam, the rest do
+    not): the search offers the dirt at each return gain of DIRT_GAINS and each forward share of DIRT_FORWARD (None:
+    no key, the texture's), one effect; ``forward`` goes to region cover's ``forward_share``, which replaces the
+    texture's (0.346 for a generic dirt of 0.6), outlives a new value and is refused outside 0-1."""
+    from lidar_weather_sim.regions.base import REGISTRY, RegionContext
+    from lidar_weather_sim.scenario.effects import apply_effects
+    from lidar_weather_sim.sensor.profile import load_profile
+
+    resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
+    dirts = [e for e in search_module.candidate_effects(resim) if e.name == "cover.dirt"]
+    variants = {(e.params.get("gain", 1.0), e.params.get("forward")) for e in dirts}
+    assert len(dirts) == len(variants) == 4 and variants == {(g, f) for g in search_module.DIRT_GAINS
+                                                             for f in search_module.DIRT_FORWARD}  # fmt: skip
+    assert all(search_module.same_effect(dirts[0], d) for d in dirts)
+    dirt = parse_effect("cover.dirt:transmission=0.5,forward=0")
+    assert dirt.with_value(0.6).params == {"transmission": 0.6, "forward": 0.0}
+    params = apply_effects(load_scenario("highway_clear"), [dirt.with_value(0.6)]).region_params["cover"]
+    assert params["texture"] == "dirt:0.6" and params["forward_share"] == 0.0
+    profile = load_profile("scala4")
+    shares = [REGISTRY.create("cover", p, RegionContext(profile)).textures[0].forward_share
+              for p in (params, {**params, "forward_share": None})]  # fmt: skip
+    assert shares[0] == 0.0 and shares[1] == pytest.approx(0.346, abs=0.005)
+    with pytest.raises(ValueError, match="'forward' is a share of the beam energy the dirt scatters forward, within"):
+        parse_effect("cover.dirt:transmission=0.5,forward=2")

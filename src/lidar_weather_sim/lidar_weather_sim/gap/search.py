@@ -118,7 +118,20 @@ FOG_GAINS = (1.0, 0.15, 0.0)
 #: put multipath returns at 0-0.5 m at a rate growing with the dirt, but whether a unit reports them (or blanks its
 #: cover zone) is its own; a unit without them lost the dirt's name to the fog in front of it (draw case 5)
 DIRT_GAINS = (1.0, 0.0)
-GAINS = {"atmosphere.fog": FOG_GAINS, "cover.dirt": DIRT_GAINS}
+#: and at these forward shares (region ``cover``'s ``forward_share``; None: the texture's): the thesis measured
+#: forward scattering on its two heaviest samples only (3 and 5, "the composition and type of dirt has a larger
+#: influence", paper 1), and a generic dirt takes their share by opacity (0.35 below a transmission of 0.66); a dirt
+#: that only absorbs widens no beam. With the share, the wider beam keeps far returns the absorbing dirt of the same
+#: transmission loses: a fixed generator's uniform dirt of 0.606 on scala4 (8 frames) scored 0.068 at its own
+#: transmission against 0.057 for a fog of 150 m, and 0.024 at a share of 0
+DIRT_FORWARD = (None, 0.0)
+#: the variants of an effect the search screens (each its extra parameters): the fog at each backscatter gain, the
+#: dirt at each return gain and forward share; an effect not listed has one
+VARIANTS: dict[str, tuple[dict[str, float], ...]] = {
+    "atmosphere.fog": tuple({"gain": g} if g != 1.0 else {} for g in FOG_GAINS),
+    "cover.dirt": tuple({**({"gain": g} if g != 1.0 else {}), **({"forward": f} if f is not None else {})}
+                        for f in DIRT_FORWARD for g in DIRT_GAINS),
+}
 
 
 def same_effect(a: Effect, b: Effect) -> bool:
@@ -143,8 +156,8 @@ def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[
 
 
 def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weather",)) -> list[Effect]:
-    """One untuned effect per name of ``families`` (the spray once per vehicle, the fog and the dirt once per gain of
-    :data:`GAINS`), at the middle of its bounds;
+    """One untuned effect per name of ``families`` (the spray once per vehicle, the fog and the dirt once per variant
+    of :data:`VARIANTS`), at the middle of its bounds;
     not the effects read off the data (:attr:`~lidar_weather_sim.gap.evaluation.GapEvaluator.data_candidates`)."""
     out = []
     for name, spec in EFFECTS.items():
@@ -155,8 +168,8 @@ def candidate_effects(resim: GapResimulator, families: tuple[str, ...] = ("weath
             out.append(Effect(name, {spec.main: spec.choices[0]}))
         elif name == "spray":
             out += [Effect(name, {spec.main: mid, "actor": actor}) for actor in spray_candidates(resim.scenario)]
-        elif name in GAINS:
-            out += [Effect(name, {spec.main: mid, **({"gain": g} if g != 1.0 else {})}) for g in GAINS[name]]
+        elif name in VARIANTS:
+            out += [Effect(name, {spec.main: mid, **extra}) for extra in VARIANTS[name]]
         else:
             out.append(Effect(name, {spec.main: mid}))
     return out
@@ -173,8 +186,8 @@ def refined_ranks(swaps: list[bool], refine: int) -> list[int]:
 
 def refined_variants(ranked: list[Effect], refine: int) -> list[int]:
     """Which of the screened candidates ``ranked`` (best first) a plain round refines: the best ``refine`` effects,
-    each with all its variants (the fog at each of its backscatter gains, the dirt at each return gain, in their
-    rank order). A variant's screen on a coarse grid and a few frames does not rank the gains: draw case 5 (fog
+    each with all its variants (the fog at each of its backscatter gains, the dirt at each return gain and forward
+    share, in their rank order). A variant's screen on a coarse grid and a few frames does not rank the gains: draw case 5 (fog
     200 m without soft echoes behind dirt) screened its fog at gain 0 behind gain 0.15 and a dirt, which took the
     two refinements, and the fog was accepted at gain 0.15 with soft echoes the recording does not have."""
     top: list[Effect] = []

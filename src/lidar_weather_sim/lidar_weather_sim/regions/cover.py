@@ -28,6 +28,8 @@ per-frame randomness comes from the generator passed to :meth:`apply`.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from pydantic import Field
 
@@ -51,6 +53,10 @@ class CoverParams(ConfigModel):
     texture_return_gain: float = Field(1.0, ge=0, le=1, description="Share (0-1) of the cover returns the texture's "
                                        "dirt or water makes (multipath at 0-0.5 m) that the unit reports: 1 the thesis "
                                        "samples' rate, 0 a unit that blanks them (its transmission loss untouched)")
+    forward_share: float | None = Field(None, ge=0, le=1, description="Share (0-1) of the beam energy the texture "
+                                        "scatters forward into a wider cone, overriding the texture's (the thesis "
+                                        "samples': 0.26-0.35 for the heavy ones, 0 for the rest; a generic dirt's "
+                                        "interpolated by opacity); 0 = a dirt that only absorbs; none = the texture's")
     near_field_scale_m: float = Field(0.1, gt=0, description="Exponential range scale of cover returns (m)")
     near_field_amplitude: float = Field(3.0, gt=0, description="Median cover-return peak over the dark threshold")
     near_field_sigma_ln: float = Field(0.8, ge=0, description="Log-sd of the cover-return peak amplitude")
@@ -77,6 +83,8 @@ class CoverRegion:
             self.textures.append(make_texture(params.target_texture, rng, sigma0))
         if params.mean_transmission is not None:
             self.textures = [with_mean(t, params.mean_transmission) for t in self.textures]
+        if params.forward_share is not None:
+            self.textures = [replace(t, forward_share=params.forward_share) for t in self.textures]
         beams = [b.elevation_deg for b in self.profile.beams]
         half = 0.5 * np.rad2deg(self.profile.optics.divergence_v_mrad * 1e-3)
         self._el = np.deg2rad([min(beams) - half, max(beams) + half])

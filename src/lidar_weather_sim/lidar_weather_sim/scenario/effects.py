@@ -12,7 +12,8 @@ atmosphere.snow            intensity       mm/h water equivalent; ``atmosphere``
 atmosphere.road_wet        water_film      mm on the road; ``atmosphere`` with ``air: false``
 cover.dirt                 transmission    mean one-way (0-1); region ``cover``, ``dirt:<T>``
                                            (or ``sample=3l``: that thesis sample at mean T);
-                                           ``gain`` (0-1, default 1): its ``texture_return_gain``
+                                           ``gain`` (0-1, default 1): its ``texture_return_gain``;
+                                           ``forward`` (0-1, default the texture's): its ``forward_share``
 cover.water                transmission    mean one-way (0-1); ``cover``, ``water_film``
 sensor.sun                 irradiance      W/m^2; the receiver's noise floor
 spray                      water_film      mm; region ``spray`` (``actor=ID`` picks the emitter)
@@ -94,7 +95,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("atmosphere.rain", "intensity", "mm/h", (0.2, 100.0), True),
         EffectSpec("atmosphere.snow", "intensity", "mm/h", (0.05, 10.0), True),
         EffectSpec("atmosphere.road_wet", "water_film", "mm", (0.03, 5.0), True),
-        EffectSpec("cover.dirt", "transmission", "1", (0.2, 0.995), False, ("sample", "gain")),
+        EffectSpec("cover.dirt", "transmission", "1", (0.2, 0.995), False, ("sample", "gain", "forward")),
         EffectSpec("cover.water", "transmission", "1", (0.2, 0.995), False),
         EffectSpec("sensor.sun", "irradiance", "W/m^2", (10.0, 1200.0), True),
         EffectSpec("spray", "water_film", "mm", (0.05, 3.0), True, ("actor",)),
@@ -199,6 +200,9 @@ def parse_effect(text: str) -> Effect:
             raise ValueError(f"--hide {text!r}: '{key}' must be a finite number above 0 ({spec.unit}), got {value}")
         if key == "gain" and not 0.0 <= params[key] <= 1.0:
             raise ValueError(f"--hide {text!r}: 'gain' is a share of the light the unit reports, within [0, 1], got {value}")
+        if key == "forward" and not 0.0 <= params[key] <= 1.0:
+            raise ValueError(f"--hide {text!r}: 'forward' is a share of the beam energy the dirt scatters forward, "
+                             f"within [0, 1], got {value}")  # fmt: skip
         if key == spec.main and spec.main in ("transmission", "probability") and params[key] > 1.0:
             raise ValueError(f"--hide {text!r}: '{key}' is a {spec.main}, at most 1, got {value}")
     if spec.main not in params:
@@ -327,6 +331,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
                 region("cover").update(texture=f"dirt:{v:.6g}", mean_transmission=None)
             if "gain" in e.params:
                 region("cover")["texture_return_gain"] = float(e.params["gain"])
+            if "forward" in e.params:
+                region("cover")["forward_share"] = float(e.params["forward"])
         elif e.name == "cover.water":
             region("cover").update(texture="water_film", mean_transmission=v)
         elif e.name == "sensor.beam_origin":
