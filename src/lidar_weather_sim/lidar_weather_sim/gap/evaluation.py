@@ -39,7 +39,7 @@ from lidar_weather_sim.gap.signatures import (
     paired_residuals,
     systematic_bray_curtis,
 )
-from lidar_weather_sim.gap.split import DataSplit, split_frames
+from lidar_weather_sim.gap.split import DataSplit, screening_frames, split_frames
 from lidar_weather_sim.scenario.effects import FAMILIES, Effect, search_grid
 
 GRID = 5  # screening values per candidate
@@ -58,6 +58,13 @@ REDRAW_SEED_OFFSET = 7919  # the range term's second simulation: the scenario's 
 #: the confirmation's independent redraws (each range term's second simulation: + 7919 more); 3, as one held-out
 #: frame's gap moves by ~0.003 from redraw to redraw (VLP-16 on ``ouster_street``), more than the 0.002 margin
 CONFIRM_SEED_OFFSETS = (104729, 130363, 156007)
+
+
+def frame_layers(recording, profile) -> list[int]:
+    """The layer of the scan pattern each frame of ``recording`` fired (its scan index from the bag's start modulo the
+    profile's ``layer_schedule``; 0 for every frame of a sensor without one)."""
+    schedule = len(profile.scan.layer_schedule or [None])
+    return [recording.scan_index(f, profile.period_s) % schedule for f in recording.frames]
 
 
 class EvaluationWorkers(Protocol):
@@ -97,8 +104,9 @@ class GapEvaluator:
         self.min_abs_gain = min_abs_gain
         self._progress = progress
         rec = resim.recording
-        self.fit_idx, self.held_idx = split_frames(len(rec.frames), fit_frames, heldout_frames, split)
-        self.screen_idx = self.fit_idx[:: max(1, len(self.fit_idx) // max(screen_frames, 1))][:screen_frames]
+        layers = None if split is not None else frame_layers(rec, resim.world.profile)
+        self.fit_idx, self.held_idx = split_frames(len(rec.frames), fit_frames, heldout_frames, split, layers)
+        self.screen_idx = screening_frames(self.fit_idx, screen_frames, layers)
         self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.point_mask(name))
                           for name, idx in self._splits().items()}  # fmt: skip
 

@@ -3,7 +3,8 @@
 Two kinds:
 
 - ``frames``: whole frames (by their index in the topic, stamp order): even frames calibrate, odd
-  frames are held out, as :func:`split_frames` splits them.
+  frames are held out (:func:`split_frames` without a file splits the frames of each layer of an alternating
+  scan pattern so).
 - ``sectors``: for recordings with few frames (a single scan works), every frame is used but only
   the points of some azimuth sectors (sensor frame, REP-103: azimuth = atan2(y, x), deg, [lo, hi))
   calibrate; the points of the other sectors are held out. Contiguous sectors of ``sector_deg``
@@ -119,9 +120,14 @@ def thin_evenly(indices: list[int], budget: int) -> list[int]:
     return [indices[int(k)] for k in np.linspace(0, len(indices) - 1, budget).round()]
 
 
-def split_frames(n: int, fit_frames: int, heldout_frames: int, split: DataSplit | None = None) -> tuple[list[int], list[int]]:
-    """Calibration (even) and held-out (odd) frame indices, each thinned evenly to its budget; with a
-    ``split`` (a twin's split.yaml), its parts' frames instead (the same frames for a sector split)."""
+def split_frames(n: int, fit_frames: int, heldout_frames: int, split: DataSplit | None = None,
+                 layers: list[int] | None = None) -> tuple[list[int], list[int]]:
+    """Calibration and held-out frame indices, each thinned evenly to its budget: by default even frames calibrate,
+    odd frames are held out; on a sensor whose frames alternate their layers (``layers``: each frame's layer, e.g.
+    scala4's scan index modulo its 2-entry ``layer_schedule``) the frames of each layer alternate in turn, so both
+    parts hold every layer (even / odd frames split scala4 into its channels 0-2 and 1-3: the fit never saw the top
+    layer it was judged on). With a ``split`` (a twin's split.yaml), its parts' frames instead (the same frames for a
+    sector split)."""
     for name, budget in (("fit_frames", fit_frames), ("heldout_frames", heldout_frames)):
         if budget < 1:
             raise ValueError(f"gap: {name} must be at least 1, got {budget}")
@@ -132,4 +138,22 @@ def split_frames(n: int, fit_frames: int, heldout_frames: int, split: DataSplit 
         return thin_evenly(split.calibration_frames, fit_frames), thin_evenly(split.heldout_frames, heldout_frames)
     if n < 2:
         raise ValueError(f"gap needs at least 2 frames with poses (one to fit, one held out), the recording has {n}")
-    return thin_evenly(list(range(0, n, 2)), fit_frames), thin_evenly(list(range(1, n, 2)), heldout_frames)
+    layer = np.zeros(n, dtype=np.int64) if layers is None else np.asarray(layers, dtype=np.int64)
+    if len(layer) != n:
+        raise ValueError(f"gap: {len(layer)} frame layers for {n} frames")
+    rank = np.zeros(n, dtype=np.int64)  # each frame's place among the frames of its layer
+    for value in np.unique(layer):
+        rank[layer == value] = np.arange(np.sum(layer == value))
+    frames = np.arange(n)
+    return (thin_evenly(frames[rank % 2 == 0].tolist(), fit_frames),
+            thin_evenly(frames[rank % 2 == 1].tolist(), heldout_frames))  # fmt: skip
+
+
+def screening_frames(fit_idx: list[int], budget: int, layers: list[int] | None = None) -> list[int]:
+    """Up to ``budget`` of the calibration frames ``fit_idx`` for screening: of each layer's (``layers``: every
+    recording frame's layer, None: one layer) an equal share, evenly spaced from its first, the layers interleaved."""
+    layer = [0] * (max(fit_idx, default=0) + 1) if layers is None else layers
+    groups = [[i for i in fit_idx if layer[i] == value] for value in sorted({layer[i] for i in fit_idx})]
+    share = -(-max(budget, 1) // max(len(groups), 1))
+    picked = [g[:: max(1, len(g) // share)][:share] for g in groups]
+    return [i for row in zip(*[p + [None] * (share - len(p)) for p in picked]) for i in row if i is not None][:budget]
