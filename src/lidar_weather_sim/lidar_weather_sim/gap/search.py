@@ -1,8 +1,9 @@
 """``lidar-weather-sim gap``: measure the reality gap of a recording, name the missing effects, fit them.
 
-1. The recording's frames are split by index: even frames calibrate, odd frames are held
-   out (each layer's frames so on a sensor whose scans alternate their layers; or as a twin's split.yaml says, :mod:`lidar_weather_sim.gap.split`: its frames, or for a
-   sector split the same frames with the calibration and held-out azimuth sectors' points). Up to
+1. The recording's frames are split by index: even frames calibrate, odd frames are held out (each layer's
+   frames so on a sensor whose scans alternate their layers; or as a twin's split.yaml says,
+   :mod:`lidar_weather_sim.gap.split`: its frames, or for a sector split the same frames with the calibration
+   and held-out azimuth sectors' points). Up to
    ``fit_frames`` evenly spaced calibration frames are used for fitting and up to ``heldout_frames`` held-out
    frames for every decision (:func:`lidar_weather_sim.gap.split.split_frames`).
 2. The gap is :func:`lidar_weather_sim.gap.signatures.gap_value` between the measured frames
