@@ -43,11 +43,21 @@ def hidden_names(hidden: list[str]) -> set[str]:
     return {h.split(":")[0] for h in hidden}
 
 
+def beside_the_nuisance(effects: list[dict], hidden: str) -> list[dict]:
+    """gap.json's ``effects`` but a range noise at the level of make-measured's own (2 cm, in quadrature) where
+    none was hidden: the sensor family explains that nuisance (spray in last-return mode: 0.026 m, held-out gap
+    0.0136 -> 0.0005), so naming it is right, not a phantom."""
+    level = Nuisance().extra_range_noise_m
+    return [e for e in effects if not (e["name"] == "sensor.range_noise" != hidden
+                                       and 0.5 * level <= e["params"]["sigma"] <= 1.5 * level)]  # fmt: skip
+
+
 @pytest.mark.validation
 @pytest.mark.parametrize("hidden", CASES, ids=["+".join(h.split(":")[0] for h in c) for c in CASES])
 def test_gap_names_exactly_the_hidden_effects_and_recovers_them(highway, hidden, tmp_path):
     result, effects = _diagnose(highway, hidden, tmp_path)
-    found = {e["name"]: e["params"] for e in result["effects"]}
+    assert all(e["refused"] for e in result["effects"] if not e["named"]), result  # a fit not named says why
+    found = {e["name"]: e["params"] for e in result["effects"] if e["named"]}
     # The nuisance's extra range noise has one explanation in the model: the lightest thesis dirt
     # sample (1u, T 0.995) raises the range sigma by 26.7 %. Next to fog at 80 m and sun on the
     # thesis geometry it wins (held-out gap 0.0075 -> 0.0013). So where dirt is not hidden, a
@@ -202,7 +212,7 @@ def test_gap_names_a_hidden_sensor_response_among_the_sensor_effects(highway, hi
     make_measured(highway, [effect], tmp_path / "measured", frames=24)
     result = run_gap(tmp_path / "measured", highway, tmp_path / "gap", families=("sensor",), fit_frames=8,
                      heldout_frames=8, screen_frames=2)  # fmt: skip
-    found = {e["name"]: e["params"] for e in result["effects"]}
+    found = {e["name"]: e["params"] for e in beside_the_nuisance(result["effects"], effect.name)}
     assert list(found) == [effect.name], result
     expected = effect.value
     if effect.name == "sensor.range_noise":  # make-measured's own 2 cm range noise adds in quadrature
@@ -221,7 +231,8 @@ def test_gap_chooses_the_hidden_return_mode_in_spray(tmp_path):
     make_measured(spray, [parse_effect("sensor.return_mode:mode=last")], tmp_path / "measured", frames=24)
     result = run_gap(tmp_path / "measured", spray, tmp_path / "gap", families=("sensor",), fit_frames=8,
                      heldout_frames=8, screen_frames=2)  # fmt: skip
-    assert [(e["name"], e["params"]) for e in result["effects"]] == [("sensor.return_mode", {"mode": "last"})], result
+    found = beside_the_nuisance(result["effects"], "sensor.return_mode")
+    assert [(e["name"], e["params"]) for e in found] == [("sensor.return_mode", {"mode": "last"})], result
     assert result["gap_after"] <= 0.1 * result["gap_before"]
     patched = Scenario.model_validate(yaml.safe_load((tmp_path / "gap" / "patched_scenario.yaml").read_text()))
     assert patched.sensor.return_mode == "last"

@@ -733,3 +733,48 @@ def test_the_dirt_is_screened_at_each_return_gain_and_forward_share_and_its_shar
     assert shares[0] == 0.0 and shares[1] == pytest.approx(0.346, abs=0.005)
     with pytest.raises(ValueError, match="'forward' is a share of the beam energy the dirt scatters forward, within"):
         parse_effect("cover.dirt:transmission=0.5,forward=2")
+
+
+class ValleySearch(GapSearch):
+    """A GapSearch whose calibration gap is ``valley(x)`` of the range noise's search-space value (log sigma)."""
+
+    def __init__(self, valley) -> None:
+        self.valley, self.grid, self.workers = valley, 7, None
+
+    def gap(self, effects, split, redraw=0):
+        return self.valley(np.log(effects[-1].value))
+
+
+def _rough_valley(seed: int):
+    """A parabola with its vertex at sigma 0.0825 m plus a roughness of 0-0.01 that changes at every value (the
+    range term on 8 scala4 frames: -0.037 / -0.042 / -0.033 at 0.0969 / 0.0972 / 0.0976 m)."""
+    x0 = np.log(0.0825)
+    return lambda x: 0.3 * (x - x0) ** 2 + 0.01 * np.modf(np.sin(x * 12345.678 + seed) * 43758.5453)[0]
+
+
+def test_a_fit_takes_the_middle_of_a_rough_valley_not_its_deepest_dimple():
+    from lidar_weather_sim.gap.evaluation import smoothed_minimum
+
+    noise = parse_effect("sensor.range_noise:sigma=0.05")
+    errors = []
+    for seed in range(8):
+        search = ValleySearch(_rough_valley(seed))
+        xs = search.grid_of(noise)
+        k = int(np.argmin([search.valley(x) for x in xs]))
+        cache: dict[float, float] = {}
+        fitted, gap, evaluations = search.fit([], noise, xs, k, cache)
+        key = round(float(np.log(fitted.value)), 6)
+        assert gap == cache[key] and evaluations == len(cache)
+        dimple = np.exp(min((x for x in cache if x != key), key=cache.get))  # Brent's lowest evaluation
+        errors.append((abs(fitted.value / 0.0825 - 1), abs(dimple / 0.0825 - 1)))
+    middle, deepest = np.array(errors).T
+    assert middle.max() < 0.05 and middle.mean() < 0.8 * deepest.mean(), errors
+    # a smooth, lopsided valley: the parabola's vertex lies off its minimum and is worse there, so Brent's stays
+    lopsided = ValleySearch(lambda x: np.exp(4 * (x - np.log(0.0825))) - 4 * (x - np.log(0.0825)))
+    assert lopsided.fit([], noise, xs, 4)[0].value == pytest.approx(0.0825, rel=0.02)
+    # no parabola: too few points, a ridge, or a vertex beyond the values evaluated
+    assert smoothed_minimum({0.0: 1.0, 1.0: 0.0, 2.0: 1.0}) is None
+    assert smoothed_minimum({x: -(x**2) for x in np.linspace(-1, 1, 6)}) is None
+    assert smoothed_minimum({x: (x - 3) ** 2 for x in np.linspace(-1, 1, 6)}) is None
+    vertex, spread = smoothed_minimum({x: (x - 0.25) ** 2 for x in np.linspace(-1, 1, 6)})
+    assert vertex == pytest.approx(0.25) and spread == pytest.approx(0.0, abs=1e-9)
