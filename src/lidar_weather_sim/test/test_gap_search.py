@@ -735,7 +735,7 @@ def test_the_dirt_is_screened_at_each_return_gain_and_forward_share_and_its_shar
         parse_effect("cover.dirt:transmission=0.5,forward=2")
 
 
-class ValleySearch(GapSearch):
+class RoughValleySearch(GapSearch):
     """A GapSearch whose calibration gap is ``valley(x)`` of the range noise's search-space value (log sigma)."""
 
     def __init__(self, valley) -> None:
@@ -758,7 +758,7 @@ def test_a_fit_takes_the_middle_of_a_rough_valley_not_its_deepest_dimple():
     noise = parse_effect("sensor.range_noise:sigma=0.05")
     errors = []
     for seed in range(8):
-        search = ValleySearch(_rough_valley(seed))
+        search = RoughValleySearch(_rough_valley(seed))
         xs = search.grid_of(noise)
         k = int(np.argmin([search.valley(x) for x in xs]))
         cache: dict[float, float] = {}
@@ -770,7 +770,7 @@ def test_a_fit_takes_the_middle_of_a_rough_valley_not_its_deepest_dimple():
     middle, deepest = np.array(errors).T
     assert middle.max() < 0.05 and middle.mean() < 0.8 * deepest.mean(), errors
     # a smooth, lopsided valley: the parabola's vertex lies off its minimum and is worse there, so Brent's stays
-    lopsided = ValleySearch(lambda x: np.exp(4 * (x - np.log(0.0825))) - 4 * (x - np.log(0.0825)))
+    lopsided = RoughValleySearch(lambda x: np.exp(4 * (x - np.log(0.0825))) - 4 * (x - np.log(0.0825)))
     assert lopsided.fit([], noise, xs, 4)[0].value == pytest.approx(0.0825, rel=0.02)
     # no parabola: too few points, a ridge, or a vertex beyond the values evaluated
     assert smoothed_minimum({0.0: 1.0, 1.0: 0.0, 2.0: 1.0}) is None
