@@ -34,6 +34,7 @@ near field (:mod:`lidar_weather_sim.core.frame_parameters`).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -219,16 +220,28 @@ EXACT_NOISE_MAX_COUNT = 60  # bins with fewer returns in total use the exact bin
 
 def _noise_abs_difference(total: np.ndarray, na: int, nb: int) -> np.ndarray:
     """E|A/na - B/nb| per bin when the bin's ``total`` = A + B returns are split between the two
-    recordings by chance alone (A ~ Binomial(total, na / (na + nb))): exact for small totals,
-    the normal approximation above :data:`EXACT_NOISE_MAX_COUNT`."""
+    recordings by chance alone (A ~ Binomial(total, na / (na + nb))): exact for small totals
+    (:func:`_exact_noise_table`), the normal approximation above :data:`EXACT_NOISE_MAX_COUNT`."""
+    p = na / (na + nb)
+    out = np.sqrt(2.0 / np.pi * total * p * (1.0 - p)) * (1.0 / na + 1.0 / nb)
+    small = (total > 0) & (total <= EXACT_NOISE_MAX_COUNT)
+    out[small] = _exact_noise_table(na, nb)[total[small].astype(np.int64)]
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _exact_noise_table(na: int, nb: int) -> np.ndarray:
+    """The exact E|A/na - B/nb| for every total m = 0 .. :data:`EXACT_NOISE_MAX_COUNT` (index m): a search
+    compares the same frame counts thousands of times, and scipy's pmf costs ~70 us a call."""
     from scipy.stats import binom
 
     p = na / (na + nb)
-    out = np.sqrt(2.0 / np.pi * total * p * (1.0 - p)) * (1.0 / na + 1.0 / nb)
-    for m in np.unique(total[(total > 0) & (total <= EXACT_NOISE_MAX_COUNT)]).astype(np.int64):
+    table = np.zeros(EXACT_NOISE_MAX_COUNT + 1)
+    for m in range(1, EXACT_NOISE_MAX_COUNT + 1):
         k = np.arange(m + 1)
-        out[total == m] = float(np.sum(binom.pmf(k, m, p) * np.abs(k / na - (m - k) / nb)))
-    return out
+        table[m] = float(np.sum(binom.pmf(k, m, p) * np.abs(k / na - (m - k) / nb)))
+    table.flags.writeable = False
+    return table
 
 
 def systematic_bray_curtis(sum_a: np.ndarray, frames_a: int, sum_b: np.ndarray, frames_b: int,

@@ -29,6 +29,7 @@ a wider cone (samples 3 and 5) and the rate of near-field cover returns.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -86,7 +87,17 @@ def samples_path() -> Path:
 
 
 def load_samples(path: str | Path | None = None) -> SamplesFile:
-    return load_yaml(path or samples_path(), SamplesFile)
+    """The cover sample database (``config/cover/samples.yaml`` unless ``path``); read once per file and
+    modification time (every cover region built reads it: hundreds of times in a gap search)."""
+    path = Path(path or samples_path()).resolve()
+    if not path.is_file():
+        return load_yaml(path, SamplesFile)  # its one-line error names the file
+    return _load_samples(path, path.stat().st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _load_samples(path: Path, mtime_ns: int) -> SamplesFile:
+    return load_yaml(path, SamplesFile)
 
 
 def random_field(shape: tuple[int, int], correlation_cells, rng: np.random.Generator) -> np.ndarray:
