@@ -622,6 +622,28 @@ def test_a_replacement_screened_on_its_grid_behind_changes_that_do_little_is_ref
     assert rain_of(search.joint_round([snow, dirt])).heldout_gap > 3 * required
 
 
+def test_a_weather_effect_is_compared_at_the_end_with_those_that_cannot_go_with_it_fitted_in_its_place():
+    """Snow named beside a dirt for a rain of 9 mm/h (issue 50's speed case): rain fitted in the snow's place beside
+    the dirt as it ended scores 0.001 against the snow's 0.015, so the snow has a rival (and is not named); named
+    for what it is, the rain beats the snow fitted in its place by the margin and has none. Water in the dirt's
+    place leaves the dirt's whole term: no rival."""
+    snow, rain, dirt = (parse_effect(t) for t in ("atmosphere.snow:intensity=0.3", "atmosphere.rain:intensity=9",
+                                                  "cover.dirt:transmission=0.75"))  # fmt: skip
+    search = ValueSearch()
+    for named, rival, value in ((snow, "atmosphere.rain", 9.0), (rain, None, None)):
+        effects = [dirt, named]
+        accepted = [(Candidate(e, 0.0, 0.0, 1), 0.3) for e in effects]
+        diag = Diagnosis(0.3, search.gap(effects, "heldout"), accepted=accepted)
+        of_dirt, of_named = search.conflict_rivals(diag)
+        assert of_dirt == []
+        if rival is None:
+            assert of_named == [] and any("atmosphere.snow" in line and "in place of" in line for line in search.log)
+        else:
+            (found,) = of_named
+            assert found.effect.name == rival and found.effect.value == pytest.approx(value, rel=0.05)
+            assert found.heldout_gap < search.gap_to_beat(diag.gap_after)
+
+
 class ValleySearch(ValueSearch):
     """A fog of 200 m behind a dirt of 0.6 (draw case 5): both dim the returns (``loss``), only the fog's loss grows
     with range (``law``: a range-law term that holds the fog's visual range within ~20 %, as flat beyond as a
