@@ -101,7 +101,8 @@ def bench_gap(args: argparse.Namespace) -> None:
         result = run_gap(tmp / "measured", scenario, tmp / f"gap{workers}", workers=workers)
         wall = time.perf_counter() - start
         found[workers] = result
-        effects = ", ".join(f"{e['name']} {e['params']}" for e in result["effects"]) or "nothing"
+        effects = ", ".join(f"{e['name']} {e['params']}{'' if e['named'] else ' (not named)'}"
+                            for e in result["effects"]) or "nothing"  # fmt: skip
         print(f"  {label:40s} {wall:7.1f} s   gap {result['gap_before']:.4f} -> {result['gap_after']:.4f}: {effects} "
               f"(load {_load()})")  # fmt: skip
     print(f"  same diagnosis: {found[0] == found[2]}")
