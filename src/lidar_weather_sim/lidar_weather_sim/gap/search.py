@@ -419,7 +419,8 @@ class GapSearch(GapEvaluator):
         (refused), and the zones left unexplained. Runs in this process (a few held-out re-simulations)."""
         measured = self._measured["heldout"]
         keep = self.point_mask("heldout")
-        together = [a + b for a, b in zip(rivals(diag, self.gap_to_beat), self.conflict_rivals(diag))]
+        together = [a + [c for c in b if not any(same_effect(c.effect, r.effect) for r in a)]  # each rival listed once
+                    for a, b in zip(rivals(diag, self.gap_to_beat), self.conflict_rivals(diag))]  # fmt: skip
         judgement = judge_effects(diag.effects, measured, lambda effects: self.resim.signature(effects, self.held_idx, keep),
                                   self._measured["fit"], twin=self.resim.is_twin, rivals=together)  # fmt: skip
         for effect, reason in judgement.refused:
