@@ -57,8 +57,8 @@
    accepted weather effect is named only when it removes the residual of the zones that are its physics (not only
    the total gap) and when it beat every other effect of the round it won by the margin a new effect must win
    (:func:`rivals`), and each effect that cannot go with it fitted in its place beside the others as they ended
-   (:meth:`GapSearch.conflict_rivals`: rain for snow, water for dirt); the zones whose residual the named effects leave above the counting noise are reported as
-   unexplained, with the shape of the residual. The search's fit (the patched scenario) is unchanged.
+   (:meth:`GapSearch.conflict_rivals`: rain for snow, water for dirt); the zones whose residual the named effects
+   leave above the counting noise are reported as unexplained, with the shape of the residual. The search's fit (the patched scenario) is unchanged.
 
 Cost: the budgets do not grow with the recording, so a diagnosis casts about
 ``(candidates x (grid x screen_frames + heldout_frames) + refine x 10 x fit_frames)``
