@@ -78,6 +78,7 @@ class Resimulator:
         self.sim.reflectivity_through_air = through_air
         self.channels = len(self.world.profile.beams)
         self.casts = 0  # frames cast so far (for progress and cost reports)
+        self._memo: dict = {}  # what the regions of frames(..., memo=True) share (the spray particles' states)
 
     @property
     def is_twin(self) -> bool:
@@ -85,15 +86,18 @@ class Resimulator:
         is taken for that air (``through_air``)."""
         return self.sim.reflectivity_through_air and self.world.scene.recorded_range_m is not None
 
-    def frames(self, effects: list[Effect], indices, redraw: int = 0) -> list[np.ndarray]:
+    def frames(self, effects: list[Effect], indices, redraw: int = 0, memo: bool = False) -> list[np.ndarray]:
         """Points of the recording's frames ``indices`` simulated with ``effects``; ``redraw`` > 0: another,
-        independent draw of every random process (the scenario's seed + ``redraw``)."""
+        independent draw of every random process (the scenario's seed + ``redraw``). ``memo``: the regions keep
+        what frames cast again with the same regions will need (the spray particles' states at each step, for
+        the few frames a search screens on every round; the same points, bit for bit), and take it from there."""
         patched = apply_effects(self.scenario, effects)
         if redraw:
             patched = patched.model_copy(update={"seed": patched.seed + redraw})
         world = replace(self.world, scenario=patched)
         mode = patched.sensor.return_mode or self.world.profile.detection.return_mode
-        self.sim.restart(regions=world.regions(pose_source=self.poses), return_mode=mode, **scenario_settings(patched))
+        regions = world.regions(pose_source=self.poses, memo=self._memo if memo else None)
+        self.sim.restart(regions=regions, return_mode=mode, **scenario_settings(patched))
         period = self.world.profile.period_s
         out = []
         for i in sorted(indices):

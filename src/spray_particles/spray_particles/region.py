@@ -103,15 +103,33 @@ class SprayRegion:
         self.radius_m = 0.5 * (params.mesh_diameter_m or c.particles.mesh_diameter_m)
         self.albedo = c.particles.single_scattering_albedo if params.albedo is None else params.albedo
         self._actor_ids = np.array([v.actor_id for v in vehicles], dtype=np.uint32)
+        memo = getattr(context, "memo", None)
+        identity = ("spray", sp.model_dump_json(), tuple((a.id, a.size.length_m, a.size.width_m, a.size.height_m)
+                                                         for a in chosen))  # fmt: skip
+        #: (start tick, tick) -> the particles' state there, shared with this region's earlier builds (``memo``)
+        self._states = None if memo is None or params.source == "topic" else memo.setdefault(identity, {})
+        self._start_tick: int | None = None
 
     def step(self, t0_s: float, t1_s: float) -> None:
         """Advance the particles to ``t1_s`` (simulated s; the system keeps its own fixed-step clock;
-        nothing to do with source 'topic')."""
+        nothing to do with source 'topic'). With a ``memo`` in the context, a state an earlier build of the same
+        particles reached is taken from there instead of simulated again."""
         if self.p.source == "topic":
             return
-        if self.system.time_s is None:
-            self.system.advance_to(t0_s - self.p.warmup_s)
-        self.system.advance_to(t1_s)
+        system = self.system
+        if system.time_s is None:
+            system.advance_to(t0_s - self.p.warmup_s)
+            self._start_tick = system.tick_index
+        target = system.tick_at(t1_s)
+        if self._states is None or target <= system.tick_index:
+            system.advance_to(t1_s)
+            return
+        kept = self._states.get((self._start_tick, target))
+        if kept is not None:
+            system.restore(kept)
+            return
+        system.advance_to(t1_s)
+        self._states[(self._start_tick, target)] = system.state()
 
     def radii(self, time_s: float, centres: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Horizontal and vertical semi-axes (m) of every particle at ``time_s`` (``centres``: their

@@ -348,3 +348,33 @@ def test_a_warm_up_has_the_spray_out_at_the_first_step():
     later = dict(world.regions())["spray"]
     later.step(-0.5, 0.0)  # the same ticks from a cold start at -0.5 s
     assert warm.system.particles.pos.tobytes() == later.system.particles.pos.tobytes()
+
+
+def test_a_region_built_again_with_the_same_memo_takes_the_particles_from_the_earlier_build():
+    """The gap search screens the same spray on the same frames every round: with a ``memo`` in the context the
+    second build takes each step's particles from the first (no tick simulated again), bit for bit what it would
+    have simulated, and goes on from there past the first's last step; another water film is not shared."""
+    world = World.build(load_scenario("highway_spray"))
+    steps = [(0.0, 0.0), (0.0, 0.04), (0.04, 0.2), (0.2, 0.24)]
+    memo: dict = {}
+
+    def run(params: dict | None = None, memo=memo, steps=steps):
+        spray = {"spray": {"warmup_s": 0.3, **(params or {})}}
+        region = dict(world.regions(["spray"], params=spray, memo=memo))["spray"]
+        ticks, tick = [], region.system._tick
+        region.system._tick = lambda k: (ticks.append(k), tick(k))
+        out = []
+        for t0, t1 in steps:
+            region.step(t0, t1)
+            out.append(region.system.particles.pos.tobytes())
+        return out, len(ticks)
+
+    first, first_ticks = run()
+    again, again_ticks = run()
+    alone, _ = run(memo=None, steps=steps + [(0.24, 0.5)])
+    assert first_ticks == 54 and again_ticks == 0  # 0.3 s of warm-up and 0.24 s of steps, 10 ms a tick
+    assert again == first == alone[:4]
+    longer, longer_ticks = run(steps=steps + [(0.24, 0.5)])
+    assert longer == alone and longer_ticks == 26
+    wetter, wetter_ticks = run({"water_film_mm": 1.5})
+    assert wetter_ticks == 54 and wetter[-1] != first[-1]

@@ -179,7 +179,7 @@ class GapEvaluator:
         ``clip``: clip at 0 (default: on the held-out split only)."""
         indices, keep = self._splits()[split], self.point_mask(split)
         clip = split == "heldout" if clip is None else clip
-        frames = self.resim.frames(effects, indices, redraw=redraw)
+        frames = self.resim.frames(effects, indices, redraw=redraw, memo=split == "screen")  # the same every round
         value = gap_value(self._measured[split], self.resim.signature(effects, indices, keep, frames), clip=clip)
         if "sensor" not in self.families:
             return value

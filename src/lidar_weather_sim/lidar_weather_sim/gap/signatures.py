@@ -99,15 +99,16 @@ def zone_of(points: np.ndarray, context: FrameContext) -> np.ndarray:
     return zone
 
 
-def _linear_bins(values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linear binning on the uniform ``edges``: (lower bin, weight of the next bin) of every value. A value
-    is shared between the two bins whose centres bracket it, in proportion to its distance from them; one
-    beyond an outer centre stays in the outer bin. With hard bins a value a hair's breadth across an edge
-    moved a whole count: a vehicle's 24 returns at one EPW made a zone term of 0.8 between two recordings
-    whose EPWs differ by a few millimetres, and a phantom effect that nudged them back won the margin."""
-    bins = len(edges) - 1
-    t = np.clip((values - edges[0]) / (edges[1] - edges[0]) - 0.5, 0.0, bins - 1)
-    lower = np.minimum(np.floor(t).astype(np.int64), max(bins - 2, 0))
+def _linear_bins(values: np.ndarray, first: np.ndarray | float, step: np.ndarray | float,
+                 bins: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Linear binning on uniform edges (``bins`` bins of width ``step`` from ``first``; each may be one per value):
+    (lower bin, weight of the next bin) of every value. A value is shared between the two bins whose centres
+    bracket it, in proportion to its distance from them; one beyond an outer centre stays in the outer bin. With
+    hard bins a value a hair's breadth across an edge moved a whole count: a vehicle's 24 returns at one EPW made a
+    zone term of 0.8 between two recordings whose EPWs differ by a few millimetres, and a phantom effect that
+    nudged them back won the margin."""
+    t = np.clip((values - first) / step - 0.5, 0.0, bins - 1)
+    lower = np.minimum(np.floor(t).astype(np.int64), np.maximum(bins - 2, 0))
     return lower, np.clip(t - lower, 0.0, 1.0)
 
 
@@ -119,19 +120,38 @@ def _linear_hist(index: np.ndarray, upper: np.ndarray, size: int) -> tuple[np.nd
     return hist, squares
 
 
-def _hist(values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linearly binned histogram of the values within ``edges`` (:func:`_linear_bins`), and its squared weights."""
-    values = values[(values >= edges[0]) & (values < edges[-1])]
-    return _linear_hist(*_linear_bins(values, edges), len(edges) - 1)
+def _uniform(edges: np.ndarray) -> tuple[float, float, int]:
+    """(first edge, step, bins) of the uniform ``edges``."""
+    return float(edges[0]), float(edges[1] - edges[0]), len(edges) - 1
 
 
-def _echo_hist(echo: np.ndarray, values: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Echo number (1, 2, 3+) x linearly binned values (clipped into ``edges``), and its squared weights."""
+#: per zone (first edge, step, bins, last edge) of its range histogram, and where its bins start in the zones' row
+_RANGE_FIRST, _RANGE_STEP, _RANGE_BINS = (np.array(v) for v in zip(*(_uniform(RANGE_EDGES[z]) for z in ZONES)))
+_RANGE_LAST = np.array([RANGE_EDGES[z][-1] for z in ZONES])
+_RANGE_START = np.concatenate([[0], np.cumsum(_RANGE_BINS)])
+INTENSITY_EDGES = np.linspace(0.0, 256.0, INTENSITY_BINS + 1)
+
+
+def _zone_range_hists(zone: np.ndarray, d: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per zone (name) the linearly binned histogram of the ranges ``d`` (m) of its points (``zone``: index into
+    :data:`ZONES`) within its :data:`RANGE_EDGES`, and its squared weights: all zones in one binning."""
+    inside = (d >= _RANGE_FIRST[zone]) & (d < _RANGE_LAST[zone])
+    z = zone[inside]
+    lower, upper = _linear_bins(d[inside], _RANGE_FIRST[z], _RANGE_STEP[z], _RANGE_BINS[z])
+    hist, squares = _linear_hist(_RANGE_START[z] + lower, upper, int(_RANGE_START[-1]))
+    return {name: (hist[a:b], squares[a:b]) for name, a, b in zip(ZONES, _RANGE_START[:-1], _RANGE_START[1:])}
+
+
+def _zone_echo_hists(zone: np.ndarray, echo: np.ndarray, values: np.ndarray,
+                     edges: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+    """Per zone (name) the echo number (1, 2, 3+) x linearly binned ``values`` (clipped into the uniform ``edges``)
+    histogram of its points, and its squared weights: all zones in one binning."""
     e = np.clip(echo.astype(np.int64), 1, ECHOES) - 1
-    lower, upper = _linear_bins(values, edges)
-    bins = len(edges) - 1
-    hist, squares = _linear_hist(e * bins + lower, upper, ECHOES * bins)
-    return hist, squares
+    first, step, bins = _uniform(edges)
+    lower, upper = _linear_bins(values, first, step, bins)
+    size = ECHOES * bins
+    hist, squares = _linear_hist((zone.astype(np.int64) * ECHOES + e) * bins + lower, upper, len(ZONES) * size)
+    return {name: (hist[k * size : (k + 1) * size], squares[k * size : (k + 1) * size]) for k, name in enumerate(ZONES)}
 
 
 def bev_histogram(points: np.ndarray) -> np.ndarray:
@@ -178,13 +198,10 @@ class Signature:
                                             minlength=(ECHOES - 1) * (len(RANGE_CLASS_EDGES) - 1)).astype(np.float64)  # fmt: skip
         vertical = np.isin(zone, [ZONES.index(z) for z in RANGE_LAW_ZONES])
         parts["range_law"] = np.histogram(d[vertical], RANGE_LAW_EDGES_M)[0].astype(np.float64)
-        linear = {}
-        for k, name in enumerate(ZONES):
-            m = zone == k
-            linear[f"{name}/range"] = _hist(d[m], RANGE_EDGES[name])
-            linear[f"{name}/intensity"] = _echo_hist(echo[m], inten[m], np.linspace(0.0, 256.0, INTENSITY_BINS + 1))
-            if self.has_epw:
-                linear[f"{name}/epw"] = _echo_hist(echo[m], points["epw"][m].astype(np.float64), EPW_EDGES)
+        terms = {"range": _zone_range_hists(zone, d), "intensity": _zone_echo_hists(zone, echo, inten, INTENSITY_EDGES)}
+        if self.has_epw:
+            terms["epw"] = _zone_echo_hists(zone, echo, points["epw"].astype(np.float64), EPW_EDGES)
+        linear = {f"{name}/{term}": hists[name] for name in ZONES for term, hists in terms.items()}
         parts.update({key: hist for key, (hist, _) in linear.items()})
         for store, values in ((self.sums, parts), (self.squares, {key: sq for key, (_, sq) in linear.items()})):
             for key, value in values.items():

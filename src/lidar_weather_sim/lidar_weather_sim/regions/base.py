@@ -64,6 +64,9 @@ class RegionContext:
     actors: Any = None  # the scenario's actors (list of scenario.Actor), for emitting regions (spray)
     pose_source: Any = None  # anything with actor_poses(t) -> {actor id: 4x4 body-to-world}, e.g. the player
     inputs: Any = None  # a topic_inputs.TopicInputs: points other nodes publish (spray source: topic)
+    #: a store the regions of successive builds with the same actors and pose source share (None: nothing shared):
+    #: a region keeps there what it would otherwise compute again (the spray particles' states)
+    memo: dict | None = None
 
 
 @dataclass

@@ -74,13 +74,14 @@ class World:
         return cls(scenario, profile, scene, ScenarioPlayer(scenario, scene.roads))
 
     def regions(self, names: list[str] | None = None, params: dict[str, dict] | None = None,
-                pose_source=None, inputs=None) -> list[tuple[str, Region]]:  # fmt: skip
+                pose_source=None, inputs=None, memo: dict | None = None) -> list[tuple[str, Region]]:  # fmt: skip
         """The scenario's region plugins (or ``names``), built from its region_params overlaid by ``params``;
         actor poses come from ``pose_source`` (default: the scenario player), topic points from ``inputs``
-        (a :class:`~lidar_weather_sim.regions.topic_inputs.TopicInputs`, default a new one)."""
+        (a :class:`~lidar_weather_sim.regions.topic_inputs.TopicInputs`, default a new one); ``memo``: what
+        they share with earlier builds of the same actors and pose source (:class:`RegionContext`)."""
         context = RegionContext(self.profile, self.scenario.weather, self.scene.materials,
                                 actors=self.scenario.actors, pose_source=pose_source or self.player,
-                                inputs=TopicInputs() if inputs is None else inputs)  # fmt: skip
+                                inputs=TopicInputs() if inputs is None else inputs, memo=memo)  # fmt: skip
         names = self.scenario.regions if names is None else names
         repeated = sorted({n for n in names if list(names).count(n) > 1})
         if repeated:  # a region listed twice would apply its effect twice (twice the spray)

@@ -29,7 +29,7 @@ stages that advance it are one thing; the stages' kernels live in kernels/fused.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -119,6 +119,17 @@ class Particles:
     @classmethod
     def concatenate(cls, parts: list["Particles"]) -> "Particles":
         return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__))
+
+    def copy(self) -> "Particles":
+        return Particles(*(getattr(self, f).copy() for f in self.__dataclass_fields__))
+
+
+class SystemState(NamedTuple):
+    """What a :class:`SpraySystem` goes on from after a tick (:meth:`SpraySystem.state`)."""
+
+    tick_index: int
+    particles: Particles
+    emitted: int
 
 
 def drawn_film_mm(params: SprayParams, rng: np.random.Generator) -> float:
@@ -258,10 +269,13 @@ class SpraySystem:
         return u
 
     # -- time --------------------------------------------------------------------------------
+    def tick_at(self, time_s: float) -> int:
+        """The last tick at or before ``time_s`` (s)."""
+        return int(np.floor(time_s / self.params.tick_s + 1e-9))
+
     def advance_to(self, time_s: float) -> None:
         """Run every tick up to ``time_s`` (s); the first call starts the clock there (no particles yet)."""
-        dt = self.params.tick_s
-        target = int(np.floor(time_s / dt + 1e-9))
+        target = self.tick_at(time_s)
         if self.tick_index is None:
             self.tick_index = target
             return
@@ -271,6 +285,19 @@ class SpraySystem:
             self.tick_index += 1
         for k in [k for k in self._pose_cache if k < self.tick_index]:
             del self._pose_cache[k]
+
+    def state(self) -> SystemState:
+        """A copy of what the system goes on from: its tick, particles and emission count."""
+        return SystemState(self.tick_index, self.particles.copy(), self.emitted)
+
+    def restore(self, state: SystemState) -> None:
+        """Go on from ``state`` (:meth:`state` of a system of the same vehicles, poses and parameters started at the
+        same tick): the particles are then those this system would have at that tick, bit for bit (every draw
+        is keyed by its tick)."""
+        self.tick_index, self.particles, self.emitted = state.tick_index, state.particles.copy(), state.emitted
+        self._target_tick = state.tick_index
+        self._state_cache = None
+        self._pose_cache = {k: v for k, v in self._pose_cache.items() if k >= state.tick_index}
 
     def positions_at(self, time_s: float) -> np.ndarray:
         """Particle centres (n, 3) at ``time_s``, extrapolated from the last tick (ballistic)."""
