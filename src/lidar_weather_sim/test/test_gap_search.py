@@ -803,3 +803,42 @@ def test_a_fit_takes_the_middle_of_a_rough_valley_not_its_deepest_dimple():
     assert smoothed_minimum({x: (x - 3) ** 2 for x in np.linspace(-1, 1, 6)}) is None
     vertex, spread = smoothed_minimum({x: (x - 0.25) ** 2 for x in np.linspace(-1, 1, 6)})
     assert vertex == pytest.approx(0.25) and spread == pytest.approx(0.0, abs=1e-9)
+
+
+class CountingSearch(GapSearch):
+    """A GapSearch whose simulated gap is a function of the effects' values, counting the simulations; its workers
+    count the jobs they are sent."""
+
+    def __init__(self, workers: bool) -> None:
+        self.simulated: list[tuple] = []
+        self.sent: list[tuple] = []
+        self._known, self.resim = {}, SimpleNamespace(casts=0)
+        self.workers = SimpleNamespace(gaps=self._remote) if workers else None
+
+    def _simulated_gap(self, effects, split, redraw, clip):
+        self.simulated.append((tuple(e.value for e in effects), split, redraw))
+        return sum(e.value for e in effects) + {"fit": 0.0, "heldout": 10.0}[split] + 100.0 * redraw
+
+    def _remote(self, jobs):
+        self.sent += jobs
+        return [self._simulated_gap(*job, None) if len(job) == 3 else self._simulated_gap(*job, 0, None)
+                for job in jobs], 8 * len(jobs)  # fmt: skip
+
+
+def test_a_gap_asked_again_is_not_simulated_again():
+    """The search asks some gaps twice (a coordinate descent's second pass over an effect whose neighbours did not
+    move): the answer is remembered by effects, values, split and redraw, here and on the workers."""
+    fog, dirt = FOG.with_value(80.0), DIRT.with_value(0.9)
+    search = CountingSearch(workers=False)
+    assert search.gap([fog, dirt], "fit") == search.gap([fog, dirt], "fit") == pytest.approx(80.9)
+    assert search.gap([fog.with_value(81.0), dirt], "fit") == pytest.approx(81.9)
+    assert search.gap([fog, dirt], "heldout") == pytest.approx(90.9)
+    assert search.gap([fog, dirt], "heldout", 1) == pytest.approx(190.9)
+    assert len(search.simulated) == 4
+    remote = CountingSearch(workers=True)
+    jobs = [([fog], "fit"), ([dirt], "fit"), ([fog], "fit"), ([fog], "heldout", 1)]
+    assert remote.gaps(jobs) == pytest.approx([80.0, 0.9, 80.0, 190.0])
+    assert [(tuple(e.value for e in job[0]), *job[1:]) for job in remote.sent] == [((80.0,), "fit"), ((0.9,), "fit"),
+                                                                                    ((80.0,), "heldout", 1)]  # fmt: skip
+    assert remote.gaps(jobs[:2] + [([dirt], "heldout")]) == pytest.approx([80.0, 0.9, 10.9])
+    assert len(remote.sent) == 4 and remote.resim.casts == 32

@@ -130,6 +130,7 @@ class GapEvaluator:
         self.screen_idx = screening_frames(self.fit_idx, screen_frames, layers)
         self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.point_mask(name))
                           for name, idx in self._splits().items()}  # fmt: skip
+        self._known: dict[tuple, float] = {}  # the gaps computed so far (_gap_key): a search asks some again
 
     def progress(self, text: str) -> None:
         """Tell the caller's ``progress`` (if any) ``text`` and the frames cast so far."""
@@ -176,7 +177,15 @@ class GapEvaluator:
         on the calibration splits not clipped at 0, so fits can still tell near-perfect values apart.
         With the sensor family, plus the paired-beam range term and per-channel shift terms (:meth:`paired_terms`).
         ``redraw`` > 0: the simulation's random processes drawn again (the scenario's seed + ``redraw``).
-        ``clip``: clip at 0 (default: on the held-out split only)."""
+        ``clip``: clip at 0 (default: on the held-out split only). A gap asked again is not simulated again
+        (the re-simulation's random numbers are common: it would be the same)."""
+        key = _gap_key(effects, split, redraw, clip)
+        if key not in self._known:
+            self._known[key] = self._simulated_gap(effects, split, redraw, clip)
+        return self._known[key]
+
+    def _simulated_gap(self, effects: list[Effect], split: str, redraw: int, clip: bool | None) -> float:
+        """:meth:`gap`, simulated."""
         indices, keep = self._splits()[split], self.point_mask(split)
         clip = split == "heldout" if clip is None else clip
         frames = self.resim.frames(effects, indices, redraw=redraw, memo=split == "screen")  # the same every round
@@ -229,9 +238,13 @@ class GapEvaluator:
         """:meth:`gap` of every (effects, split[, redraw]), on the workers when there are some."""
         if self.workers is None:
             return [self.gap(*job) for job in jobs]
-        values, casts = self.workers.gaps(jobs)
-        self.resim.casts += casts
-        return values
+        keys = [_gap_key(*job) for job in jobs]
+        new = list({key: job for key, job in zip(keys, jobs) if key not in self._known}.items())
+        if new:
+            values, casts = self.workers.gaps([job for _, job in new])
+            self._known.update(zip([key for key, _ in new], values))
+            self.resim.casts += casts
+        return [self._known[key] for key in keys]
 
     def mean_over_redraws(self, effect_sets: list[list[Effect]]) -> list[float]:
         """The held-out gap of each effect set, averaged over the independent redraws of
@@ -371,3 +384,9 @@ class GapEvaluator:
         row = self.gaps([(trial, "screen") for trial in jobs] + [(list(effects), "screen")])
         k = int(np.argmin(row[:-1]))
         return jobs[k] if row[k] < row[-1] else None
+
+
+def _gap_key(effects: list[Effect], split: str, redraw: int = 0, clip: bool | None = None) -> tuple:
+    """What a gap depends on besides the recording and scenario: the effects (in order, with their parameters), the
+    split, the redraw and the clipping."""
+    return tuple((e.name, repr(sorted(e.params.items()))) for e in effects), split, redraw, clip
