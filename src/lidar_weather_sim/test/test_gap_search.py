@@ -838,7 +838,7 @@ def test_a_gap_asked_again_is_not_simulated_again():
     remote = CountingSearch(workers=True)
     jobs = [([fog], "fit"), ([dirt], "fit"), ([fog], "fit"), ([fog], "heldout", 1)]
     assert remote.gaps(jobs) == pytest.approx([80.0, 0.9, 80.0, 190.0])
-    assert [(tuple(e.value for e in job[0]), *job[1:]) for job in remote.sent] == [((80.0,), "fit"), ((0.9,), "fit"),
-                                                                                    ((80.0,), "heldout", 1)]  # fmt: skip
+    sent = [(tuple(e.value for e in job[0]), *job[1:]) for job in remote.sent]
+    assert sent == [((80.0,), "fit"), ((0.9,), "fit"), ((80.0,), "heldout", 1)]
     assert remote.gaps(jobs[:2] + [([dirt], "heldout")]) == pytest.approx([80.0, 0.9, 10.9])
     assert len(remote.sent) == 4 and remote.resim.casts == 32
