@@ -58,6 +58,22 @@ def test_fused_tick_equals_the_numpy_stages(monkeypatch):
         assert np.array_equal(a[name], b[name]), name
 
 
+def test_a_tick_shared_by_threads_moves_the_particles_as_one_call(monkeypatch):
+    """The simulator's threads move a tick's particles in chunks of rows: the particles are those of one call."""
+    monkeypatch.setattr(system_module, "MOVE_CHUNK_MIN", 10**9)
+    whole = _system()
+    whole.advance_to(0.0)
+    whole.advance_to(1.5)
+    monkeypatch.setattr(system_module, "MOVE_CHUNK_MIN", 64)
+    monkeypatch.setattr(system_module.workers, "THREADS", 3)  # three chunks, whatever this machine has
+    chunked = _system()
+    chunked.advance_to(0.0)
+    chunked.advance_to(1.5)
+    a, b = _fields(whole.particles), _fields(chunked.particles)
+    assert len(whole.particles) > 500
+    assert all(np.array_equal(a[name], b[name]) for name in a)
+
+
 def test_emitter_kernel_equals_eq7_10_in_numpy():
     r, w = tyre_dimensions(C.tyre.size)
     em = vehicle_emitter(4.7, 1.85, 1.45, r, w)

@@ -34,6 +34,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 from pydantic import Field
 
+from lidar_weather_sim.core import workers
 from lidar_weather_sim.core.config import ConfigModel
 from spray_particles.kernels import fused
 from spray_particles.model.constants import SprayConstants, load_constants
@@ -48,6 +49,9 @@ from spray_particles.model.seeds import TickGenerators
 
 #: A mist packet with less than this share of its drops still airborne is dropped.
 MIN_MIST_SHARE = 0.01
+#: particles per chunk of a tick's move at least, when the simulator's threads share it (one call costs ~0.3 us a
+#: particle, handing a chunk to a thread ~30 us)
+MOVE_CHUNK_MIN = 256
 
 PoseFunction = Callable[[float], dict]  # time (s) -> {actor id: 4x4 body-to-world}
 
@@ -375,8 +379,8 @@ class SpraySystem:
         now, later = VehicleState(*s0[:3]), VehicleState(*s1[:3])
         tick = TickConstants(float(c.physics.gravity_m_s2), float(prm.tick_s), 0.5, float(c.mist.initial_radius_m))
         arrays = ParticleArrays(*(getattr(p, f) for f in Particles.__dataclass_fields__))
-        pos, vel, age, above, vertical = fused.move(arrays, now, later, self._bodies, self._air_model(now.vel),
-                                                    self._curl_modes(), float(t), tick)  # fmt: skip
+        pos, vel, age, above, vertical = _moved(arrays, (now, later, self._bodies, self._air_model(now.vel),
+                                                         self._curl_modes(), float(t), tick))  # fmt: skip
         moved = arrays._replace(pos=pos, vel=vel, age=age)
         arrays = fused.survive(moved, above, vertical, vertical**3, later, self._bodies, MIN_MIST_SHARE, extra)
         return Particles(*arrays)
@@ -456,6 +460,18 @@ class SpraySystem:
                 blocks.append((n, block))
                 self.emitted += n
         return blocks
+
+
+def _moved(arrays: ParticleArrays, inputs: tuple) -> tuple[np.ndarray, ...]:
+    """:func:`~spray_particles.kernels.fused.move` of the particles ``arrays`` with the tick's other ``inputs``, in
+    chunks of rows the simulator's threads share (:mod:`lidar_weather_sim.core.workers`): each particle moves on its
+    own, so the result is the one call's, bit for bit."""
+    cuts = workers.bounds(len(arrays.age), MOVE_CHUNK_MIN, max_chunks=workers.THREADS)
+    if len(cuts) == 2:
+        return fused.move(arrays, *inputs)
+    parts = workers.run_chunks(lambda c: fused.move(ParticleArrays(*(a[cuts[c] : cuts[c + 1]] for a in arrays)),
+                                                    *inputs), len(cuts) - 1)  # fmt: skip
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))
 
 
 def _vehicle_bodies(vehicles: list[EmittingVehicle]) -> VehicleBodies:
