@@ -104,10 +104,11 @@ class SprayRegion:
         self.albedo = c.particles.single_scattering_albedo if params.albedo is None else params.albedo
         self._actor_ids = np.array([v.actor_id for v in vehicles], dtype=np.uint32)
         memo = getattr(context, "memo", None)
-        identity = ("spray", sp.model_dump_json(), tuple((a.id, a.size.length_m, a.size.width_m, a.size.height_m)
-                                                         for a in chosen))  # fmt: skip
         #: (start tick, tick) -> the particles' state there, shared with this region's earlier builds (``memo``)
-        self._states = None if memo is None or params.source == "topic" else memo.setdefault(identity, {})
+        self._states = None
+        if memo is not None and params.source == "internal":
+            actors = tuple((a.id, a.size.length_m, a.size.width_m, a.size.height_m) for a in chosen)
+            self._states = memo.setdefault(("spray", sp.model_dump_json(), actors), {})
         self._start_tick: int | None = None
 
     def step(self, t0_s: float, t1_s: float) -> None:
