@@ -281,3 +281,38 @@ def test_up_prints_the_stacks_of_a_node_deaf_to_sigint_and_sigterm_before_killin
     assert "[up] still running after SIGTERM: stuck_node; their threads' Python stacks follow, then SIGKILL" in out
     assert "in stuck_where_no_python_handler_runs" in out, out  # faulthandler's dump from inside the stuck spin
     assert f"[up] stuck_node exited with status {-signal.SIGKILL} (failure)" in out
+
+
+HUNG_TEARDOWN_NODE = """
+import signal, time
+import rclpy.node
+from lidar_weather_sim.ros.node_main import run_node
+
+class HungTeardownNode(rclpy.node.Node):
+    def destroy_node(self):  # as Fast DDS deadlocked in a C call that holds the GIL: no handler runs
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+        while True:
+            time.sleep(0.05)
+
+run_node("hung_node", lambda: HungTeardownNode("hung_node"), lambda node: None,
+         finish=lambda node: print("work done", flush=True))
+"""
+
+
+@pytest.mark.slow
+def test_a_node_whose_middleware_teardown_hangs_after_its_work_ends_within_the_teardown_limit(tmp_path, monkeypatch):
+    """node_main bounds the teardown after ``finish``: stacks at TEARDOWN_S, SIGALRM a second later; up counts
+    the node as done (its work finished) and says why, instead of waiting for its grace time and SIGKILL."""
+    from lidar_weather_sim.ros.graph import TEARDOWN_CUT, NodePlan, run
+
+    (tmp_path / "hung_node.py").write_text(HUNG_TEARDOWN_NODE)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    plan = NodePlan("hung_node", "test", "hung_node", "hung_node", (), {}, (), True)
+    lines: list[str] = []
+    assert run([plan], tmp_path / "run", emit=lines.append, grace_s=30.0) == 0, "\n".join(lines)
+    out = "\n".join(lines)
+    assert "[hung_node] work done" in out
+    assert "in destroy_node" in out, out  # faulthandler's dump from inside the hung teardown
+    assert f"[up] hung_node exited with status {TEARDOWN_CUT} (its work done; the middleware's teardown hung" in out
+    assert "still running after SIGTERM" not in out

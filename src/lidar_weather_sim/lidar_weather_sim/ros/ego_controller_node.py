@@ -43,7 +43,7 @@ class EgoControllerNode(Node):
         topic = self.declare_parameter("cloud_topic", TOPIC_POINTS_FILTERED, ParameterDescriptor(read_only=True)).value
         trace = self.declare_parameter("trace_csv", "", ParameterDescriptor(description="per-cloud trace file")).value
         self.state, self.track = AccState(self.cfg.cruise_speed_m_s), ObstacleTrack(self.cfg)
-        self._trace = open(trace, "w", buffering=1) if trace else None  # noqa: SIM115 (closed in destroy_node)
+        self._trace = open(trace, "w", buffering=1) if trace else None  # noqa: SIM115 (closed in close())
         if self._trace:
             self._trace.write("stamp_s,detected_m,distance_m,label,cmd_speed_m_s,decel_m_s2,points\n")
         self._pub = self.create_publisher(TwistStamped, TOPIC_CMD_SPEED, 10)
@@ -87,14 +87,15 @@ class EgoControllerNode(Node):
             label = track.tag if track is not None and track.tag is not None else ""
             self._trace.write(f"{t:.6f},{text(detected)},{text(distance)},{label},{speed:.6f},{decel:.6f},{len(points)}\n")
 
-    def destroy_node(self) -> None:
+    def close(self) -> None:
+        """Close the trace file (run_node's ``finish``, before the node is destroyed)."""
         if self._trace:
             self._trace.close()
-        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node("ego_controller_node", EgoControllerNode, config_errors=(ConfigError,), finish=EgoControllerNode.destroy_node, args=args)
+    run_node("ego_controller_node", EgoControllerNode, config_errors=(ConfigError,), finish=EgoControllerNode.close,
+             args=args)
 
 
 if __name__ == "__main__":

@@ -327,9 +327,19 @@ def _after_steps(plans: list[NodePlan], nodes: list, steps: list[tuple[str, list
     return handlers
 
 
+TEARDOWN_CUT = -signal.SIGALRM  # a node whose work was done and whose middleware teardown hung (node_main)
+
+
 def _exited_cleanly(code: int, signalled: bool) -> bool:
-    """Status 0, or (for a node the graph sent SIGINT) the status of that SIGINT."""
-    return code == 0 or (signalled and code in (-signal.SIGINT, 128 + signal.SIGINT))
+    """Status 0, a teardown cut short after the node's work (:data:`TEARDOWN_CUT`), or (for a node the graph
+    sent SIGINT) the status of that SIGINT."""
+    return code in (0, TEARDOWN_CUT) or (signalled and code in (-signal.SIGINT, 128 + signal.SIGINT))
+
+
+def _exit_note(code: int, clean: bool) -> str:
+    if code == TEARDOWN_CUT:
+        return " (its work done; the middleware's teardown hung and was cut short: its stacks are above)"
+    return "" if clean else " (failure)"
 
 
 # --- running a graph as separate processes (lidar-weather-sim up) ---------------------------------
@@ -404,7 +414,7 @@ def run(plans: list[NodePlan], run_dir: Path, emit=print, grace_s: float = 10.0,
         code = proc.wait()
         ok = _exited_cleanly(code, proc.pid in stopped)
         clean &= ok
-        emit(f"[up] {plan.name} exited with status {code}{'' if ok else ' (failure)'}")
+        emit(f"[up] {plan.name} exited with status {code}{_exit_note(code, ok)}")
     for name, cmd in steps if clean and not received else ():
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)
         emit(f"[up] started {name} (pid {proc.pid})")

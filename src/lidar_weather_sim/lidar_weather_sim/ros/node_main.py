@@ -14,7 +14,12 @@ is (a long numba compilation of a cold cache in its first cast can take 10 s
 or more on a loaded machine): the escalation of ``ros2 launch`` and
 ``lidar-weather-sim up`` (SIGINT, then SIGTERM after a grace period) ends
 even a busy node. ``finish`` always runs (the recorder closes its bag there), before the middleware
-is torn down. A node stuck in C code (where no Python signal handler can run) still answers SIGUSR1:
+is torn down; then the node is destroyed and the context shut down within :data:`TEARDOWN_S`. Fast DDS can
+deadlock while it destroys a node's endpoints (seen once in ``make demo``: ego_controller_node stuck in
+``destroy_node``; eProsima/Fast-DDS#6193 is one such deadlock), and rclpy's destroy calls hold the GIL, so no
+Python thread can help: faulthandler's own thread prints every stack after :data:`TEARDOWN_S` and the kernel
+ends the process with SIGALRM a second later, a status (-14) that ``lidar-weather-sim up`` reports as a cut
+teardown of a node whose work was done. A node stuck in C code (where no Python signal handler can run) still answers SIGUSR1:
 it prints every thread's Python stack on stderr (``faulthandler``), which ``lidar-weather-sim up``
 asks for before its SIGKILL. Every node starts with the Fast DDS profile for dense clouds
 (:mod:`lidar_weather_sim.ros.dds_profile`) and, once built, says it is ready on ``/<node>/ready``
@@ -39,6 +44,7 @@ from lidar_weather_sim.ros.readiness import announce_ready
 
 N = TypeVar("N")
 POLL_S = 0.1  # longest wait in a spin loop (s): the reaction time to a signal
+TEARDOWN_S = 5  # the longest the middleware's teardown may take once the node's work is done (s)
 STACKS_SIGNAL = signal.SIGUSR1  # prints every thread's Python stack on stderr, even from inside C code
 _requested: list[int] = []
 
@@ -60,7 +66,8 @@ def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] = spin
     """Run a node: ``build()`` it, ``spin(node)`` until done or stopped, then ``finish(node)``.
 
     ``spin`` must return soon after :func:`stop_requested` turns true. ``config_errors``
-    raised by ``build`` print ``name: reason`` on stderr and exit with status 2.
+    raised by ``build`` print ``name: reason`` on stderr and exit with status 2. ``finish`` does the node's
+    own closing (files, bags); the node is destroyed here, after it.
     """
     use_large_message_profile()
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
@@ -74,10 +81,24 @@ def run_node(name: str, build: Callable[[], N], spin: Callable[[N], None] = spin
                 if not stop_requested():
                     spin(node)
             finally:
-                if finish is not None:
-                    finish(node)  # before the middleware is torn down
+                try:
+                    if finish is not None:
+                        finish(node)  # before the middleware is torn down
+                finally:
+                    _bound_teardown()
+                    node.destroy_node()
     except (KeyboardInterrupt, ExternalShutdownException):  # escalated, or before the handlers were in place
         pass
+    finally:
+        signal.alarm(0)  # torn down in time
+        faulthandler.cancel_dump_traceback_later()
+
+
+def _bound_teardown() -> None:
+    """From now on, at most :data:`TEARDOWN_S` until the process ends (a C-level limit: the GIL may be held)."""
+    faulthandler.dump_traceback_later(TEARDOWN_S, exit=False)
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(TEARDOWN_S + 1)
 
 
 def _on_signal(signum: int, _frame) -> None:

@@ -180,7 +180,7 @@ def main(argv=None) -> None:
         except SystemExit:  # max_steps reached
             pass
 
-    run_node("spray_node", SprayNode, spin, finish=SprayNode.destroy_node, args=argv)
+    run_node("spray_node", SprayNode, spin, args=argv)
 
 
 if __name__ == "__main__":
