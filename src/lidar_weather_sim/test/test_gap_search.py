@@ -644,6 +644,50 @@ def test_a_weather_effect_is_compared_at_the_end_with_those_that_cannot_go_with_
             assert found.heldout_gap < search.gap_to_beat(diag.gap_after)
 
 
+
+class DarkeningSearch(ValueSearch):
+    """A fog and a darkening (OS1 draw case 15), in log brightness against the truth's: the fog brightens the
+    vehicles by x = log(V / 51.43 m) (on the road, near the sensor, it changes little), dirt of transmission T
+    darkens both by D = log(1 / T), a wet road of w mm the road alone by w; the truth darkens both by ``dirt`` and
+    the road by ``wet`` more; the fog's range law holds x weakly (0.5 x^2)."""
+
+    def __init__(self, dirt: float, wet: float) -> None:
+        super().__init__()
+        self.dirt, self.wet = dirt, wet
+
+    def gap(self, effects, split, redraw=0):
+        v = {e.name: e.value for e in effects}
+        x = np.log(v.get("atmosphere.fog", 1000.0) / 51.43)
+        d = -np.log(v.get("cover.dirt", v.get("cover.water", 1.0)))
+        w = v.get("atmosphere.road_wet", 0.0)
+        bodies, road = x - d + self.dirt, -d - w + self.dirt + self.wet
+        return 0.005 + 10.0 * (bodies**2 + road**2) + 0.5 * x**2
+
+
+def test_a_wet_road_is_compared_at_the_end_with_dirt_on_the_cover_refitted_with_the_fog_in_its_place():
+    """A wet road darkens the road alone, dirt every return. Behind a dirt of 0.889 the search's fog (46.0 m: it
+    took the dirt's loss on the vehicles) and a wet road (0.118 mm: the road's) score 0.012; dirt in the wet road's
+    place beside that fog scores 0.07, and refitted with the fog it comes near the truth (50.1 m, 0.900: 0.0085),
+    a rival, so the wet road is not named. Behind a wet road of 0.2 mm no cover refitted with the fog in its place
+    comes near it. (Its landscape is as steep as the case's: a fog 7 % off beside the true dirt costs 0.05.)"""
+    for search, fog, film, rival in ((DarkeningSearch(-np.log(0.889), 0.0), 45.97, 0.1178, True),
+                                     (DarkeningSearch(0.0, 0.2), 51.43, 0.2, False)):  # fmt: skip
+        effects = [parse_effect(f"atmosphere.fog:visual_range={fog}"),
+                   parse_effect(f"atmosphere.road_wet:water_film={film}")]
+        accepted = [(Candidate(e, 0.0, 0.0, 1), 0.3) for e in effects]
+        diag = Diagnosis(0.3, search.gap(effects, "heldout"), accepted=accepted)
+        of_fog, of_wet = search.conflict_rivals(diag)
+        assert of_fog == []
+        assert any(line.startswith("cover.dirt") and "in place of atmosphere.road_wet" in line and "refitted" in line
+                   for line in search.log)  # fmt: skip
+        if rival:
+            dirt = min((c for c in of_wet if c.effect.name == "cover.dirt"), key=lambda c: c.heldout_gap)
+            (fog_refitted,) = dirt.companions
+            assert dirt.effect.value == pytest.approx(0.889, rel=0.02) and dirt.heldout_gap < 0.009
+            assert fog_refitted.value == pytest.approx(51.43, rel=0.05)
+        else:
+            assert of_wet == []
+
 class ValleySearch(ValueSearch):
     """A fog of 200 m behind a dirt of 0.6 (draw case 5): both dim the returns (``loss``), only the fog's loss grows
     with range (``law``: a range-law term that holds the fog's visual range within ~20 %, as flat beyond as a
