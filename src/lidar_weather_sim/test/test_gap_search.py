@@ -688,6 +688,20 @@ def test_a_wet_road_is_compared_at_the_end_with_dirt_on_the_cover_refitted_with_
         else:
             assert of_wet == []
 
+
+def test_the_best_of_a_swap_round_is_refitted_with_the_others_and_replaces_a_wet_road_that_took_a_dirt_s_place():
+    """The search's fog (46.0 m) and wet road (0.118 mm) behind a dirt of 0.889 (:class:`DarkeningSearch`): without
+    the wet road, the joint round moves the fog on its grid only and no cover qualifies; its best refitted with the
+    fog (50.1 m, dirt 0.900) beats the pair by the margin, so it takes the wet road's place."""
+    search = DarkeningSearch(-np.log(0.889), 0.0)
+    effects = [parse_effect("atmosphere.fog:visual_range=45.97"), parse_effect("atmosphere.road_wet:water_film=0.1178")]
+    required = search.gap_to_beat(search.gap(effects, "heldout"))
+    best = min(search.swap_round(effects), key=lambda c: c.heldout_gap)
+    assert best.effect.name in ("cover.dirt", "cover.water") and best.effect.value == pytest.approx(0.889, rel=0.02)
+    assert best.heldout_gap <= required and [e.name for e in best.companions] == ["atmosphere.fog"]
+    assert best.companions[0].value == pytest.approx(51.43, rel=0.05)
+    assert min(c.heldout_gap for c in search.joint_round(effects[:1], effects[1:])) > required  # not without the refit
+
 class ValleySearch(ValueSearch):
     """A fog of 200 m behind a dirt of 0.6 (draw case 5): both dim the returns (``loss``), only the fog's loss grows
     with range (``law``: a range-law term that holds the fog's visual range within ~20 %, as flat beyond as a

@@ -362,14 +362,29 @@ class GapSearch(GapEvaluator):
         may have imitated the missing one, and the next one accepted beside it then fits what is left over (fog
         107 m behind a dirt of 0.66: fog at 594 m imitated the near field the dirt dims, then a sun of 126 W/m^2
         qualified, where fog and dirt together leave a quarter of their gap). A candidate of this round
-        replaces that effect when it beats the gap with it by the margin. Empty when there is no such effect
-        (one round with the others free costs about 6 plain rounds)."""
+        replaces that effect when it beats the gap with it by the margin; its best candidate is first refitted
+        together with the others (:meth:`refit`). Empty when there is no such effect (one round with the others
+        free costs about 6 plain rounds)."""
         fitted = [e for e in accepted
                   if e.spec.family == "weather" and not e.spec.categorical and not self.proven_by_data(e)]  # fmt: skip
         if len(fitted) < 2 or accepted[-1] is not fitted[-1]:
             return []
         self.progress(f"without {accepted[-1].label()}:")
-        return self.joint_round(accepted[:-1], [*excluded, accepted[-1]])
+        found = self.joint_round(accepted[:-1], [*excluded, accepted[-1]])
+        if not found:
+            return found
+        # its best refitted together with the others: the joint round moves them on their grids only, and a dirt
+        # that trades off with a fog along a narrow valley stays far from it (OS1 draw case 15: dirt 0.954 beside a
+        # fog of 47.9 m, held-out gap 0.0246; refitted, fog 50.3 m and dirt 0.900, 0.0101; hidden: 51.4 m, 0.889)
+        k = min(range(len(found)), key=lambda i: found[i].heldout_gap)
+        best = found[k]
+        *others, effect = self.refit(list(best.companions) + [best.effect])
+        heldout = self.gap(others + [effect], "heldout")
+        self.progress(f"{effect.label()} with {', '.join(e.label() for e in others) or 'nothing'} refitted: "
+                      f"held-out gap {heldout:.4f}")  # fmt: skip
+        if heldout < best.heldout_gap:
+            found[k] = Candidate(effect, self.gap(others + [effect], "fit"), heldout, best.evaluations, tuple(others))
+        return found
 
     def run(self) -> Diagnosis:
         before = self.gap([], "heldout")
