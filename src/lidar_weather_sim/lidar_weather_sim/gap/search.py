@@ -46,7 +46,8 @@
    alone may have absorbed part of the missing one (dirt fitted at 0.36 for sun behind a dirt of 0.62), and
    next to it the missing one no longer helps. When that does not qualify either, it is run once more without
    the last accepted weather effect (:meth:`GapSearch.swap_round`), whose
-   place a candidate takes if it beats the gap with it by the margin: the first effect may have imitated the
+   place a candidate takes if it beats the gap with it by the margin (its best refitted with the others first:
+   a fog and a dirt trade off along a valley the grids miss): the first effect may have imitated the
    missing one and the last fitted the leftover.
    Rounds repeat until no candidate qualifies. The other candidates of the
    last round are reported as rejected with their held-out gap.
