@@ -19,8 +19,8 @@ deadlock while it destroys a node's endpoints (seen once in ``make demo``: ego_c
 ``destroy_node``; eProsima/Fast-DDS#6193 is one such deadlock), and rclpy's destroy calls hold the GIL, so no
 Python thread can help: faulthandler's own thread prints every stack after :data:`TEARDOWN_S` and the kernel
 ends the process with SIGALRM a second later, a status (-14) that ``lidar-weather-sim up`` reports as a cut
-teardown of a node whose work was done. A node stuck in C code (where no Python signal handler can run) still answers SIGUSR1:
-it prints every thread's Python stack on stderr (``faulthandler``), which ``lidar-weather-sim up``
+teardown of a node whose work was done. A node stuck in C code (where no Python signal handler can run) still
+answers SIGUSR1: it prints every thread's Python stack on stderr (``faulthandler``), which ``lidar-weather-sim up``
 asks for before its SIGKILL. Every node starts with the Fast DDS profile for dense clouds
 (:mod:`lidar_weather_sim.ros.dds_profile`) and, once built, says it is ready on ``/<node>/ready``
 (:mod:`lidar_weather_sim.ros.readiness`).
