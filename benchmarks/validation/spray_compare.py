@@ -12,7 +12,7 @@ histograms). Cost per frame: the particle model's time in the region's step + ap
 the reference's time in its step + scene cast + detection; ratio in %.
 
     python benchmarks/validation/spray_compare.py [--scenarios a,b] [--frames K] [--warmup S]
-    python benchmarks/validation/spray_compare.py --fit     # airborne_fraction for config/spray.yaml
+    python benchmarks/validation/spray_compare.py --fit     # the reference's airborne_fraction that meets the model
     python benchmarks/validation/spray_compare.py --scenarios proving_ground_39,proving_ground_55 --water-film-mm 3
     python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --detector-on-packets
     python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
@@ -250,7 +250,9 @@ def main() -> None:
     ap.add_argument("--scenarios", default="proving_ground_39,proving_ground_55,proving_ground_60,highway_spray")
     ap.add_argument("--frames", type=int, default=50)
     ap.add_argument("--warmup", type=float, default=2.0)
-    ap.add_argument("--fit", action="store_true", help="fit airborne_fraction on proving_ground_55")
+    ap.add_argument("--fit", action="store_true",
+                    help="the airborne_fraction at which the reference's detections meet the model's on "
+                         "proving_ground_55 (only the reference's water varies; the model keeps config/spray.yaml's)")
     ap.add_argument("--water-film-mm", type=float, help="override the scenarios' water film (mm)")
     ap.add_argument("--fit-steps", type=int, default=8)
     ap.add_argument("--detector-on-packets", action="store_true",
