@@ -644,7 +644,6 @@ def test_a_weather_effect_is_compared_at_the_end_with_those_that_cannot_go_with_
             assert found.heldout_gap < search.gap_to_beat(diag.gap_after)
 
 
-
 class DarkeningSearch(ValueSearch):
     """A fog and a darkening (OS1 draw case 15), in log brightness against the truth's: the fog brightens the
     vehicles by x = log(V / 51.43 m) (on the road, near the sensor, it changes little), dirt of transmission T
