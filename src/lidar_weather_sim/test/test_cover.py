@@ -232,3 +232,36 @@ def test_a_weather_behind_the_cover_returns_through_its_transmission_twice_with_
     two_way = region.beam_two_way()
     assert two_way.mean() == pytest.approx(0.66**2, rel=0.05)
     assert two_way.std() > 0.01  # the texture's spots: beams differ
+
+
+def test_a_dirt_at_contrast_0_is_a_uniform_film_that_darkens_every_direction_alike():
+    """``texture_contrast`` scales the dirt's patches around its mean transmission: at 1 (the default) a generic
+    dirt of 0.7 darkens the wall at 20 m by T^2 of the patch each direction looks through (one-way, 5.9 % apart
+    between the darkest and the clearest of the 81 directions over 20 deg); at 0 it is a uniform film of the same
+    mean, every return at 0.7^2 of the clean wall's peak, as the fixed generators' cover (T^2 on every return)
+    makes it; at 0.5 the spread is halved."""
+    profile = simple_profile()
+    clean = _amplitude(one_frame(_sim(profile)).points["epw"].astype(np.float64))
+    ratios, means = {}, {}
+    for contrast in (1.0, 0.5, 0.0):
+        sim = _sim(profile, texture="dirt:0.7", forward_share=0.0, texture_return_gain=0.0, texture_contrast=contrast)
+        dirty = one_frame(sim).points
+        assert len(dirty) == len(clean) == 81
+        ratios[contrast] = _amplitude(dirty["epw"].astype(np.float64)) / clean
+        means[contrast] = sim.regions[0][1].textures[0].mean
+    assert means[1.0] == pytest.approx(0.7, abs=1e-9) and means[0.0] == pytest.approx(0.7, abs=1e-9)
+    np.testing.assert_allclose(ratios[0.0], 0.49, rtol=5e-3)
+    spread = {c: np.sqrt(r).max() / np.sqrt(r).min() - 1.0 for c, r in ratios.items()}
+    assert spread[1.0] > 0.03 and spread[0.0] < 1e-4, spread
+    assert spread[0.5] == pytest.approx(0.5 * spread[1.0], rel=0.15), spread
+
+
+def test_the_dirt_effects_contrast_goes_to_the_cover_and_is_refused_outside_0_to_1():
+    from lidar_weather_sim.scenario.effects import apply_effects, parse_effect
+    from lidar_weather_sim.scenario.schema import load_scenario
+
+    film = parse_effect("cover.dirt:transmission=0.7,forward=0,contrast=0")
+    params = apply_effects(load_scenario("highway_clear"), [film.with_value(0.65)]).region_params["cover"]
+    assert params["texture"] == "dirt:0.65" and params["texture_contrast"] == 0.0 and params["forward_share"] == 0.0
+    with pytest.raises(ValueError, match="'contrast' scales the dirt's patches around its mean .* got 1.5"):
+        parse_effect("cover.dirt:transmission=0.7,contrast=1.5")

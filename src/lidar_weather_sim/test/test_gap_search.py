@@ -737,6 +737,38 @@ def test_a_joint_round_refines_the_accepted_effect_its_best_screen_moved(monkeyp
     assert dirt_of(search.joint_round([fog])).heldout_gap > required
 
 
+class TwoBasinSearch(ValueSearch):
+    """A Beer-Lambert fog of 40.4 m behind a uniform dirt of 0.708 (fixed-generator draw case 25): in the fog's log
+    visual range x (from 40.38 m) and the dirt's transmission T, a narrow valley down to the truth (0.002) where a
+    clearer dirt takes a denser fog, and across it a ridge near T = 0.88 (``bump``: a dirt the data tells apart
+    badly), behind which a clearer dirt beside a denser fog (32 m, 0.947: 0.021) is lower than its neighbours along
+    either axis and than every point of the pair's 5 x 5 grid."""
+
+    def gap(self, effects, split, redraw=0):
+        v = {e.name: e.value for e in effects}
+        x, t = np.log(v.get("atmosphere.fog", 1000.0) / 40.38), v.get("cover.dirt", 1.0)
+        bump = 0.03 * np.exp(-(((t - 0.88) / 0.04) ** 2))
+        valley = 0.002 + 50.0 * (x + (t - 0.708)) ** 2 + 0.3 * (t - 0.708) ** 2
+        return valley + bump + 1e-4 * len(set(v) - {"cover.dirt", "atmosphere.fog"})
+
+
+def test_a_refit_leaves_a_shallow_basin_for_the_valley_of_the_looser_effect_with_the_tighter_fitted_beside_it(
+        monkeypatch):  # fmt: skip
+    """Coordinate descent and the pair's 5 x 5 grid keep the fog of 32 m behind the dirt of 0.947 (TwoBasinSearch);
+    the dirt, the looser of the two, set to each of its grid values with the fog fitted beside it, finds the valley
+    (a dirt of 0.8 beside a fog of 37 m beats the basin) and the refit ends there, each value within the
+    draw's 25 % (the valley's floor is flat: coordinate descent crawls along it)."""
+    search = TwoBasinSearch()
+    start = [parse_effect("atmosphere.fog:visual_range=32,gain=0"),
+             parse_effect("cover.dirt:transmission=0.947,gain=0,forward=0,contrast=0")]  # fmt: skip
+    fog, dirt = search.refit(start)
+    assert fog.value == pytest.approx(40.38, rel=0.25) and dirt.value == pytest.approx(0.708, rel=0.25), (fog, dirt)
+    assert search.gap([fog, dirt], "fit") < 0.006 and dirt.params["contrast"] == 0.0
+    monkeypatch.setattr(TwoBasinSearch, "valley_start", lambda self, effects: None)
+    fog, dirt = search.refit(start)
+    assert dirt.value > 0.9 and search.gap([fog, dirt], "fit") > 0.02, (fog, dirt)
+
+
 class GainSearch(ValueSearch):
     """Draw case 5's first round: a fog of 200 m on a unit without soft echoes (gain 0: a narrow minimum between the
     fog's grid values 122 and 350 m); at gain 0.15 a broad, worse one at 97 m; a dirt alone helps a little."""
@@ -787,10 +819,11 @@ def test_the_fog_is_screened_at_each_backscatter_gain_and_its_gain_patches_the_a
         parse_effect("atmosphere.fog:visual_range=120,gain=1.5")
 
 
-def test_the_dirt_is_screened_at_each_return_gain_and_forward_share_and_its_share_patches_the_cover():
-    """What a dirt scatters forward is its type's (the thesis' heavy samples 3 and 5 widen the beam, the rest do
-    not): the search offers the dirt at each return gain of DIRT_GAINS and each forward share of DIRT_FORWARD (None:
-    no key, the texture's), one effect; ``forward`` goes to region cover's ``forward_share``, which replaces the
+def test_the_dirt_is_screened_at_each_return_gain_in_each_kind_and_its_share_patches_the_cover():
+    """What a dirt scatters forward and how patchy it is are its type's (the thesis' heavy samples 3 and 5 widen the
+    beam, the rest do not; a film of salt or dust is uniform): the search offers the dirt at each return gain of
+    DIRT_GAINS in each kind of DIRT_KINDS (the texture's share and patches: no key; a uniform film that only absorbs:
+    forward and contrast 0), one effect; ``forward`` goes to region cover's ``forward_share``, which replaces the
     texture's (0.346 for a generic dirt of 0.6), outlives a new value and is refused outside 0-1."""
     from lidar_weather_sim.regions.base import REGISTRY, RegionContext
     from lidar_weather_sim.scenario.effects import apply_effects
@@ -798,9 +831,9 @@ def test_the_dirt_is_screened_at_each_return_gain_and_forward_share_and_its_shar
 
     resim = SimpleNamespace(scenario=load_scenario("highway_clear"))
     dirts = [e for e in search_module.candidate_effects(resim) if e.name == "cover.dirt"]
-    variants = {(e.params.get("gain", 1.0), e.params.get("forward")) for e in dirts}
-    assert len(dirts) == len(variants) == 4 and variants == {(g, f) for g in search_module.DIRT_GAINS
-                                                             for f in search_module.DIRT_FORWARD}  # fmt: skip
+    variants = {(e.params.get("gain", 1.0), e.params.get("forward"), e.params.get("contrast")) for e in dirts}
+    assert len(dirts) == len(variants) == 4 and variants == {(g, f, c) for g in search_module.DIRT_GAINS
+                                                             for f, c in ((None, None), (0.0, 0.0))}  # fmt: skip
     assert all(search_module.same_effect(dirts[0], d) for d in dirts)
     dirt = parse_effect("cover.dirt:transmission=0.5,forward=0")
     assert dirt.with_value(0.6).params == {"transmission": 0.6, "forward": 0.0}

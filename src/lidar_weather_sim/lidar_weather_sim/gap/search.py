@@ -122,24 +122,28 @@ FOG_GAINS = (1.0, 0.15, 0.0)
 #: put multipath returns at 0-0.5 m at a rate growing with the dirt, but whether a unit reports them (or blanks its
 #: cover zone) is its own; a unit without them lost the dirt's name to the fog in front of it (draw case 5)
 DIRT_GAINS = (1.0, 0.0)
-#: and at these forward shares (region ``cover``'s ``forward_share``; None: the texture's): the thesis measured
-#: forward scattering on its two heaviest samples only (3 and 5, "the composition and type of dirt has a larger
-#: influence", paper 1), and a generic dirt takes their share by opacity (0.35 below a transmission of 0.66); a dirt
-#: that only absorbs widens no beam. With the share, the wider beam keeps far returns the absorbing dirt of the same
-#: transmission loses: a fixed generator's uniform dirt of 0.606 on scala4 (8 frames) scored 0.068 at its own
-#: transmission against 0.057 for a fog of 150 m, and 0.024 at a share of 0
-DIRT_FORWARD = (None, 0.0)
+#: and in these two kinds: as the thesis' samples, in patches (region ``cover``'s texture, its spread of transmission
+#: over the window) with the texture's forward share (the thesis measured forward scattering on its two heaviest
+#: samples only, 3 and 5, "the composition and type of dirt has a larger influence", paper 1, and a generic dirt
+#: takes their share by opacity: 0.35 below a transmission of 0.66); and as a uniform film that only absorbs
+#: (``forward_share`` 0: it widens no beam; ``texture_contrast`` 0: every direction loses alike). With the share, the
+#: wider beam keeps far returns the absorbing dirt of the same transmission loses: a fixed generator's uniform dirt
+#: of 0.606 on scala4 (8 frames) scored 0.068 at its own transmission against 0.057 for a fog of 150 m, and 0.024
+#: without it. With the patches, the directions behind the darker ones lose more than the rest: behind a fog of
+#: 40.4 m, a fixed generator's uniform dirt of 0.708 (draw case 25, 24 frames) scored 0.018 at the hidden pair
+#: without the share but in patches, against 0.010 for a fog of 34.8 m behind a dirt of 0.956 that the search named;
+#: as a uniform film, 0.005
+DIRT_KINDS: tuple[dict[str, float], ...] = ({}, {"forward": 0.0, "contrast": 0.0})
 #: effects compared at the end also with the more general ones fitted in their place (besides those that cannot go
 #: with them, :meth:`GapSearch.conflict_rivals`): a wet road darkens the up-facing surfaces alone, dirt or water on
 #: the cover every return; where a fog hides the vehicles the road is all that is left to tell them apart, and a
 #: fog of 51.4 m behind a dirt of 0.889 was named as a fog of 47.9 m and a wet road of 0.2 mm (OS1 draw case 15)
 GENERAL_RIVALS = {"atmosphere.road_wet": ("cover.dirt", "cover.water")}
 #: the variants of an effect the search screens (each its extra parameters): the fog at each backscatter gain, the
-#: dirt at each return gain and forward share; an effect not listed has one
+#: dirt at each return gain in each kind; an effect not listed has one
 VARIANTS: dict[str, tuple[dict[str, float], ...]] = {
     "atmosphere.fog": tuple({"gain": g} if g != 1.0 else {} for g in FOG_GAINS),
-    "cover.dirt": tuple({**({"gain": g} if g != 1.0 else {}), **({"forward": f} if f is not None else {})}
-                        for f in DIRT_FORWARD for g in DIRT_GAINS),
+    "cover.dirt": tuple({**({"gain": g} if g != 1.0 else {}), **kind} for kind in DIRT_KINDS for g in DIRT_GAINS),
 }
 
 
@@ -195,8 +199,8 @@ def refined_ranks(swaps: list[bool], refine: int) -> list[int]:
 
 def refined_variants(ranked: list[Effect], refine: int) -> list[int]:
     """Which of the screened candidates ``ranked`` (best first) a plain round refines: the best ``refine`` effects,
-    each with all its variants (the fog at each of its backscatter gains, the dirt at each return gain and forward
-    share, in their rank order). A variant's screen on a coarse grid and a few frames does not rank the gains: draw case 5 (fog
+    each with all its variants (the fog at each of its backscatter gains, the dirt at each return gain in each kind,
+    in their rank order). A variant's screen on a coarse grid and a few frames does not rank the gains: draw case 5 (fog
     200 m without soft echoes behind dirt) screened its fog at gain 0 behind gain 0.15 and a dirt, which took the
     two refinements, and the fog was accepted at gain 0.15 with soft echoes the recording does not have."""
     top: list[Effect] = []

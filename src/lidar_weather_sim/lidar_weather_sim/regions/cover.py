@@ -3,7 +3,8 @@
 Per sub-ray (sensor frame direction -> u, v over the field of view):
 
 - one-way ``transmission`` from the texture (the echo stage squares it: two-way
-  loss ~ T^2, thesis line 1333), so dirt shortens range where it sits;
+  loss ~ T^2, thesis line 1333), so dirt shortens range where it sits; ``texture_contrast``
+  scales the texture's patches around its mean (0: a uniform film);
 - forward scattering (samples 3, 5): a share of the beam energy leaves the core
   sub-ray(s) and is spread over the outer ones (a wider beam, same total energy). It acts once,
   on the way out: the return crosses the cover at its transmission alone (the receiver takes what
@@ -36,7 +37,7 @@ from pydantic import Field
 from lidar_weather_sim.core.config import ConfigError, ConfigModel
 from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.regions.base import RayBatch, RegionContext, RegionEffect
-from lidar_weather_sim.regions.cover_textures import CoverTexture, make_texture, with_mean
+from lidar_weather_sim.regions.cover_textures import CoverTexture, make_texture, with_contrast, with_mean
 from lidar_weather_sim.regions.near_field import NearFieldModel, sample_near_field
 from lidar_weather_sim.sensor.scan import ScanPattern
 
@@ -57,6 +58,9 @@ class CoverParams(ConfigModel):
                                         "scatters forward into a wider cone, overriding the texture's (the thesis "
                                         "samples': 0.26-0.35 for the heavy ones, 0 for the rest; a generic dirt's "
                                         "interpolated by opacity); 0 = a dirt that only absorbs; none = the texture's")
+    texture_contrast: float = Field(1.0, ge=0, le=1, description="Scale (0-1) of the texture's spread of "
+                                    "transmission around its mean over the window: 1 the texture's patches as drawn, "
+                                    "0 a uniform film of the same mean transmission")
     near_field_scale_m: float = Field(0.1, gt=0, description="Exponential range scale of cover returns (m)")
     near_field_amplitude: float = Field(3.0, gt=0, description="Median cover-return peak over the dark threshold")
     near_field_sigma_ln: float = Field(0.8, ge=0, description="Log-sd of the cover-return peak amplitude")
@@ -85,6 +89,8 @@ class CoverRegion:
             self.textures = [with_mean(t, params.mean_transmission) for t in self.textures]
         if params.forward_share is not None:
             self.textures = [replace(t, forward_share=params.forward_share) for t in self.textures]
+        if params.texture_contrast != 1.0:
+            self.textures = [with_contrast(t, params.texture_contrast) for t in self.textures]
         beams = [b.elevation_deg for b in self.profile.beams]
         half = 0.5 * np.rad2deg(self.profile.optics.divergence_v_mrad * 1e-3)
         self._el = np.deg2rad([min(beams) - half, max(beams) + half])

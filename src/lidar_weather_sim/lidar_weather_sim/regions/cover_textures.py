@@ -144,6 +144,13 @@ def with_mean(texture: CoverTexture, transmission: float) -> CoverTexture:
     return replace(texture, grid=grid, near_field_per_beam=texture.near_field_per_beam * target / opacity)
 
 
+def with_contrast(texture: CoverTexture, contrast: float) -> CoverTexture:
+    """``texture`` with the spread of its transmission around its mean scaled by ``contrast`` (0-1): 1 as drawn
+    (the patches of the thesis' samples), 0 a uniform film of the same mean transmission."""
+    mean = texture.mean
+    return replace(texture, grid=mean + float(contrast) * (texture.grid - mean))
+
+
 def image_texture(path: str | Path) -> CoverTexture:
     """A custom texture from a grey-scale image (row 0 = top of the FOV) or a ``.npy`` array of 0-1."""
     path = Path(path)

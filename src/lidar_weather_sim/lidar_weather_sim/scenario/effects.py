@@ -13,7 +13,8 @@ atmosphere.road_wet        water_film      mm on the road; ``atmosphere`` with `
 cover.dirt                 transmission    mean one-way (0-1); region ``cover``, ``dirt:<T>``
                                            (or ``sample=3l``: that thesis sample at mean T);
                                            ``gain`` (0-1, default 1): its ``texture_return_gain``;
-                                           ``forward`` (0-1, default the texture's): its ``forward_share``
+                                           ``forward`` (0-1, default the texture's): its ``forward_share``;
+                                           ``contrast`` (0-1, default 1): its ``texture_contrast``
 cover.water                transmission    mean one-way (0-1); ``cover``, ``water_film``
 sensor.sun                 irradiance      W/m^2; the receiver's noise floor
 spray                      water_film      mm; region ``spray`` (``actor=ID`` picks the emitter)
@@ -95,7 +96,7 @@ EFFECTS: dict[str, EffectSpec] = {
         EffectSpec("atmosphere.rain", "intensity", "mm/h", (0.2, 100.0), True),
         EffectSpec("atmosphere.snow", "intensity", "mm/h", (0.05, 10.0), True),
         EffectSpec("atmosphere.road_wet", "water_film", "mm", (0.03, 5.0), True),
-        EffectSpec("cover.dirt", "transmission", "1", (0.2, 0.995), False, ("sample", "gain", "forward")),
+        EffectSpec("cover.dirt", "transmission", "1", (0.2, 0.995), False, ("sample", "gain", "forward", "contrast")),
         EffectSpec("cover.water", "transmission", "1", (0.2, 0.995), False),
         EffectSpec("sensor.sun", "irradiance", "W/m^2", (10.0, 1200.0), True),
         EffectSpec("spray", "water_film", "mm", (0.05, 3.0), True, ("actor",)),
@@ -200,6 +201,9 @@ def parse_effect(text: str) -> Effect:
             raise ValueError(f"--hide {text!r}: '{key}' must be a finite number above 0 ({spec.unit}), got {value}")
         if key == "gain" and not 0.0 <= params[key] <= 1.0:
             raise ValueError(f"--hide {text!r}: 'gain' is a share of the light the unit reports, within [0, 1], got {value}")
+        if key == "contrast" and not 0.0 <= params[key] <= 1.0:
+            raise ValueError(f"--hide {text!r}: 'contrast' scales the dirt's patches around its mean (0: a uniform "
+                             f"film), within [0, 1], got {value}")  # fmt: skip
         if key == "forward" and not 0.0 <= params[key] <= 1.0:
             raise ValueError(f"--hide {text!r}: 'forward' is a share of the beam energy the dirt scatters forward, "
                              f"within [0, 1], got {value}")  # fmt: skip
@@ -333,6 +337,8 @@ def apply_effects(scenario: Scenario, effects: list[Effect]) -> Scenario:
                 region("cover")["texture_return_gain"] = float(e.params["gain"])
             if "forward" in e.params:
                 region("cover")["forward_share"] = float(e.params["forward"])
+            if "contrast" in e.params:
+                region("cover")["texture_contrast"] = float(e.params["contrast"])
         elif e.name == "cover.water":
             region("cover").update(texture="water_film", mean_transmission=v)
         elif e.name == "sensor.beam_origin":
