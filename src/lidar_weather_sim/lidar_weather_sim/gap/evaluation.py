@@ -353,7 +353,7 @@ class GapEvaluator:
         """The lowest point on the calibration frames of each pair of fitted weather effects' valley, or None when
         none is lower than ``effects``: the looser of the two (the smaller curvature of the calibration gap, in
         grid steps, from two gaps ``VALLEY_STEP`` of a grid step each side of its value) set to each value of its
-        grid, the tighter fitted beside it (:meth:`fit`, Brent between its grid neighbours). Two effects that dim
+        grid, the tighter fitted beside it (:meth:`fits`, Brent between its grid neighbours). Two effects that dim
         the returns alike (a fog and the dirt in front of it: a loss growing with range and one that does not,
         told apart by the few ranges the scene holds) can leave two valleys across both axes, where coordinate
         descent stays in the one it starts in: behind a fog of 40.4 m a uniform dirt of 0.708 (fixed-generator
@@ -371,11 +371,13 @@ class GapEvaluator:
                 tight, loose = (i, j) if tighter else (j, i)
                 current = self._axis(effects[tight])[0]
                 xs = np.unique(np.append(self.grid_of(effects[tight]), current))
+                trials = []
                 for y in self.grid_of(effects[loose]):
-                    trial = list(effects)
-                    trial[loose] = self.at_value(effects[loose], y)
-                    others = trial[:tight] + trial[tight + 1 :]
-                    fitted, gap, _ = self.fit(others, effects[tight], xs, int(np.searchsorted(xs, current)))
+                    trials.append(list(effects))
+                    trials[-1][loose] = self.at_value(effects[loose], y)
+                k = int(np.searchsorted(xs, current))
+                jobs = [(trial[:tight] + trial[tight + 1 :], effects[tight], xs, k) for trial in trials]
+                for trial, (fitted, gap, _) in zip(trials, self.fits(jobs)):
                     if gap < lowest:
                         trial[tight] = fitted
                         best, lowest = trial, gap
