@@ -350,8 +350,9 @@ class GapEvaluator:
         return effects
 
     def valley_start(self, effects: list[Effect]) -> list[Effect] | None:
-        """The lowest point on the calibration frames of each pair of fitted weather effects' valley, or None when
-        none is lower than ``effects``: the looser of the two (the smaller curvature of the calibration gap, in
+        """The lowest point on the calibration frames of the valley of the last of ``effects`` (the one a refit
+        adds; the others were refitted together before) with each other fitted weather effect, or None when none is
+        lower than ``effects``: the looser of the two (the smaller curvature of the calibration gap, in
         grid steps, from two gaps ``VALLEY_STEP`` of a grid step each side of its value) set to each value of its
         grid, the tighter fitted beside it (:meth:`fits`, Brent between its grid neighbours). Two effects that dim
         the returns alike (a fog and the dirt in front of it: a loss growing with range and one that does not,
@@ -361,26 +362,26 @@ class GapEvaluator:
         than its neighbours'), while the fog of 38 m behind a dirt of 0.80 gives -0.0166."""
         free = [i for i, e in enumerate(effects)
                 if e.spec.family == "weather" and not e.spec.categorical and not self.proven_by_data(e)]  # fmt: skip
-        if len(free) < 2:
+        j = len(effects) - 1
+        if len(free) < 2 or free[-1] != j:
             return None
         base = self.gap(list(effects), "fit")
         best, lowest = None, base
-        for a, i in enumerate(free):
-            for j in free[a + 1 :]:
-                tighter = self._curvature(effects, i, base) >= self._curvature(effects, j, base)
-                tight, loose = (i, j) if tighter else (j, i)
-                current = self._axis(effects[tight])[0]
-                xs = np.unique(np.append(self.grid_of(effects[tight]), current))
-                trials = []
-                for y in self.grid_of(effects[loose]):
-                    trials.append(list(effects))
-                    trials[-1][loose] = self.at_value(effects[loose], y)
-                k = int(np.searchsorted(xs, current))
-                jobs = [(trial[:tight] + trial[tight + 1 :], effects[tight], xs, k) for trial in trials]
-                for trial, (fitted, gap, _) in zip(trials, self.fits(jobs)):
-                    if gap < lowest:
-                        trial[tight] = fitted
-                        best, lowest = trial, gap
+        bend = self._curvature(effects, j, base)
+        for i in free[:-1]:
+            tight, loose = (i, j) if self._curvature(effects, i, base) >= bend else (j, i)
+            current = self._axis(effects[tight])[0]
+            xs = np.unique(np.append(self.grid_of(effects[tight]), current))
+            trials = []
+            for y in self.grid_of(effects[loose]):
+                trials.append(list(effects))
+                trials[-1][loose] = self.at_value(effects[loose], y)
+            k = int(np.searchsorted(xs, current))
+            jobs = [(trial[:tight] + trial[tight + 1 :], effects[tight], xs, k) for trial in trials]
+            for trial, (fitted, gap, _) in zip(trials, self.fits(jobs)):
+                if gap < lowest:
+                    trial[tight] = fitted
+                    best, lowest = trial, gap
         return best
 
     def _curvature(self, effects: list[Effect], i: int, base: float) -> float:
