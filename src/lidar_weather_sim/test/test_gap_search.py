@@ -644,35 +644,6 @@ def test_a_weather_effect_is_compared_at_the_end_with_those_that_cannot_go_with_
             assert found.heldout_gap < search.gap_to_beat(diag.gap_after)
 
 
-class SunForDirtSearch(ValueSearch):
-    """:class:`ValueSearch` where a sun of 300 W/m^2 darkens the returns as the dirt of 0.75 does (within 0.001)."""
-
-    def gap(self, effects, split, redraw=0):
-        v = {e.name: e.value for e in effects}
-        if "cover.dirt" not in v and "sensor.sun" in v:
-            effects = [e for e in effects if e.name != "sensor.sun"] + [parse_effect("cover.dirt:transmission=0.75")]
-            return super().gap(effects, split, redraw) + 0.001 + np.log(v["sensor.sun"] / 300.0) ** 2
-        return super().gap(effects, split, redraw)
-
-
-def test_the_effects_an_effect_did_not_beat_in_the_round_it_won_are_compared_again_in_its_place_at_the_end():
-    """A dirt that won its round by less than the margin over a snow and a sun (seeded draw case 6: rain 20.9 mm/h
-    behind a dirt of 0.726, refused for a snow and a rain of that round) is compared with them again at the end,
-    each fitted in its place beside the other effects as they ended: the snow cannot go with the rain the search
-    ended with and is no rival; a sun that darkens the returns as the dirt does stays one."""
-    dirt, rain, snow, sun = (parse_effect(t) for t in ("cover.dirt:transmission=0.75", "atmosphere.rain:intensity=9",
-                                                       "atmosphere.snow:intensity=0.3", "sensor.sun:irradiance=300"))
-    search = SunForDirtSearch()
-    accepted = [(Candidate(e, 0.0, 0.0, 1), 0.3) for e in (dirt, rain)]
-    diag = Diagnosis(0.3, search.gap([dirt, rain], "heldout"), accepted=accepted)
-    close = [[Candidate(snow, 0.2, 0.2062, 1), Candidate(sun, 0.2, 0.2079, 1)], []]
-    of_dirt, of_rain = search.conflict_rivals(diag, close)
-    assert [c.effect.name for c in of_dirt] == ["sensor.sun"] and of_rain == []
-    assert of_dirt[0].effect.value == pytest.approx(300.0, rel=0.05)
-    assert not any("atmosphere.snow" in line and "in place of cover.dirt" in line for line in search.log)
-    assert search.conflict_rivals(diag) == [[], []]  # without the round's: only water, which does not come near
-
-
 class DarkeningSearch(ValueSearch):
     """A fog and a darkening (OS1 draw case 15), in log brightness against the truth's: the fog brightens the
     vehicles by x = log(V / 51.43 m) (on the road, near the sensor, it changes little), dirt of transmission T

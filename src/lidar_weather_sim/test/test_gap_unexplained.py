@@ -114,6 +114,20 @@ def test_an_effect_that_does_not_beat_another_by_the_searchs_margin_is_not_named
     assert judge_effects([FOG], measured, _simulate(table), rivals=rivals(diag, lambda gap: 0.9 * gap)).named == [FOG]
 
 
+def test_a_candidate_that_cannot_go_with_the_effects_the_search_ended_with_is_no_rival():
+    """Seeded draw case 6 (rain 20.9 mm/h behind a dirt of 0.726): the dirt won the first round by 8 % over a snow
+    and a rain, then the rain was accepted beside it. Neither can stand in the dirt's place beside that rain (rain and
+    snow do not go together, nor the rain twice), so neither is the dirt's rival; a sun as close in that round, which
+    can go with the rain, is one."""
+    dirt, rain, snow, sun = (parse_effect(t) for t in ("cover.dirt:transmission=0.72", "atmosphere.rain:intensity=20",
+                                                       "atmosphere.snow:intensity=0.29", "sensor.sun:irradiance=300"))
+    first = [Candidate(dirt, 0.19, 0.1905, 9), Candidate(snow, 0.2, 0.2062, 9), Candidate(rain.with_value(8.3), 0.2,
+             0.2079, 9), Candidate(sun, 0.2, 0.2070, 9)]  # fmt: skip
+    diag = Diagnosis(0.4, 0.002, accepted=[(first[0], 0.4), (Candidate(rain, 0.002, 0.002, 9), 0.1905)],
+                     rounds=[first, [Candidate(rain, 0.002, 0.002, 9)]])  # fmt: skip
+    assert rivals(diag, lambda gap: 0.9 * gap) == [[first[3]], []]
+
+
 def test_a_weather_effect_at_the_weak_end_of_its_range_is_not_named_whatever_it_removes():
     """The fog of the test above fitted at 1000 m (its largest visual range: no fog the search can tell from none) is
     refused although it removes its zones' residual; at 900 m it is named. The weak end is each effect's own: the

@@ -155,16 +155,22 @@ def same_effect(a: Effect, b: Effect) -> bool:
 def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[Candidate]]:
     """Per accepted effect of ``diag``, the candidates of other effects in the last round it won that it does not beat
     by the margin a new effect must win: its held-out gap above ``gap_to_beat`` of theirs. By the search's own
-    standard the data did not tell them apart."""
+    standard the data did not tell them apart. Not one that cannot go with the other accepted effects as they ended
+    (a snow or a rain beside the rain the search ended with): it cannot stand in its place (seeded draw case 6, rain
+    20.9 mm/h behind a dirt of 0.726: the dirt won the first round by 8 % over a snow and a rain, and was refused for
+    them although the search then found the rain)."""
     out = []
-    for candidate, _ in diag.accepted:
+    effects = diag.effects
+    for i, (candidate, _) in enumerate(diag.accepted):
+        others = effects[:i] + effects[i + 1 :]
         name = candidate.effect.name
         # the rounds it won: their best is this effect (the same emitter, for spray)
         won = [r for r in diag.rounds if r and same_effect(min(r, key=lambda c: c.heldout_gap).effect,
                                                            candidate.effect)]  # fmt: skip
         best = min(won[-1], key=lambda c: c.heldout_gap) if won else None
         out.append([] if best is None else [c for c in won[-1] if c.effect.name != name
-                                            and best.heldout_gap > gap_to_beat(c.heldout_gap)])  # fmt: skip
+                                            and best.heldout_gap > gap_to_beat(c.heldout_gap)
+                                            and conflicts(others + [c.effect]) is None])  # fmt: skip
     return out
 
 
@@ -446,7 +452,8 @@ class GapSearch(GapEvaluator):
         (refused), and the zones left unexplained. Runs in this process (a few held-out re-simulations)."""
         measured = self._measured["heldout"]
         keep = self.point_mask("heldout")
-        together = self.conflict_rivals(diag, rivals(diag, self.gap_to_beat))
+        together = [a + [c for c in b if not any(same_effect(c.effect, r.effect) for r in a)]  # each rival listed once
+                    for a, b in zip(rivals(diag, self.gap_to_beat), self.conflict_rivals(diag))]  # fmt: skip
         judgement = judge_effects(diag.effects, measured, lambda effects: self.resim.signature(effects, self.held_idx, keep),
                                   self._measured["fit"], twin=self.resim.is_twin, rivals=together)  # fmt: skip
         for effect, reason in judgement.refused:
@@ -455,17 +462,14 @@ class GapSearch(GapEvaluator):
             self.progress(f"unexplained: {residual.text()} ({residual.sigma:.1f} sigma)")
         return judgement
 
-    def conflict_rivals(self, diag: Diagnosis, close: list[list[Candidate]] | None = None) -> list[list[Candidate]]:
-        """Per accepted effect, the effects that cannot go with it (rain for snow, water on the cover for dirt), that
-        are its more general form (:data:`GENERAL_RIVALS`: dirt or water on the cover for a wet road) or that it did
-        not beat by the margin in the round it won (``close``, per accepted effect: :func:`rivals`), that do as well
-        in its place: each fitted beside the other accepted effects as they ended (screened on its grid, refined by
-        Brent) and scored on the held-out frames; a rival if the search's result does not beat it by the margin a
-        new effect must win. The round an effect won compares it with the others as they were then: snow at 0.38
-        mm/h beat rain at 9.3 by 0.004 beside a dirt of 0.72 fitted alone, and once the dirt was refitted (0.757)
-        the hidden rain of 10 mm/h scored 0.0008 where the named snow scored 0.0016; and a dirt of 0.72 that won the
-        first round by 8 % over a snow and a rain (seeded draw case 6: rain 20.9 mm/h behind a dirt of 0.726) was
-        refused for them although in its place beside the rain the search ended with neither comes near it."""
+    def conflict_rivals(self, diag: Diagnosis) -> list[list[Candidate]]:
+        """Per accepted effect, the effects that cannot go with it (rain for snow, water on the cover for dirt) or
+        that are its more general form (:data:`GENERAL_RIVALS`: dirt or water on the cover for a wet road) that
+        do as well in its place: each fitted beside the other accepted effects as they ended (screened on its grid,
+        refined by Brent) and scored on the held-out frames; a rival if the search's result does not beat it by the
+        margin a new effect must win. The round an effect won compares it with the others as they were then: snow
+        at 0.38 mm/h beat rain at 9.3 by 0.004 beside a dirt of 0.72 fitted alone, and once the dirt was refitted
+        (0.757) the hidden rain of 10 mm/h scored 0.0008 where the named snow scored 0.0016."""
         effects, out = diag.effects, []
         for i, effect in enumerate(effects):
             others = effects[:i] + effects[i + 1 :]
@@ -475,10 +479,6 @@ class GapSearch(GapEvaluator):
             options = [c for c in candidate_effects(self.resim, self.families) if c.name != effect.name
                        and (conflicts([effect, c]) is not None or c.name in GENERAL_RIVALS.get(effect.name, ()))
                        and conflicts(others + [c]) is None]  # fmt: skip
-            for c in (close[i] if close else []):  # each rival once, whatever its value
-                if not any(same_effect(c.effect, o) and c.effect.params.keys() == o.params.keys() for o in options) \
-                        and conflicts(others + [c.effect]) is None:  # fmt: skip
-                    options.append(c.effect)
             if not options:
                 out.append([])
                 continue
