@@ -52,7 +52,7 @@ def main() -> None:
     parser.add_argument("--only", help="comma-separated case indices to run")
     parser.add_argument("--cases-file", help="default config/gap_cases.yaml")
     parser.add_argument("--out", help="keep bags and gap reports here (default: a temporary directory)")
-    parser.add_argument("--json", help="write the rows to this JSON file")
+    parser.add_argument("--json", help="append each case's row to this JSON-lines file as the case ends")
     parser.add_argument("--fast-via-sim", action="store_true",
                         help="make the fast cases by simulating the scenario with the effects (make-measured, at the "
                              "case's seed) instead of make-measured --on the clear base bag (a supplementary check)")
@@ -98,6 +98,9 @@ def main() -> None:
             row = {"index": case.index, "generator": case.generator, "effects": list(case.effects),
                    **score(case, result, tolerance), "seconds": time.perf_counter() - start}  # fmt: skip
             rows.append(row)
+            if args.json:  # as each case ends: a run stopped early keeps the cases it finished
+                with open(args.json, "a") as f:
+                    f.write(json.dumps(row) + "\n")
             named = ", ".join(f"{n} {v:.4g}" for n, v in row["found"].items()) or "none"
             fitted = ", ".join(f"{n} {v:.4g}" for n, v in row["fitted"].items()) or "-"
             true = ", ".join(f"{n} {v:.4g}" for n, v in row["truth"].items())
@@ -112,8 +115,6 @@ def main() -> None:
         ratios = sorted(r["gap_after"] / r["gap_before"] if r["gap_before"] > 0 else 1.0 for r in sub)
         print(f"| {gen} | {len(sub)} | {sum(r['exact'] for r in sub)} | {sum(r['within'] for r in sub)} | "
               f"{sum(r['phantom'] for r in sub)} | {ratios[len(ratios) // 2]:.2f} |")
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
 
 
 if __name__ == "__main__":
