@@ -9,7 +9,7 @@ import pytest
 from lidar_weather_sim.gap import search as search_module
 from lidar_weather_sim.scenario.effects import parse_effect
 from lidar_weather_sim.gap.search import Candidate, Diagnosis
-from lidar_weather_sim.gap.evaluation import MIN_ABS_GAIN, MIN_GAIN
+from lidar_weather_sim.gap.evaluation import CONFIRM_SEED_OFFSETS, MIN_ABS_GAIN, MIN_GAIN
 from lidar_weather_sim.gap.search import refined_ranks
 from lidar_weather_sim.gap.search import GapSearch
 from lidar_weather_sim.scenario.schema import load_scenario
@@ -932,3 +932,34 @@ def test_a_gap_asked_again_is_not_simulated_again():
     assert sent == [((80.0,), "fit"), ((0.9,), "fit"), ((80.0,), "heldout", 1)]
     assert remote.gaps(jobs[:2] + [([dirt], "heldout")]) == pytest.approx([80.0, 0.9, 10.9])
     assert len(remote.sent) == 4 and remote.resim.casts == 32
+
+
+class RedrawSearch(LandscapeSearch):
+    """A LandscapeSearch whose held-out gaps differ on each redraw (``draws``: per effect-set, the gaps on this draw
+    and the three redraws)."""
+
+    def __init__(self, draws: dict[frozenset, list[float]]) -> None:
+        super().__init__({k: v[0] for k, v in draws.items()}, families=("weather",))
+        self.draws = draws
+
+    def gap(self, effects, split, redraw=0):
+        return self.draws[_set(*effects)][CONFIRM_SEED_OFFSETS.index(redraw) + 1 if redraw else 0]
+
+
+RAIN, SNOW = parse_effect("atmosphere.rain:intensity=3.6"), parse_effect("atmosphere.snow:intensity=0.13")
+
+
+@pytest.mark.parametrize("rain, snow, rival", [
+    ([0.0004, 0.0002, 0.0, 0.0], [0.0017, 0.0017, 0.0011, 0.0007], False),  # seeded draw case 0: held on each redraw
+    ([0.0014, 0.0035, 0.0040, 0.0022], [0.0016, 0.0021, 0.0026, 0.0006], True),  # case 24: turned on the redraws
+    ([0.0016, 0.0002, 0.0, 0.0], [0.0017, 0.0017, 0.0011, 0.0007], True),  # not by 10 % on the draw: no redraws
+])  # fmt: skip
+def test_a_close_call_under_the_margin_s_absolute_floor_is_told_apart_only_when_it_holds_on_every_redraw(rain, snow,
+                                                                                                        rival):
+    """The round's best (a rain) beats a snow by 10 % but by less than the 0.002 floor: a rival unless the rain is
+    below the snow on each redraw and by 10 % on their mean (the sets compared on the same redraws)."""
+    search = RedrawSearch({_set(RAIN): rain, _set(SNOW): snow})
+    round_ = [Candidate(RAIN, 0.0, rain[0], 1, ()), Candidate(SNOW, 0.0, snow[0], 1, ())]
+    diag = Diagnosis(0.18, rain[0], accepted=[(round_[0], 0.18)], rounds=[round_])
+    assert search.round_rivals(diag) == [[round_[1]] if rival else []]
+    assert any("on the redraws" in line for line in search.log) == (rain[0] <= 0.9 * snow[0])

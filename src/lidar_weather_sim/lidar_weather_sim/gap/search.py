@@ -152,13 +152,20 @@ def same_effect(a: Effect, b: Effect) -> bool:
     return a.name == b.name and a.params.get("actor") == b.params.get("actor")
 
 
-def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[Candidate]]:
+def members(c: Candidate) -> list[Effect] | None:
+    """The effect set ``c`` was scored with (None: the accepted effects as they were, not recorded)."""
+    return None if c.companions is None else [*c.companions, c.effect]
+
+
+def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float],
+           told_apart: Callable[[Candidate, Candidate], bool] = lambda ours, theirs: False) -> list[list[Candidate]]:
     """Per accepted effect of ``diag``, the candidates of other effects in the last round it won that it does not beat
     by the margin a new effect must win: its held-out gap above ``gap_to_beat`` of theirs. By the search's own
     standard the data did not tell them apart. Not one that cannot go with the other accepted effects as they ended
     (a snow or a rain beside the rain the search ended with): it cannot stand in its place (seeded draw case 6, rain
     20.9 mm/h behind a dirt of 0.726: the dirt won the first round by 8 % over a snow and a rain, and was refused for
-    them although the search then found the rain)."""
+    them although the search then found the rain). Nor one that the round's best is ``told_apart`` from (its
+    candidate, theirs; :meth:`GapSearch.told_apart`)."""
     out = []
     effects = diag.effects
     for i, (candidate, _) in enumerate(diag.accepted):
@@ -170,7 +177,8 @@ def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[
         best = min(won[-1], key=lambda c: c.heldout_gap) if won else None
         out.append([] if best is None else [c for c in won[-1] if c.effect.name != name
                                             and best.heldout_gap > gap_to_beat(c.heldout_gap)
-                                            and conflicts(others + [c.effect]) is None])  # fmt: skip
+                                            and conflicts(others + [c.effect]) is None
+                                            and not told_apart(best, c)])  # fmt: skip
     return out
 
 
@@ -297,7 +305,7 @@ class GapSearch(GapEvaluator):
         heldout = self.gaps([(accepted + [effect], "heldout") for effect, _, _ in fitted])
         out = []
         for (effect, gap, n), held in zip(fitted, heldout):
-            out.append(Candidate(effect, gap, held, self.grid + n))
+            out.append(Candidate(effect, gap, held, self.grid + n, tuple(accepted)))
             self.progress(f"{effect.label()}: held-out gap {held:.4f}")
         return out
 
@@ -453,7 +461,7 @@ class GapSearch(GapEvaluator):
         measured = self._measured["heldout"]
         keep = self.point_mask("heldout")
         together = [a + [c for c in b if not any(same_effect(c.effect, r.effect) for r in a)]  # each rival listed once
-                    for a, b in zip(rivals(diag, self.gap_to_beat), self.conflict_rivals(diag))]  # fmt: skip
+                    for a, b in zip(self.round_rivals(diag), self.conflict_rivals(diag))]  # fmt: skip
         judgement = judge_effects(diag.effects, measured, lambda effects: self.resim.signature(effects, self.held_idx, keep),
                                   self._measured["fit"], twin=self.resim.is_twin, rivals=together)  # fmt: skip
         for effect, reason in judgement.refused:
@@ -461,6 +469,11 @@ class GapSearch(GapEvaluator):
         for residual in judgement.unexplained:
             self.progress(f"unexplained: {residual.text()} ({residual.sigma:.1f} sigma)")
         return judgement
+
+    def round_rivals(self, diag: Diagnosis) -> list[list[Candidate]]:
+        """:func:`rivals` of ``diag``'s effects, less those their round's best is :meth:`told_apart` from."""
+        return rivals(diag, self.gap_to_beat, lambda ours, theirs: self.told_apart(
+            ours.heldout_gap, members(ours), theirs.heldout_gap, members(theirs)))  # fmt: skip
 
     def conflict_rivals(self, diag: Diagnosis) -> list[list[Candidate]]:
         """Per accepted effect, the effects that cannot go with it (rain for snow, water on the cover for dirt) or
@@ -496,8 +509,18 @@ class GapSearch(GapEvaluator):
                 refitted = f" with {', '.join(e.label() for e in c.companions)} refitted" if c.companions else ""
                 self.progress(f"{c.effect.label()} in place of {effect.label()}{refitted}: held-out gap "
                               f"{c.heldout_gap:.4f}")  # fmt: skip
-            out.append([c for c in found if diag.gap_after > self.gap_to_beat(c.heldout_gap)])
+            out.append([c for c, (beside, *_) in zip(found, fitted) if diag.gap_after > self.gap_to_beat(c.heldout_gap)
+                        and not self.told_apart(diag.gap_after, effects, c.heldout_gap, beside + [c.effect])])
         return out
+
+    def told_apart(self, ours_gap: float, ours: list[Effect] | None, theirs_gap: float,
+                   theirs: list[Effect] | None) -> bool:  # fmt: skip
+        """Whether the effect set ``ours`` (held-out gap ``ours_gap``) beats ``theirs`` where only the margin's
+        absolute floor keeps it from doing so: by ``min_gain`` on this draw, and on the redraws
+        (:meth:`~lidar_weather_sim.gap.evaluation.GapEvaluator.beats_on_redraws`). False when a set is not known."""
+        if ours is None or theirs is None or ours_gap > (1.0 - self.min_gain) * theirs_gap:
+            return False
+        return self.beats_on_redraws(ours, theirs)
 
     def refit_with_others(self, fitted: list[tuple]) -> list[tuple]:
         """The best of each effect's variants among ``fitted`` (beside, rival, fit gap, evaluations), by its fit gap,
