@@ -6,7 +6,8 @@ is the caller's (``C pi beta(r) O(r) exp(-2 alpha r) / r^2``, noise units per m)
 droplets fluctuate from beam to beam: slab i (edges ``slab_edges[i]``, ``slab_edges[i + 1]``) holds a Poisson
 number of droplets, so its return is the mean times ``max(1 + rel_sd[i] z, 0)``, z a standard normal (the
 compound-Poisson normal limit, clipped at 0). ``REALISATIONS`` such near fields are drawn once, from a generator
-seeded by the weather state; each beam reads one of them, chosen with the region's generator.
+seeded alike for every weather state (common random numbers: the near field changes smoothly with the
+weather's values); each beam reads one of them, chosen with the region's generator.
 
 The volume is two layers, each a table cut at the beam's hit: the near layer (the cells in front of
 ``boundary``: one table per realisation) and the far layer (the mean's cells from ``boundary`` on). The receiver's
