@@ -809,7 +809,8 @@ def test_a_refit_leaves_a_shallow_basin_for_the_valley_of_the_looser_effect_with
     """Coordinate descent and the pair's 5 x 5 grid keep the fog of 32 m behind the dirt of 0.947 (TwoBasinSearch);
     the dirt, the looser of the two, set to each of its grid values with the fog fitted beside it, finds the valley
     (a dirt of 0.8 beside a fog of 37 m beats the basin) and the refit ends there, each value within the
-    draw's 25 % (the valley's floor is flat: coordinate descent crawls along it)."""
+    draw's 25 % (the valley's floor is flat: coordinate descent crawls along it). Without both valley starts the
+    refit stays in the basin (the line along the valley's floor from the basin finds the valley too)."""
     search = TwoBasinSearch()
     start = [parse_effect("atmosphere.fog:visual_range=32,gain=0"),
              parse_effect("cover.dirt:transmission=0.947,gain=0,forward=0,contrast=0")]  # fmt: skip
@@ -817,8 +818,33 @@ def test_a_refit_leaves_a_shallow_basin_for_the_valley_of_the_looser_effect_with
     assert fog.value == pytest.approx(40.38, rel=0.25) and dirt.value == pytest.approx(0.708, rel=0.25), (fog, dirt)
     assert search.gap([fog, dirt], "fit") < 0.006 and dirt.params["contrast"] == 0.0
     monkeypatch.setattr(TwoBasinSearch, "valley_start", lambda self, effects: None)
+    monkeypatch.setattr(TwoBasinSearch, "valley_line", lambda self, effects: None)
     fog, dirt = search.refit(start)
     assert dirt.value > 0.9 and search.gap([fog, dirt], "fit") > 0.02, (fog, dirt)
+
+
+class DiagonalValleySearch(ValueSearch):
+    """A fog of 278.6 m under a sun of 220.4 W/m^2 (seeded draw case 14), in the log of each against the truth (x, y):
+    a narrow valley along x = -y (a denser fog takes a weaker sun) whose floor falls gently to the truth."""
+
+    def gap(self, effects, split, redraw=0):
+        v = {e.name: e.value for e in effects}
+        x, y = np.log(v.get("atmosphere.fog", 1000.0) / 278.6), np.log(v.get("sensor.sun", 10.0) / 220.4)
+        return -0.03 + 0.3 * (x - y) ** 2 + 200.0 * (x + y) ** 2
+
+
+def test_a_refit_follows_the_floor_of_a_valley_that_runs_across_both_axes(monkeypatch):
+    """On the floor of DiagonalValleySearch's valley at fog 226.5 m and sun 270.6 W/m^2 (calibration gap 0.021),
+    coordinate descent moves each effect by a hair, and neither the pair's grid nor the valley's grid values hold a
+    lower point; along the valley's floor (the direction of the smaller curvature) the refit reaches the truth."""
+    search = DiagonalValleySearch()
+    start = [parse_effect("atmosphere.fog:visual_range=226.5"), parse_effect("sensor.sun:irradiance=271.1")]
+    fog, sun = search.refit(start)
+    assert fog.value == pytest.approx(278.6, rel=0.1) and sun.value == pytest.approx(220.4, rel=0.1), (fog, sun)
+    assert search.gap([fog, sun], "fit") < -0.025
+    monkeypatch.setattr(DiagonalValleySearch, "valley_line", lambda self, effects: None)
+    fog, sun = search.refit(start)
+    assert search.gap([fog, sun], "fit") > 0.0 and fog.value < 240.0, (fog, sun)
 
 
 class GainSearch(ValueSearch):
