@@ -682,20 +682,6 @@ def test_an_effect_gives_way_to_one_fitted_in_its_place_that_beats_it_on_every_r
     assert search.conflict_rivals(diag) == [[], []]  # the snow, fitted in the rain's place, does not do as well
 
 
-@pytest.mark.parametrize("worse, rival", [(0.0, False), (0.02, True)])
-def test_a_round_s_rival_is_judged_by_the_comparison_at_the_end_where_that_is_decisive(worse, rival):
-    """A rain of 9 mm/h won its round by 5 % over a snow before the dirt was found (seeded draw cases 5 and 22, snow
-    under a sun); the snow fitted in the rain's place beside the dirt as it ended scores 0.015 against 0.001 on
-    every redraw, so the round's closeness is no rivalry. Where a redraw finds the rain worse, the round stands."""
-    dirt, rain = parse_effect("cover.dirt:transmission=0.75"), parse_effect("atmosphere.rain:intensity=9")
-    search = FlippingValueSearch(worse)
-    round_ = [Candidate(rain, 0.0, 0.0105, 1, ()), Candidate(parse_effect("atmosphere.snow:intensity=0.3"), 0.0, 0.011,
-                                                              1, ())]  # fmt: skip
-    accepted = [(Candidate(dirt, 0.0, 0.0, 1), 0.3), (Candidate(rain, 0.0, 0.0, 1), 0.3)]
-    diag = Diagnosis(0.3, search.gap([dirt, rain], "heldout"), accepted=accepted, rounds=[round_])
-    assert search.round_rivals(diag) == [[], [round_[1]] if rival else []]
-
-
 class DarkeningSearch(ValueSearch):
     """A fog and a darkening (OS1 draw case 15), in log brightness against the truth's: the fog brightens the
     vehicles by x = log(V / 51.43 m) (on the road, near the sensor, it changes little), dirt of transmission T

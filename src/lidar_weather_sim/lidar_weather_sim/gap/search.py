@@ -478,23 +478,14 @@ class GapSearch(GapEvaluator):
         return judgement
 
     def round_rivals(self, diag: Diagnosis) -> list[list[Candidate]]:
-        """:func:`rivals` of ``diag``'s effects, less those their round's best is :meth:`told_apart` from, and less
-        those that the comparison at the end (:meth:`in_place_of`: the same effect fitted in its place beside the
-        others as they ended) tells apart from it on every redraw (:meth:`decisive`). The round compared them beside
-        the others as they were then: seeded draw cases 5 and 22 (snow under a sun) won their first round by 2 %
-        over a rain, before the sun was found; at the end, the rain in the snow's place beside the sun scores
-        0.04-0.14 against the snow's 0.0000-0.0043 on every redraw. Only a decisive end comparison supersedes the
-        round: fixed-generator case 1 (`fog_spread`, whose spread echoes the search fitted as a rain beside its fog)
-        has the rain within 10 % of a snow in its place, and the rain stays refused."""
-        found = rivals(diag, self.gap_to_beat, lambda ours, theirs: self.told_apart(
+        """:func:`rivals` of ``diag``'s effects, less those their round's best is :meth:`told_apart` from. A rival is
+        not judged again by the comparison at the end (:meth:`in_place_of`), even where that tells them apart on
+        every redraw: seeded draw cases 5 and 22 (snow under a sun, whose first round a rain came within 2 % of
+        before the sun was found) would be named, but so would the rain that fixed-generator case 1's spread echoes
+        are fitted as beside its fog (a snow in its place 0.0590 against 0.0510, and higher on every redraw): a
+        wrong name."""
+        return rivals(diag, self.gap_to_beat, lambda ours, theirs: self.told_apart(
             ours.heldout_gap, members(ours), theirs.heldout_gap, members(theirs)))  # fmt: skip
-        if not any(found):
-            return found
-        out = []
-        for cands, at_end in zip(found, self.in_place_of(diag)):
-            out.append([c for c in cands if not any(e.effect.name == c.effect.name and self.decisive(
-                diag.gap_after, diag.effects, e.heldout_gap, theirs) for theirs, e in at_end)])  # fmt: skip
-        return out
 
     def decisive(self, ours_gap: float, ours: list[Effect], theirs_gap: float, theirs: list[Effect]) -> bool:
         """Whether the effect set ``ours`` (held-out gap ``ours_gap``) beats ``theirs`` by ``min_gain`` on this draw,
