@@ -378,15 +378,14 @@ class GapEvaluator:
         descent stays in the one it starts in: behind a fog of 40.4 m a uniform dirt of 0.708 (fixed-generator
         draw case 25, 24 frames) ended at a fog of 34.7 m and a dirt of 0.958 (calibration gap -0.0060, lower
         than its neighbours'), while the fog of 38 m behind a dirt of 0.80 gives -0.0166."""
-        free = [i for i, e in enumerate(effects)
-                if e.spec.family == "weather" and not e.spec.categorical and not self.proven_by_data(e)]  # fmt: skip
-        j = len(effects) - 1
-        if len(free) < 2 or free[-1] != j:
+        partners = self._partners(effects)
+        if not partners:
             return None
+        j = len(effects) - 1
         base = self.gap(list(effects), "fit")
         best, lowest = None, base
         bend = self._curvature(effects, j, base)
-        for i in free[:-1]:
+        for i in partners:
             tight, loose = (i, j) if self._curvature(effects, i, base) >= bend else (j, i)
             current = self._axis(effects[tight])[0]
             xs = np.unique(np.append(self.grid_of(effects[tight]), current))
@@ -410,14 +409,10 @@ class GapEvaluator:
         valley runs across both axes coordinate descent crawls along it: a fog of 278.6 m with a sun of 220 W/m^2
         (seeded draw case 14) ended at a fog of 226.5 m and a sun of 296 W/m^2 (calibration gap 0.049), where a
         third of a grid step along the valley gives -0.010 and the hidden pair -0.029."""
-        free = [i for i, e in enumerate(effects)
-                if e.spec.family == "weather" and not e.spec.categorical and not self.proven_by_data(e)]  # fmt: skip
-        j = len(effects) - 1
-        if len(free) < 2 or free[-1] != j:
-            return None
-        base = self.gap(list(effects), "fit")
-        best, lowest = None, base
-        for i in free[:-1]:
+        partners, j = self._partners(effects), len(effects) - 1
+        base = lowest = self.gap(list(effects), "fit") if partners else 0.0
+        best = None
+        for i in partners:
             axes = [self._axis(effects[k]) for k in (i, j)]
 
             def at(trial: list[Effect], di: float, dj: float) -> list[Effect]:
@@ -438,6 +433,13 @@ class GapEvaluator:
                 if gap < lowest:
                     best, lowest = trial, gap
         return best
+
+    def _partners(self, effects: list[Effect]) -> list[int]:
+        """The indices of the fitted weather effects of ``effects`` the last one (the one a refit adds) makes a valley
+        with (:meth:`valley_start`, :meth:`valley_line`): none unless the last is one too."""
+        free = [i for i, e in enumerate(effects)
+                if e.spec.family == "weather" and not e.spec.categorical and not self.proven_by_data(e)]  # fmt: skip
+        return free[:-1] if len(free) >= 2 and free[-1] == len(effects) - 1 else []
 
     def _curvature(self, effects: list[Effect], i: int, base: float) -> float:
         """The calibration gap's curvature along effect i's main parameter at its value (per grid step squared),
