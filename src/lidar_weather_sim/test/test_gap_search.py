@@ -1015,7 +1015,8 @@ RAIN, SNOW = parse_effect("atmosphere.rain:intensity=3.6"), parse_effect("atmosp
 
 @pytest.mark.parametrize("rain, snow, rival", [
     ([0.0004, 0.0002, 0.0, 0.0], [0.0017, 0.0017, 0.0011, 0.0007], False),  # seeded draw case 0: held on each redraw
-    ([0.0007, 0.0002, 0.0017, 0.0007], [0.0017, 0.0022, 0.0023, 0.0007], False),  # case 4: a tie on one redraw
+    ([0.0007, 0.0002, 0.0017, 0.0007], [0.0017, 0.0022, 0.0023, 0.0007], False),  # a tie on one redraw
+    ([0.0007, 0.0002, 0.0017, 0.00075], [0.0017, 0.0022, 0.0023, 0.00067], True),  # case 4: above on one redraw
     ([0.0014, 0.0035, 0.0040, 0.0022], [0.0016, 0.0021, 0.0026, 0.0006], True),  # case 24: turned on the redraws
     ([0.0016, 0.0002, 0.0, 0.0], [0.0017, 0.0017, 0.0011, 0.0007], True),  # not by 10 % on the draw: no redraws
 ])  # fmt: skip

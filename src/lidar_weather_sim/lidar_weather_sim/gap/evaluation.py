@@ -277,9 +277,10 @@ class GapEvaluator:
         :data:`CONFIRM_SEED_OFFSETS`, and by ``min_gain`` on their mean. The floor stands for how much re-drawing
         moves one set's gap; two sets compared on the same redraws move together, and a small difference that holds
         on every redraw is not the draw's noise (seeded draw case 0, rain 3.63 mm/h: the fitted rain 0.0004, 0.0002,
-        0.0000, 0.0000 against a snow's 0.0017, 0.0017, 0.0011, 0.0007; case 4, rain 7.3 mm/h behind dirt: 0.0007,
-        0.0002, 0.0017, 0.0007 against a snow's 0.0017, 0.0022, 0.0023, 0.0007; case 24, rain 9.1 mm/h behind dirt:
-        the fitted snow 0.0014 against a rain's 0.0016 on this draw, above it on all three redraws)."""
+        0.0000, 0.0000 against a snow's 0.0017, 0.0017, 0.0011, 0.0007; case 24, rain 9.1 mm/h behind dirt: the fitted
+        snow 0.0014 against a rain's 0.0016 on this draw, above it on all three redraws; case 4, rain 7.3 mm/h behind
+        dirt: 0.00070, 0.00023, 0.00172, 0.00075 against a snow's 0.00173, 0.00220, 0.00226, 0.00067, not told
+        apart)."""
         jobs = [(effects, "heldout", offset) for effects in (ours, theirs) for offset in (0, *CONFIRM_SEED_OFFSETS)]
         a, b = np.array(self.gaps(jobs)).reshape(2, -1)
         self.progress(f"{', '.join(e.label() for e in ours)} against {', '.join(e.label() for e in theirs)} on the "
