@@ -547,11 +547,11 @@ class GapSearch(GapEvaluator):
         """An accepted weather effect gives way to one of :meth:`in_place_of` that beats the search's result: by
         ``min_gain`` on the held-out frames, and not above it on any redraw and by ``min_gain`` on their mean
         (:meth:`~lidar_weather_sim.gap.evaluation.GapEvaluator.beats_on_redraws`; one draw's 10 % is not enough:
-        fixed-generator case 8's snow of 0.069 mm/h in place of a rain of 0.95 scored 0.0644 against 0.0716, on
-        the redraws 0.0648-0.0684 against 0.0663-0.0700). The best such one takes its place in ``diag`` (the
-        others as set for it), the effect is reported rejected. The round an effect won compared it with the
-        others as they were then (issue 50's speed case: a snow of 0.34 mm/h won beside a dirt fitted alone; with
-        the dirt as it ended, the hidden rain of 10 mm/h in its place scores 0.0002 against the snow's 0.0016)."""
+        on session 50's fit of fixed-generator case 8 a snow of 0.069 mm/h in place of a rain of 0.95 scored 0.0644
+        against 0.0716, on the redraws 0.0648-0.0684 against 0.0663-0.0700). The best such one takes its place in
+        ``diag`` (the others as set for it), the effect is reported rejected. The round an effect won compared it
+        with the others as they were then (issue 50's speed case: a snow of 0.34 mm/h won beside a dirt fitted alone;
+        with the dirt as it ended, the hidden rain of 10 mm/h in its place scores 0.0002 against the snow's 0.0016)."""
         current = diag.gap_after
         qualified = sorted(((c.heldout_gap, i, theirs, c) for i, found in enumerate(self.in_place_of(diag))
                             for theirs, c in found), key=lambda q: q[0])  # fmt: skip
