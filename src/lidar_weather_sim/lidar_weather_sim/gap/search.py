@@ -50,7 +50,8 @@
    a fog and a dirt trade off along a valley the grids miss): the first effect may have imitated the
    missing one and the last fitted the leftover.
    Rounds repeat until no candidate qualifies. The other candidates of the
-   last round are reported as rejected with their held-out gap.
+   last round are reported as rejected with their held-out gap. No round is run once the held-out gap is below
+   ``min_abs_gain``: a held-out gap (clipped at 0) cannot beat it, so nothing would be accepted.
 5. Pruning round (:meth:`GapSearch.prune_round`, backward elimination): each accepted effect must still be
    worth that margin with all the others in place; one that is not (a weak effect accepted early,
    made redundant by a later one) is dropped and the rest refitted.
@@ -419,6 +420,9 @@ class GapSearch(GapEvaluator):
         current, accepted = self.read_off_round(diag, current)
         unconfirmed: list[Effect] = []  # not confirmed on the redraws: left out until another effect is accepted
         while True:
+            if self.gap_to_beat(current) < 0:  # a held-out gap (clipped at 0) cannot beat it: no round can accept
+                self.progress(f"held-out gap {current:.4f} is within the margin of 0: no other effect can earn a place")
+                break
             fitted = self.screen_round(accepted, unconfirmed)
             if not fitted:
                 break
