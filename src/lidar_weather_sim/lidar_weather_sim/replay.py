@@ -25,6 +25,7 @@ from lidar_weather_sim.io.recording import Recording
 from lidar_weather_sim.scenario.effects import Effect, apply_effects
 from lidar_weather_sim.scenario.schema import Scenario
 from lidar_weather_sim.scenario.world import World
+from lidar_weather_sim.scene.raycast.memo_caster import MemoCaster
 from lidar_weather_sim.sim.offline import POSE_STEP_S
 from lidar_weather_sim.sim.simulator import LidarSimulator, scenario_settings
 
@@ -66,15 +67,19 @@ class RecordedPoses:
 class Resimulator:
     """Casts a recording's frames again with ``scenario`` plus effects (see module doc). ``through_air``: the
     effects' air is taken to be the recording's, which a twin's surveyed reflectivity was measured through
-    (:class:`~lidar_weather_sim.sim.simulator.LidarSimulator`'s ``reflectivity_through_air``)."""
+    (:class:`~lidar_weather_sim.sim.simulator.LidarSimulator`'s ``reflectivity_through_air``). ``keep_casts``: each
+    batch's scene hits are cast once and kept (:class:`~lidar_weather_sim.scene.raycast.memo_caster.MemoCaster`),
+    for a caller that simulates the same frames many times (the gap search)."""
 
     def __init__(self, recording: Recording, scenario: Scenario, profile: str | None = None,
-                 backend: str | None = None, through_air: bool = False) -> None:  # fmt: skip
+                 backend: str | None = None, through_air: bool = False, keep_casts: bool = False) -> None:  # fmt: skip
         self.recording = recording
         self.scenario = scenario
         self.world = World.build(scenario, profile)
         self.poses = RecordedPoses(recording, self.world)
-        self.sim = LidarSimulator.of_world(self.world, backend=backend, regions=[])
+        caster = self.world.caster(backend)
+        self.sim = LidarSimulator.of_world(self.world, backend=backend, regions=[],
+                                           caster=MemoCaster(caster) if keep_casts else caster)  # fmt: skip
         self.sim.reflectivity_through_air = through_air
         self.channels = len(self.world.profile.beams)
         self.casts = 0  # frames cast so far (for progress and cost reports)

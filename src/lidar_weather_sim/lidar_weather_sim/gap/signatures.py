@@ -463,11 +463,12 @@ def measured_signature(recording: Recording, indices, contexts: list[FrameContex
 class GapResimulator(Resimulator):
     """A :class:`~lidar_weather_sim.replay.Resimulator` whose frames are zoned with the recording's
     contexts (:func:`frame_contexts`) and summed into signatures. Every effect list is a hypothesis about the
-    recording's weather, so a twin's reflectivity is read as measured through it (``through_air``)."""
+    recording's weather, so a twin's reflectivity is read as measured through it (``through_air``). It casts the
+    same frames for every hypothesis: their scene hits are kept (``keep_casts``)."""
 
     def __init__(self, recording: Recording, scenario: Scenario, profile: str | None = None,
                  backend: str | None = None) -> None:  # fmt: skip
-        super().__init__(recording, scenario, profile, backend, through_air=True)
+        super().__init__(recording, scenario, profile, backend, through_air=True, keep_casts=True)
         self.contexts = frame_contexts(recording, scenario)
 
     def signature(self, effects: list[Effect], indices, keep: Callable[[np.ndarray], np.ndarray] | None = None,

@@ -195,12 +195,13 @@ class LidarSimulator:
 
     @classmethod
     def of_world(cls, world, *, backend: str | None = None, regions: list[tuple[str, Region]] | None = None,
-                 seed: int | None = None, **options) -> "LidarSimulator":  # fmt: skip
+                 seed: int | None = None, caster=None, **options) -> "LidarSimulator":  # fmt: skip
         """The simulator of a :class:`~lidar_weather_sim.scenario.world.World`: its profile, scene and shared
-        caster on ``backend``, with the scenario's settings (:func:`scenario_settings`); ``regions``
-        (default: the scenario's), ``seed`` and ``options`` (e.g. ``sun_irradiance_w_m2``) override them."""
+        caster on ``backend`` (or ``caster``, e.g. one wrapping it), with the scenario's settings
+        (:func:`scenario_settings`); ``regions`` (default: the scenario's), ``seed`` and ``options`` (e.g.
+        ``sun_irradiance_w_m2``) override them."""
         settings = {**scenario_settings(world.scenario), **({} if seed is None else {"seed": seed}), **options}
-        return cls(world.profile, world.scene, caster=world.caster(backend),
+        return cls(world.profile, world.scene, caster=world.caster(backend) if caster is None else caster,
                    regions=world.regions() if regions is None else regions, **settings)  # fmt: skip
 
     def _set_profile(self, profile: SensorProfile) -> None:
