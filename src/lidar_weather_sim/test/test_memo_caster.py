@@ -81,7 +81,7 @@ def test_a_moved_ray_an_actor_moved_or_another_range_is_cast_anew():
 
 def test_beyond_its_budget_it_casts_without_keeping():
     o, d = random_rays(1_000)
-    memo = MemoCaster(_scene(), max_bytes=1_000 * 40)  # about one batch of hits
+    memo = MemoCaster(_scene(), max_bytes=1_000 * 64)  # one batch of 1000 rays: 36 bytes of hits a ray, 24 of rays
     memo.cast(o, d, {}, 80.0)
     memo.cast(o[:500], d[:500], {}, 80.0)  # would go over
     assert memo.kept_bytes <= memo.max_bytes

@@ -10,7 +10,6 @@ so anything that moves a ray (a channel's elevation offset, the beams' origin) c
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import fields
 
 import numpy as np
@@ -30,7 +29,7 @@ class MemoCaster:
         self.max_bytes = int(max_bytes)
         self.kept_bytes = 0
         self.hits = 0  # casts answered from the kept hits
-        self._kept: dict[bytes, Hits] = {}
+        self._kept: dict[tuple, Hits] = {}
 
     def __getattr__(self, name: str):
         return getattr(self.caster, name)
@@ -43,7 +42,7 @@ class MemoCaster:
         kept = self._kept.get(key)
         if kept is None:
             kept = self.caster.cast(origins, directions, actor_poses, max_range_m, gather=gather)
-            size = sum(getattr(kept, f.name).nbytes for f in fields(Hits))
+            size = sum(getattr(kept, f.name).nbytes for f in fields(Hits)) + len(key[0]) + len(key[1])
             if self.kept_bytes + size > self.max_bytes:
                 return kept
             self._kept[key] = kept
@@ -54,13 +53,14 @@ class MemoCaster:
 
 
 def _key(origins: np.ndarray, directions: np.ndarray, actor_poses: dict[int, np.ndarray], max_range_m: float,
-         gather: bool) -> bytes:  # fmt: skip
-    """A digest of a cast's inputs: the rays as the caster takes them (float32), the poses, range and gather."""
-    digest = hashlib.blake2b(digest_size=20)
-    for rays in (origins, directions):
-        digest.update(np.ascontiguousarray(np.asarray(rays, np.float32).reshape(-1, 3)).tobytes())
-    for actor, pose in sorted(actor_poses.items()):
-        digest.update(int(actor).to_bytes(8, "little", signed=True))
-        digest.update(np.ascontiguousarray(pose, np.float64).tobytes())
-    digest.update(np.float64(max_range_m).tobytes() + bytes([bool(gather)]))
-    return digest.digest()
+         gather: bool) -> tuple:  # fmt: skip
+    """A cast's inputs as a dictionary key: the rays' bytes as the caster takes them (float32, in their memory
+    order: the simulator's are column-major), the poses', the range and gather. Equal keys are equal inputs (the
+    dictionary compares the bytes, not only their hash)."""
+    rays = []
+    for r in (origins, directions):
+        r = np.asarray(r, np.float32).reshape(-1, 3)
+        rays.append(r.T.tobytes() if r.T.flags.c_contiguous else r.tobytes(order="C") + b"C")
+    poses = b"".join(int(a).to_bytes(8, "little", signed=True) + np.asarray(p, np.float64).tobytes()
+                     for a, p in sorted(actor_poses.items()))  # fmt: skip
+    return (*rays, poses, float(max_range_m), bool(gather))
