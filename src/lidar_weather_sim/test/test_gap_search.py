@@ -115,10 +115,23 @@ def test_no_round_is_screened_once_the_held_out_gap_is_below_the_margin_s_absolu
     search.pool = [FOG, SUN]
     diag = search.run()
     assert search.rounds == rounds
+    assert [(c.effect.name, c.heldout_gap) for c in diag.rejected] == [("sensor.sun", 0.25)] * (rounds == 1)  # the
+    # first round's other, when no round followed (an accepted effect is not listed)
     assert [e.name for e in diag.effects] == ["atmosphere.fog"] + ["sensor.sun"] * (rounds - 1)
     stopped = [line for line in search.log if "no other effect can earn a place" in line]
     assert stopped == [f"held-out gap {0.0 if rounds == 2 else after_fog:.4f} is within the margin of 0: no other "
                        "effect can earn a place"]
+
+
+def test_a_clear_recording_below_the_floor_is_still_screened_and_every_candidate_reported():
+    """With nothing accepted the first round runs whatever the gap: the report lists each candidate and its gap."""
+    landscape = {_set(): MIN_ABS_GAIN * 0.5, _set(FOG): MIN_ABS_GAIN * 0.6, _set(SUN): MIN_ABS_GAIN * 0.4}
+    search = CountedRoundsSearch(landscape, families=("weather",))
+    search.pool = [FOG, SUN]
+    diag = search.run()
+    assert search.rounds == 1 and diag.effects == []
+    assert {c.effect.name: c.heldout_gap for c in diag.rejected} == {"atmosphere.fog": MIN_ABS_GAIN * 0.6,
+                                                                     "sensor.sun": MIN_ABS_GAIN * 0.4}  # fmt: skip
 
 
 @pytest.mark.parametrize("families, named", [(("weather", "sensor"), ["sensor.intensity_gamma"]),

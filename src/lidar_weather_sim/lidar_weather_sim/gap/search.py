@@ -50,8 +50,9 @@
    a fog and a dirt trade off along a valley the grids miss): the first effect may have imitated the
    missing one and the last fitted the leftover.
    Rounds repeat until no candidate qualifies. The other candidates of the
-   last round are reported as rejected with their held-out gap. No round is run once the held-out gap is below
-   ``min_abs_gain``: a held-out gap (clipped at 0) cannot beat it, so nothing would be accepted.
+   last round are reported as rejected with their held-out gap. No round is run once an effect is accepted and
+   the held-out gap is below ``min_abs_gain``: a held-out gap (clipped at 0) cannot beat it, so nothing would be
+   accepted (the first round always runs: a clear recording's report lists every candidate with its gap).
 5. Pruning round (:meth:`GapSearch.prune_round`, backward elimination): each accepted effect must still be
    worth that margin with all the others in place; one that is not (a weak effect accepted early,
    made redundant by a later one) is dropped and the rest refitted.
@@ -420,7 +421,7 @@ class GapSearch(GapEvaluator):
         current, accepted = self.read_off_round(diag, current)
         unconfirmed: list[Effect] = []  # not confirmed on the redraws: left out until another effect is accepted
         while True:
-            if self.gap_to_beat(current) < 0:  # a held-out gap (clipped at 0) cannot beat it: no round can accept
+            if accepted and self.gap_to_beat(current) < 0:  # a held-out gap (clipped at 0) cannot beat it
                 self.progress(f"held-out gap {current:.4f} is within the margin of 0: no other effect can earn a place")
                 break
             fitted = self.screen_round(accepted, unconfirmed)
@@ -454,13 +455,13 @@ class GapSearch(GapEvaluator):
                 continue
             unconfirmed = []
             accepted = refitted
+            diag.rejected = [c for c in fitted if c is not best]  # the round's others, until a next round is screened
             best = Candidate(accepted[-1], best.fit_gap, heldout, best.evaluations)
             kept = [(c, g) for c, g in diag.accepted if any(same_effect(c.effect, e) for e in accepted)]  # but a swap's
             diag.accepted = [(Candidate(e, c.fit_gap, c.heldout_gap, c.evaluations), g)
                              for e, (c, g) in zip(accepted, kept)]  # fmt: skip
             diag.accepted.append((best, current))
             current = best.heldout_gap
-            diag.rejected = [c for c in fitted if c is not best]
         diag.gap_after = self.prune_round(diag, current)
         self.give_way_round(diag)
         return diag
