@@ -123,15 +123,20 @@ def test_no_round_is_screened_once_the_held_out_gap_is_below_the_margin_s_absolu
                        "effect can earn a place"]
 
 
-def test_a_clear_recording_below_the_floor_is_still_screened_and_every_candidate_reported():
-    """With nothing accepted the first round runs whatever the gap: the report lists each candidate and its gap."""
-    landscape = {_set(): MIN_ABS_GAIN * 0.5, _set(FOG): MIN_ABS_GAIN * 0.6, _set(SUN): MIN_ABS_GAIN * 0.4}
-    search = CountedRoundsSearch(landscape, families=("weather",))
-    search.pool = [FOG, SUN]
+@pytest.mark.parametrize("read_off", [False, True])
+def test_a_clear_recording_below_the_floor_is_still_screened_and_every_candidate_reported(read_off):
+    """The first round runs whatever the gap, also after effects read off the data: the report lists each candidate
+    and its gap."""
+    offsets = parse_effect("sensor.elevation_offsets:offsets=3:0.4")
+    floor = MIN_ABS_GAIN
+    landscape = {_set(): 0.27 if read_off else floor * 0.5, _set(offsets): floor * 0.5, _set(FOG): floor * 0.6,
+                 _set(SUN): floor * 0.4, _set(offsets, FOG): floor * 0.6, _set(offsets, SUN): floor * 0.4}  # fmt: skip
+    search = CountedRoundsSearch(landscape, families=("weather", "sensor"))
+    search.pool, search.data_candidates = [FOG, SUN], [offsets] if read_off else []
     diag = search.run()
-    assert search.rounds == 1 and diag.effects == []
-    assert {c.effect.name: c.heldout_gap for c in diag.rejected} == {"atmosphere.fog": MIN_ABS_GAIN * 0.6,
-                                                                     "sensor.sun": MIN_ABS_GAIN * 0.4}  # fmt: skip
+    assert search.rounds == 1 and [e.name for e in diag.effects] == [offsets.name] * read_off
+    assert {c.effect.name: c.heldout_gap for c in diag.rejected} == {"atmosphere.fog": floor * 0.6,
+                                                                     "sensor.sun": floor * 0.4}  # fmt: skip
 
 
 @pytest.mark.parametrize("families, named", [(("weather", "sensor"), ["sensor.intensity_gamma"]),

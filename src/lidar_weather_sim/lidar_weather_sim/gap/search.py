@@ -50,8 +50,8 @@
    a fog and a dirt trade off along a valley the grids miss): the first effect may have imitated the
    missing one and the last fitted the leftover.
    Rounds repeat until no candidate qualifies. The other candidates of the
-   last round are reported as rejected with their held-out gap. No round is run once an effect is accepted and
-   the held-out gap is below ``min_abs_gain``: a held-out gap (clipped at 0) cannot beat it, so nothing would be
+   last round are reported as rejected with their held-out gap. After the first round no round is run once the
+   held-out gap is below ``min_abs_gain``: a held-out gap (clipped at 0) cannot beat it, so nothing would be
    accepted (the first round always runs: a clear recording's report lists every candidate with its gap).
 5. Pruning round (:meth:`GapSearch.prune_round`, backward elimination): each accepted effect must still be
    worth that margin with all the others in place; one that is not (a weak effect accepted early,
@@ -420,11 +420,12 @@ class GapSearch(GapEvaluator):
         self.progress(f"gap before: {before:.4f}")
         current, accepted = self.read_off_round(diag, current)
         unconfirmed: list[Effect] = []  # not confirmed on the redraws: left out until another effect is accepted
+        screened = False
         while True:
-            if accepted and self.gap_to_beat(current) < 0:  # a held-out gap (clipped at 0) cannot beat it
+            if screened and self.gap_to_beat(current) < 0:  # a held-out gap (clipped at 0) cannot beat it
                 self.progress(f"held-out gap {current:.4f} is within the margin of 0: no other effect can earn a place")
                 break
-            fitted = self.screen_round(accepted, unconfirmed)
+            fitted, screened = self.screen_round(accepted, unconfirmed), True
             if not fitted:
                 break
             diag.rounds.append(fitted)
