@@ -1,7 +1,7 @@
 """Gap-search generalisation baseline: `gap` on the seeded cases of config/gap_cases.yaml.
 
     python benchmarks/validation/gap_generalisation.py [--cases K] [--only 3,7] [--cases-file F] [--out DIR]
-        [--fast-via-sim] [--reuse-bags] [--json F]
+        [--fast-via-sim] [--reuse-bags] [--json F] [--frames N --budgets FIT,HELDOUT,SCREEN]
 
 Cases come from lidar_weather_sim.references.cases.draw_cases (ranges and seed committed before anything ran on
 them). Per case a "measured" scala4 highway_clear bag of `measurement.frames` frames is made by its
@@ -11,7 +11,8 @@ the effects at the scenario's seed), reference = make-measured --reference, hahn
 of `lidar-weather-sim gap`) with the file's budgets. One row per case: the true effects and values, what
 gap named (its judgement's names: an effect it fitted and refused is listed apart, as fitted), exact-name hit,
 main parameter within 25 % (every true effect, only with an exact-name hit), phantom (a named effect not hidden),
-held-out gap before -> after, seconds. A summary per generator follows.
+held-out gap before -> after, seconds. A summary per generator follows. ``--frames`` and ``--budgets`` override
+the file's frames per bag and the search's frame budgets (a case at more frames than the draw affords).
 """
 
 from __future__ import annotations
@@ -59,6 +60,8 @@ def main() -> None:
     parser.add_argument("--reuse-bags", action="store_true",
                         help="search a case bag already in --out instead of making it again (when only the search "
                              "changed since it was made)")
+    parser.add_argument("--frames", type=int, help="frames per case bag (default: the file's measurement.frames)")
+    parser.add_argument("--budgets", help="FIT,HELDOUT,SCREEN frames of the search (default: the file's)")
     args = parser.parse_args()
     config, cases = draw_cases(args.cases_file)
     if args.only:
@@ -67,6 +70,10 @@ def main() -> None:
     elif args.cases:
         cases = cases[: args.cases]
     m = config["measurement"]
+    if args.frames:
+        m["frames"] = args.frames
+    if args.budgets:
+        m["fit_frames"], m["heldout_frames"], m["screen_frames"] = (int(v) for v in args.budgets.split(","))
     tolerance = float(config["success"]["parameter_tolerance"])
     scenario = load_scenario(config["scenario"])
     budgets = {"fit_frames": m["fit_frames"], "heldout_frames": m["heldout_frames"],
