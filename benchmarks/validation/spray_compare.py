@@ -184,6 +184,8 @@ def summarise(runs: list[dict]) -> dict:
     if len(runs) > 1:
         halves = [bev(np.concatenate([r["reference_xy"] for r in runs[i::2]])) for i in (0, 1)]
         out["reference_split_half_pearson"] = metrics(*halves)["pearson"]
+        out["reference_split_half_overlap"] = per_frame_overlap(
+            *(np.concatenate([r["reference_counts"] for r in runs[i::2]]) for i in (0, 1)))
     return out
 
 
@@ -197,7 +199,8 @@ def report(out: dict, on_packets: bool = False) -> None:
           f"{out['reference_xy_median']}", flush=True)  # fmt: skip
     if "reference_split_half_pearson" in out:
         print(f"{'':18s} {out['seeds']} seeds pooled; the reference's even seeds against its odd ones: pearson "
-              f"{out['reference_split_half_pearson']:.3f}", flush=True)  # fmt: skip
+              f"{out['reference_split_half_pearson']:.3f}, hist overlap {out['reference_split_half_overlap']:.2f}",
+              flush=True)  # fmt: skip
     if on_packets:
         print(f"{'':18s} the reference's detector on the model's packets: {out['packets_mean']:.1f} "
               f"detections/frame, median x, y {out['packets_xy_median']}, pearson against the reference "
