@@ -15,7 +15,7 @@ import yaml
 
 from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.paths import config_dir
-from lidar_weather_sim.gap.command import run_gap
+from lidar_weather_sim.gap.command import SearchLog, run_gap
 from lidar_weather_sim.scenario.effects import EFFECTS, apply_effects, parse_effect, search_grid
 from lidar_weather_sim.references.measured import RECOVERY_CASES, Nuisance, case_scenario, make_measured
 from lidar_weather_sim.io.bags import bag_info
@@ -98,6 +98,42 @@ def test_clear_measurement_accepts_no_effect(highway, tmp_path):
     assert result["effects"] == []
     assert len(result["rejected"]) >= 8  # every candidate reported, with its held-out gap
     assert result["gap_before"] < 0.02  # what is left is the nuisance the model does not explain
+    steps = (tmp_path / "gap" / SearchLog.FILE).read_text().splitlines()  # the search's steps, with the frames cast
+    assert "gap before" in steps[0] and sum("held-out gap" in line for line in steps) >= 8, steps
+
+
+def test_the_search_log_keeps_every_step_also_when_the_search_fails(tmp_path):
+    """run_gap's SearchLog: each message with the seconds and frames cast so far, in order, passed on to the
+    caller's progress; written to search.log beside gap.json also when the search raises (the steps up to it)."""
+    seen = []
+    with pytest.raises(RuntimeError):
+        with SearchLog(tmp_path / "gap", lambda text, casts: seen.append((text, casts))) as log:
+            log("gap before: 0.4134", 60)
+            log("atmosphere.rain:intensity=10: held-out gap 0.1407", 400)
+            raise RuntimeError("a worker died")
+    lines = (tmp_path / "gap" / "search.log").read_text().splitlines()
+    assert seen == [("gap before: 0.4134", 60), ("atmosphere.rain:intensity=10: held-out gap 0.1407", 400)]
+    assert [line.split("frames cast")[0].split()[-1] for line in lines] == ["60", "400"]
+    assert [line.split("frames cast  ")[1] for line in lines] == [text for text, _ in seen]
+    assert float(lines[0].split()[0]) <= float(lines[1].split()[0])
+
+
+def test_gap_prints_one_line_per_step_where_stderr_is_not_a_terminal(monkeypatch, capsys, tmp_path):
+    """In a log (CI, nohup, a pipe) a progress bar is one line rewritten thousands of times: the command prints each
+    step of the search on its own line instead, with the frames cast."""
+    import lidar_weather_sim.gap.command as command
+    from lidar_weather_sim.cli import main as cli_main
+
+    def fake_run_gap(measured, scenario, out, progress=None, **kwargs):
+        progress("gap before: 0.3363", 30)
+        progress("atmosphere.snow:intensity=0.267109: held-out gap 0.1538", 812)
+        return {"gap_before": 0.3363, "gap_after": 0.1538, "effects": [], "found": "no effect", "split": {}}
+
+    monkeypatch.setattr(command, "run_gap", fake_run_gap)
+    assert cli_main(["gap", str(tmp_path / "bag"), "--scenario", "highway_clear", "--out", str(tmp_path / "g")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["gap: 30 frames cast: gap before: 0.3363",
+                   "gap: 812 frames cast: atmosphere.snow:intensity=0.267109: held-out gap 0.1538"], err
 
 
 def test_measured_bag_looks_like_a_real_recording(highway, tmp_path, cli):

@@ -292,11 +292,15 @@ def _cmd_gap(args: argparse.Namespace) -> int:
 
     from lidar_weather_sim.gap.command import run_gap
 
-    with tqdm(unit="frame", desc="gap: frames cast") as bar:
+    live = sys.stderr.isatty()  # a bar on a terminal; in a log (CI, nohup, a pipe) one line per step
+    with tqdm(unit="frame", desc="gap: frames cast", disable=not live) as bar:
 
         def progress(text: str, casts: int) -> None:
-            bar.update(casts - bar.n)
-            bar.set_postfix_str(text[:60])
+            if live:
+                bar.update(casts - bar.n)
+                bar.set_postfix_str(text[:60])
+            else:
+                print(f"gap: {casts} frames cast: {text}", file=sys.stderr, flush=True)
 
         result = run_gap(args.measured, args.scenario, args.out, profile=args.profile, topic=args.topic,
                          progress=progress, fit_frames=args.fit_frames, heldout_frames=args.heldout_frames,

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -41,6 +42,31 @@ def scenario_and_split(scenario: Scenario | str | Path, split: DataSplit | None)
     return load_scenario(scenario), beside or split, path.parent / SPLIT_FILE if beside else None
 
 
+class SearchLog:
+    """The search's steps: every progress message, with the seconds since the start and the frames cast, passed on
+    to ``progress`` (None: none) and written to ``out``/search.log when the search ends, also when it fails (the
+    steps up to the failure)."""
+
+    FILE = "search.log"
+
+    def __init__(self, out: str | Path, progress: Callable[[str, int], None] | None) -> None:
+        self.out, self.progress = Path(out), progress
+        self.lines: list[str] = []
+        self.start = time.perf_counter()
+
+    def __call__(self, message: str, casts: int) -> None:
+        self.lines.append(f"{time.perf_counter() - self.start:9.1f} s {casts:8d} frames cast  {message}")
+        if self.progress is not None:
+            self.progress(message, casts)
+
+    def __enter__(self) -> "SearchLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / self.FILE).write_text("".join(f"{line}\n" for line in self.lines))
+
+
 def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Path, *, profile: str | None = None,
             topic: str | None = None, progress: Callable[[str, int], None] | None = None,
             scheduler: str | None = None, workers: int = 0, split: DataSplit | None = None, **budgets) -> dict:  # fmt: skip
@@ -50,7 +76,8 @@ def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Pa
     directory's split.yaml beside it decides the calibration and held-out parts (gap.json's ``split`` then names
     the file).
 
-    ``progress(message, frames cast so far)`` is called as the search goes; ``budgets`` are
+    ``progress(message, frames cast so far)`` is called as the search goes (every message also goes to
+    ``out``/search.log: :class:`SearchLog`); ``budgets`` are
     :class:`~lidar_weather_sim.gap.search.GapSearch` keywords (fit_frames, heldout_frames, families, ...);
     ``split`` (a twin's split.yaml) decides the calibration and held-out parts, and gap.json then also holds
     the bird's-eye metrics of the held-out part before and after the effects (``heldout_bev``).
@@ -59,13 +86,13 @@ def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Pa
     scenario, split, split_file = scenario_and_split(scenario, split)
     recording = Recording.load(measured, topic)
     resim = GapResimulator(recording, scenario, profile)
-    with Engine(scheduler, workers) as engine:
+    with SearchLog(out, progress) as logged, Engine(scheduler, workers) as engine:
         remote = None
         if not engine.serial:  # each worker builds the search again from this
             source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
                                   tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None)  # fmt: skip
             remote = Workers(engine, source)
-        search = GapSearch(resim, progress=progress, workers=remote, split=split, **budgets)
+        search = GapSearch(resim, progress=logged, workers=remote, split=split, **budgets)
         diagnosis = search.run()
         judgement = search.judge(diagnosis)
     patched = apply_effects(scenario, diagnosis.effects)
