@@ -17,6 +17,7 @@ the reference's time in its step + scene cast + detection; ratio in %.
     python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --detector-on-packets
     python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
     python benchmarks/validation/spray_compare.py --scenarios highway_spray --spray mist_packets_per_wheel_per_tick=32
+    python benchmarks/validation/spray_compare.py --scenarios highway_spray --seeds 0,1 --frames 120 --water-along-x
 
 ``--seeds`` runs each scenario once per spray seed (turbulence and emission) and pools the frames:
 a few seconds of proving-ground spray hold one or two turbulent episodes, so one seed's bird's-eye
@@ -88,6 +89,18 @@ def _packets_as_drops(system, time_s: float):
     return dataclasses.replace(packets, pos=system.positions_at(time_s)[keep], weight=packets.weight * packets.airborne)
 
 
+#: (m) x bins ahead of the sensor of ``--water-along-x``
+WATER_X_EDGES_M = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0, 15.0, 20.0)
+
+
+def water_along_x(pos: np.ndarray, cross_section: np.ndarray, origin: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Airborne drops' summed cross-section (m^2) in each x bin of :data:`WATER_X_EDGES_M` ahead of the sensor at
+    ``origin`` / ``rotation`` (sensor to world), within 2 m of its x axis sideways and 0.6 m up or down."""
+    local = (pos - origin) @ rotation
+    near = (np.abs(local[:, 1]) < 2.0) & (np.abs(local[:, 2]) < 0.6)
+    return np.histogram(local[near, 0], WATER_X_EDGES_M, weights=cross_section[near])[0]
+
+
 def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, spray: dict | None = None,
         on_packets: bool = False, seed: int = 0) -> dict:  # fmt: skip
     """Model and reference on the same ``frames`` frames of scenario ``name`` (spray seed ``seed``; ``spray``:
@@ -113,6 +126,7 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
     t = 0.0
     sim_counts, ref_counts, sim_xy, ref_xy, pk_counts, pk_xy = [], [], [], [], [], []
     sim_cost, ref_cost = [], []
+    water = {"model": np.zeros(len(WATER_X_EDGES_M) - 1), "reference": np.zeros(len(WATER_X_EDGES_M) - 1)}
     reference.advance_to(0.0)
     while len(sim_counts) < frames:
         before = timed.seconds
@@ -144,6 +158,13 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
             det = detect_frame(reference, pattern, f.index, f.stamp_s, sensor_poses, scene[0], sim.threshold().level,
                                world.profile.detection.max_echoes, scene[1])  # fmt: skip
             ref_cost.append(time.perf_counter() - t0)
+            (origin,), (rotation,) = sensor_poses(np.array([mid]))
+            mist = system.particles.select(system.particles.population == 1)
+            water["model"] += water_along_x(system.positions_at(mid)[system.particles.population == 1],
+                                            mist.weight * np.pi / 4.0 * mist.diameter**2 * mist.airborne, origin, rotation)
+            drops = reference.particles
+            water["reference"] += water_along_x(drops.pos, drops.weight * np.pi / 4.0 * drops.diameter**2, origin,
+                                                rotation)  # fmt: skip
             ref_counts.append(len(det.range_m))
             ref_xy.append(det.xyz[:, :2])
             if on_packets:
@@ -159,7 +180,7 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
             "model_counts": sim_counts, "reference_counts": ref_counts, "packets_xy": np.concatenate(pk_xy or [np.zeros((0, 2))]),
             "packets_counts": pk_counts, "model_s": float(np.sum(sim_cost)) / (t / period),
             "reference_s": float(np.median(ref_cost)), "reference_drops": len(reference.particles),
-            "model_particles": len(system.particles)}  # fmt: skip
+            "model_particles": len(system.particles), "model_water": water["model"], "reference_water": water["reference"]}  # fmt: skip
 
 
 def summarise(runs: list[dict]) -> dict:
@@ -175,11 +196,14 @@ def summarise(runs: list[dict]) -> dict:
            "reference_drops": runs[-1]["reference_drops"], "model_particles": runs[-1]["model_particles"], **pool}  # fmt: skip
     for who in ("model", "reference", "packets"):
         c = counts[f"{who}_counts"]
+        out[f"{who}_counts_all"] = c
         out[f"{who}_mean"] = float(np.mean(c)) if len(c) else float("nan")
         out[f"{who}_std"] = float(np.std(c)) if len(c) else float("nan")
         xy = pool[f"{who}_xy"]
         out[f"{who}_xy_median"] = np.median(xy, axis=0).round(2).tolist() if len(xy) else None
     out["cost_pct"] = 100.0 * out["model_ms"] / out["reference_ms"]
+    for who in ("model", "reference"):  # per frame
+        out[f"{who}_water"] = sum(r[f"{who}_water"] for r in runs) / len(counts["model_counts"])
     out["packets_pearson"] = metrics(bev(pool["packets_xy"]), bev(pool["reference_xy"]))["pearson"]
     if len(runs) > 1:
         halves = [bev(np.concatenate([r["reference_xy"] for r in runs[i::2]])) for i in (0, 1)]
@@ -189,7 +213,7 @@ def summarise(runs: list[dict]) -> dict:
     return out
 
 
-def report(out: dict, on_packets: bool = False) -> None:
+def report(out: dict, on_packets: bool = False, water: bool = False) -> None:
     print(f"{out['scenario']:18s} pearson {out['pearson']:.3f}  jaccard {out['jaccard_pct']:.0f} %  hamming "
           f"{out['hamming_pct']:.1f} %  detections/frame model {out['model_mean']:.1f}+-{out['model_std']:.1f} "
           f"reference {out['reference_mean']:.1f}+-{out['reference_std']:.1f} (hist overlap "
@@ -201,6 +225,18 @@ def report(out: dict, on_packets: bool = False) -> None:
         print(f"{'':18s} {out['seeds']} seeds pooled; the reference's even seeds against its odd ones: pearson "
               f"{out['reference_split_half_pearson']:.3f}, hist overlap {out['reference_split_half_overlap']:.2f}",
               flush=True)  # fmt: skip
+    if water:
+        edges = WATER_X_EDGES_M
+        print(f"{'':18s} airborne drop cross-section per frame (mm^2) at x {edges[0]:g}-{edges[-1]:g} m ahead "
+              f"(bins {', '.join(f'{e:g}' for e in edges[1:-1])} m), |y| < 2 m, |z| < 0.6 m:", flush=True)  # fmt: skip
+        for who in ("model", "reference"):
+            print(f"{'':18s} {who:9s} " + " ".join(f"{1e6 * v:7.2f}" for v in out[f"{who}_water"]), flush=True)
+        edges_x = np.asarray(edges)
+        for who in ("model", "reference"):
+            xy = out[f"{who}_xy"]
+            n = len(out[f"{who}_counts_all"])
+            print(f"{'':18s} {who:9s} detections per frame in those bins: "
+                  + " ".join(f"{v / n:6.2f}" for v in np.histogram(xy[:, 0], edges_x)[0]), flush=True)  # fmt: skip
     if on_packets:
         print(f"{'':18s} the reference's detector on the model's packets: {out['packets_mean']:.1f} "
               f"detections/frame, median x, y {out['packets_xy_median']}, pearson against the reference "
@@ -261,6 +297,9 @@ def main() -> None:
     ap.add_argument("--detector-on-packets", action="store_true",
                     help="also the reference's detection on the model's drop packets (where a gap lies)")
     ap.add_argument("--seeds", default="0", help="spray seeds (comma-separated): frames of all pooled")
+    ap.add_argument("--water-along-x", action="store_true",
+                    help="also the airborne drops' cross-section and the detections per x bin ahead of the sensor, "
+                         "model packets against reference drops (where the water is against where it is seen)")
     ap.add_argument("--plot", metavar="DIR", help="write bird's-eye histograms of both as DIR/SCENARIO.png")
     ap.add_argument("--spray", action="append", default=[], metavar="KEY=VALUE",
                     help="a spray region parameter (repeatable), e.g. mist_packets_per_wheel_per_tick=32; the "
@@ -283,7 +322,7 @@ def main() -> None:
     for name in args.scenarios.split(","):
         out = summarise([run(name, args.frames, args.warmup, spray=spray, on_packets=args.detector_on_packets,
                              seed=k) for k in seeds])  # fmt: skip
-        report(out, args.detector_on_packets)
+        report(out, args.detector_on_packets, args.water_along_x)
         if args.plot:
             plot(out, args.plot)
 
