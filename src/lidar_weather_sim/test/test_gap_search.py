@@ -8,7 +8,7 @@ import pytest
 
 from lidar_weather_sim.gap import search as search_module
 from lidar_weather_sim.scenario.effects import parse_effect
-from lidar_weather_sim.gap.search import Candidate, Diagnosis
+from lidar_weather_sim.gap.search import Candidate, Diagnosis, rivals
 from lidar_weather_sim.gap.evaluation import CONFIRM_SEED_OFFSETS, MIN_ABS_GAIN, MIN_GAIN
 from lidar_weather_sim.gap.search import refined_ranks
 from lidar_weather_sim.gap.search import GapSearch
@@ -690,6 +690,24 @@ def test_a_weather_effect_is_compared_at_the_end_with_those_that_cannot_go_with_
             assert found.heldout_gap < search.gap_to_beat(diag.gap_after)
 
 
+def test_a_rival_of_the_round_an_effect_won_is_judged_again_at_the_end_fitted_in_its_place():
+    """Seeded draw case 22: the sun won its round within the margin of a dirt, beside a snow fitted without it;
+    refitted together they leave the dirt far behind. Here the rain won its round over a sun within 2 %; fitted in
+    the rain's place beside the dirt as it ended, the sun scores 0.25 against the rain's 0.001: no rival (judged on
+    the round alone it was one, and the rain was not named)."""
+    rain, dirt = parse_effect("atmosphere.rain:intensity=9"), parse_effect("cover.dirt:transmission=0.75")
+    sun = parse_effect("sensor.sun:irradiance=300")
+    search = ValueSearch()
+    round_ = [Candidate(rain, 0.0, 0.0147, 1), Candidate(sun, 0.0, 0.0150, 1)]
+    accepted = [(Candidate(dirt, 0.0, 0.0, 1), 0.3), (round_[0], 0.3)]
+    diag = Diagnosis(0.3, search.gap([dirt, rain], "heldout"), accepted=accepted, rounds=[round_])
+    assert rivals(diag, search.gap_to_beat) == [[], [round_[1]]]  # the round's comparison
+    assert search.conflict_rivals(diag) == [[], []]
+    assert any(line.startswith("sensor.sun:") and "in place of atmosphere.rain" in line for line in search.log)
+    search.give_way_round(diag)  # a round's rival is judged, not put in the effect's place
+    assert diag.effects == [dirt, rain]
+
+
 class FlippingValueSearch(ValueSearch):
     """A ValueSearch whose rain sets score ``worse`` more on the second of the confirmation's redraws."""
 
@@ -1065,10 +1083,12 @@ RAIN, SNOW = parse_effect("atmosphere.rain:intensity=3.6"), parse_effect("atmosp
 ])  # fmt: skip
 def test_a_close_call_under_the_margin_s_absolute_floor_is_told_apart_only_when_it_holds_on_every_redraw(rain, snow,
                                                                                                         rival):
-    """The round's best (a rain) beats a snow by 10 % but by less than the 0.002 floor: a rival unless the rain is
-    above the snow on no redraw and below it by 10 % on their mean (the sets compared on the same redraws)."""
+    """The rain the search ended with beats a snow fitted in its place by 10 % but by less than the 0.002 floor: a
+    rival unless the rain is above the snow on no redraw and below it by 10 % on their mean (the sets compared on the
+    same redraws)."""
     search = RedrawSearch({_set(RAIN): rain, _set(SNOW): snow})
-    round_ = [Candidate(RAIN, 0.0, rain[0], 1, ()), Candidate(SNOW, 0.0, snow[0], 1, ())]
-    diag = Diagnosis(0.18, rain[0], accepted=[(round_[0], 0.18)], rounds=[round_])
-    assert search.round_rivals(diag) == [[round_[1]] if rival else []]
+    snow_in_place = Candidate(SNOW, 0.0, snow[0], 1, ())
+    search.in_place_of = lambda diag: [[([SNOW], snow_in_place)]]
+    diag = Diagnosis(0.18, rain[0], accepted=[(Candidate(RAIN, 0.0, rain[0], 1, ()), 0.18)])
+    assert search.conflict_rivals(diag) == [[snow_in_place] if rival else []]
     assert any("on the redraws" in line for line in search.log) == (rain[0] <= 0.9 * snow[0])

@@ -235,3 +235,23 @@ def test_the_fog_is_named_on_the_range_law_of_its_loss_and_a_pulse_width_residua
     assert [u.text() for u in judgement.unexplained] == ["far field, wider pulses"]
     judgement = judge_effects([SUN], measured, lambda effects: table[frozenset(e.name for e in effects)])
     assert judgement.named == [] and "far field, wider pulses" in judgement.refused[0][1]
+
+
+RAIN = parse_effect("atmosphere.rain:intensity=5")
+
+
+@pytest.mark.parametrize("shift_bins, named", [(0, True), (20, False)])
+def test_a_rain_is_named_only_where_its_drops_echoes_have_the_near_field_s_shape(shift_bins, named):
+    """100 drop echoes in 10 frames where the model without rain has none: a rain that puts them in the same 5 cm
+    bins is named; one that matches their count 1 m further (fixed-generator case 1: a rain fitted for a fog's echoes)
+    removes the zone's count residual but not the shape of its echoes, and is refused."""
+    measured = {**SIMULATED, "near": [100.0]}
+    with_rain = signature(measured)
+    hist = with_rain.sums["near/range"]
+    with_rain.sums["near/range"] = with_rain.squares["near/range"] = np.roll(hist, shift_bins)
+    without = signature(SIMULATED)
+    judgement = judge_effects([RAIN], signature(measured), lambda effects: with_rain if effects else without)
+    assert (judgement.named == [RAIN]) == named
+    if not named:
+        ((effect, reason),) = judgement.refused
+        assert effect == RAIN and reason.startswith("its drops' echoes are not the near field's (near/range 0.9")

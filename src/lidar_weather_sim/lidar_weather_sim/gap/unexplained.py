@@ -47,7 +47,13 @@ effect of the round it won by the margin a new effect must win (:func:`not_told_
 :meth:`~lidar_weather_sim.gap.evaluation.GapEvaluator.gap_to_beat` of theirs): the search would not have taken it in
 place of them, so the data did not tell them apart and a name would be a coin toss (draw case 21: the soft echoes of
 `fog_spread`, fitted beside its fog as a snow of 0.64 mm/h that a rain of 2.2 mm/h matched; case 28: the loss of a
-rain of 6.8 mm/h behind dirt, fitted as a fog of 189 m that a rain of 0.78 mm/h matched). The sensor family's
+rain of 6.8 mm/h behind dirt, fitted as a fog of 189 m that a rain of 0.78 mm/h matched); the rivals are those of
+the round it won judged again at the end, each fitted in its place beside the others as they ended
+(:meth:`~lidar_weather_sim.gap.search.GapSearch.conflict_rivals`). A rain or a snow is named only where its drops'
+echoes have the recording's shape (:func:`unlike_its_drops`): each of the near zone's range, EPW and intensity terms
+of the gap with every accepted effect in place at most :data:`DROP_SHAPE_LIMIT`; a count of echoes matched by the rate
+alone is not a rain (fixed-generator case 1: a rain of 9.9 mm/h fitted for `fog_spread`'s soft echoes, near-field
+terms 0.13-0.26; the model's or the independent reference's own rain and snow: at most 0.007). The sensor family's
 effects (read off the data, or the unit's response) have no zones here and are named as the search accepts them.
 
 **On a twin of the recording** (a scene whose reflectivity was read off the recording's own returns, through the air
@@ -66,7 +72,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from lidar_weather_sim.gap.signatures import RANGE_EDGES, ZONES, Signature
+from lidar_weather_sim.gap.signatures import RANGE_EDGES, ZONES, Signature, gap_terms
 from lidar_weather_sim.scenario.effects import Effect
 
 SIGMA = 3.0  # a band's residual counts beyond this many standard deviations of the counting noise
@@ -78,6 +84,14 @@ MIN_SHAPE = 0.10
 WEAK_END = 0.01  # a main parameter within this share of its weakest bound is at the weak end of the range
 REMAINING = 0.2  # with the effect, its zones' residual must be gone or at most this share of what it was without it
 MIN_TREND_RETURNS = 20.0  # bands with fewer returns (both sides) do not enter the trend of the ratio
+#: rain and snow are named only where their drops' echoes have the recording's near-field shape: each of the near
+#: zone's range, EPW and intensity terms of the gap (systematic Bray-Curtis) with every accepted effect in place at
+#: most this. The model's or the independent reference's rain and snow fitted to their own: 0.000-0.007; a rain fitted
+#: for a generator's fog echoes (fixed-generator case 1): 0.13-0.26; a rain fitted at a quarter of `precip_dsd`'s
+#: rate, whose drops lie nearer (fixed-generator case 3): its range 0.20
+DROP_SHAPE_LIMIT = 0.05
+DROP_EFFECTS = ("atmosphere.rain", "atmosphere.snow")
+DROP_TERMS = ("near/range", "near/epw", "near/intensity")
 RANGE_ZONES = ("body", "wake", "road", "far")
 BANDS: dict[str, tuple[tuple[float, float], ...]] = {
     "cover": ((0.0, 0.5),),
@@ -374,6 +388,16 @@ class Judgement:
                 "effect_aspects": {k: list(v) for k, v in EFFECT_ASPECTS.items()}}  # fmt: skip
 
 
+def unlike_its_drops(terms: dict[str, float]) -> str | None:
+    """Why a rain or a snow may not be named because the near field's echoes with it in place do not have the
+    recording's shape (``terms``: the gap's terms with every accepted effect; :data:`DROP_SHAPE_LIMIT`), else None:
+    a count of drops matched by the rate alone is not a rain or a snow."""
+    off = [f"{k} {terms[k]:.3f}" for k in DROP_TERMS if terms.get(k, 0.0) > DROP_SHAPE_LIMIT]
+    if not off:
+        return None
+    return f"its drops' echoes are not the near field's ({', '.join(off)}; at most {DROP_SHAPE_LIMIT:g})"
+
+
 def not_told_apart(effect: Effect, rivals) -> str | None:
     """Why the weather effect ``effect`` may not be named because it did not beat other effects by the search's
     margin (``rivals``: their candidates, with ``effect`` and ``heldout_gap``; module doc), else None."""
@@ -394,10 +418,14 @@ def judge_effects(accepted: list[Effect], measured: Signature, simulate, calibra
     def residuals(effects: list[Effect]) -> dict[str, ZoneResidual]:
         return zone_residuals(measured, simulate(effects), calibration)
 
-    with_all = residuals(accepted)
+    simulated = simulate(accepted)
+    with_all = zone_residuals(measured, simulated, calibration)
+    shape = gap_terms(measured, simulated) if any(e.name in DROP_EFFECTS for e in accepted) else {}
     out = Judgement(twin=twin)
     for i, effect in enumerate(accepted):
         reason = at_weak_end(effect)
+        if reason is None and effect.name in DROP_EFFECTS:
+            reason = unlike_its_drops(shape)
         if reason is None and effect.name in EFFECT_ZONES:
             without = residuals(accepted[:i] + accepted[i + 1 :])
             reason = removes_its_residual(effect.name, without, with_all, twin)
