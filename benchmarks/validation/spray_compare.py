@@ -93,11 +93,13 @@ def _packets_as_drops(system, time_s: float):
 WATER_X_EDGES_M = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0, 15.0, 20.0)
 
 
-def water_along_x(pos: np.ndarray, cross_section: np.ndarray, origin: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """Airborne drops' summed cross-section (m^2) in each x bin of :data:`WATER_X_EDGES_M` ahead of the sensor at
-    ``origin`` / ``rotation`` (sensor to world), within 2 m of its x axis sideways and 0.6 m up or down."""
-    local = (pos - origin) @ rotation
+def water_along_x(drops, origin: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """The airborne ``drops``' (reference drops, or the model's packets as such: :func:`_packets_as_drops`) summed
+    cross-section (m^2) in each x bin of :data:`WATER_X_EDGES_M` ahead of the sensor at ``origin`` / ``rotation``
+    (sensor to world), within 2 m of its x axis sideways and 0.6 m up or down."""
+    local = (drops.pos - origin) @ rotation
     near = (np.abs(local[:, 1]) < 2.0) & (np.abs(local[:, 2]) < 0.6)
+    cross_section = drops.weight * np.pi / 4.0 * drops.diameter**2
     return np.histogram(local[near, 0], WATER_X_EDGES_M, weights=cross_section[near])[0]
 
 
@@ -159,12 +161,8 @@ def run(name: str, frames: int, warmup_s: float, airborne: float | None = None, 
                                world.profile.detection.max_echoes, scene[1])  # fmt: skip
             ref_cost.append(time.perf_counter() - t0)
             (origin,), (rotation,) = sensor_poses(np.array([mid]))
-            mist = system.particles.select(system.particles.population == 1)
-            water["model"] += water_along_x(system.positions_at(mid)[system.particles.population == 1],
-                                            mist.weight * np.pi / 4.0 * mist.diameter**2 * mist.airborne, origin, rotation)
-            drops = reference.particles
-            water["reference"] += water_along_x(drops.pos, drops.weight * np.pi / 4.0 * drops.diameter**2, origin,
-                                                rotation)  # fmt: skip
+            for who, drops in (("model", _packets_as_drops(system, mid)), ("reference", reference.particles)):
+                water[who] += water_along_x(drops, origin, rotation)
             ref_counts.append(len(det.range_m))
             ref_xy.append(det.xyz[:, :2])
             if on_packets:

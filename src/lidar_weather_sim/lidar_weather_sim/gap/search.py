@@ -173,20 +173,14 @@ def same_variant(a: Effect, b: Effect) -> bool:
         k: v for k, v in b.params.items() if k != main}
 
 
-def members(c: Candidate) -> list[Effect] | None:
-    """The effect set ``c`` was scored with (None: the accepted effects as they were, not recorded)."""
-    return None if c.companions is None else [*c.companions, c.effect]
-
-
-def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float],
-           told_apart: Callable[[Candidate, Candidate], bool] = lambda ours, theirs: False) -> list[list[Candidate]]:
+def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float]) -> list[list[Candidate]]:
     """Per accepted effect of ``diag``, the candidates of other effects in the last round it won that it does not beat
     by the margin a new effect must win: its held-out gap above ``gap_to_beat`` of theirs. By the search's own
     standard the data did not tell them apart. Not one that cannot go with the other accepted effects as they ended
     (a snow or a rain beside the rain the search ended with): it cannot stand in its place (seeded draw case 6, rain
     20.9 mm/h behind a dirt of 0.726: the dirt won the first round by 8 % over a snow and a rain, and was refused for
-    them although the search then found the rain). Nor one that the round's best is ``told_apart`` from (its
-    candidate, theirs; :meth:`GapSearch.told_apart`)."""
+    them although the search then found the rain). The judgement fits each again in the effect's place at the end
+    (:meth:`GapSearch.in_place_of`)."""
     out = []
     effects = diag.effects
     for i, (candidate, _) in enumerate(diag.accepted):
@@ -198,8 +192,7 @@ def rivals(diag: Diagnosis, gap_to_beat: Callable[[float], float],
         best = min(won[-1], key=lambda c: c.heldout_gap) if won else None
         out.append([] if best is None else [c for c in won[-1] if c.effect.name != name
                                             and best.heldout_gap > gap_to_beat(c.heldout_gap)
-                                            and conflicts(others + [c.effect]) is None
-                                            and not told_apart(best, c)])  # fmt: skip
+                                            and conflicts(others + [c.effect]) is None])  # fmt: skip
     return out
 
 
