@@ -121,6 +121,36 @@ def test_the_grid_interpolation_is_numpys_bit_for_bit():
     assert got.tobytes() == want.tobytes()
 
 
+def test_the_inverse_of_the_drops_cumulative_count_is_numpys_interpolation_bit_for_bit():
+    """The drops' ranges: ``np.interp`` of uniform draws on the cumulative count (non-decreasing, flat where no drop
+    can be seen), found by bisection inside a bucket of the count instead of numpy's search."""
+    from lidar_weather_sim.regions.physical_air import _interp_sorted, bucket_index
+
+    rng = np.random.default_rng(11)
+    steps = rng.random(9000) * (rng.random(9000) < 0.7)  # 30 % flat steps: repeated values
+    xp = np.concatenate([[0.0], np.cumsum(steps)])
+    fp = np.arange(len(xp)) * 0.02 + 0.05
+    x = np.concatenate([rng.uniform(-1.0, xp[-1] + 1.0, 200_000), xp[::5], xp[-1:], [np.nan, np.inf, -np.inf]])
+    got = _interp_sorted(x, xp, fp, *bucket_index(xp), np.empty(len(x)))
+    assert got.tobytes() == np.interp(x, xp, fp).tobytes()
+    air = PhysicalAir(load_profile("os1_128_2048"), None, ("rain", 10.0))
+    x = rng.random(200_000) * air._cum[-1]
+    got = _interp_sorted(x, air._cum, air._grid, *air._cum_index, np.empty(len(x)))
+    assert got.tobytes() == np.interp(x, air._cum, air._grid).tobytes()
+
+
+@pytest.mark.parametrize("name", ["os1_128_2048", "vlp16", "hdl64e"])
+def test_a_drop_is_in_the_receivers_view_exactly_where_a_draw_lies_below_the_overlap_function(name):
+    """Cone overlap: the bounds on O(r) per range cell decide most drops; the decisions are u < O(r) itself."""
+    air = PhysicalAir(load_profile(name), None, ("rain", 10.0))
+    rng = np.random.default_rng(4)
+    r = np.concatenate([rng.uniform(0.0, 8.0, 200_000), rng.uniform(0.0, air.r_max + 1.0, 100_000)])
+    u = np.random.default_rng(9).random(len(r))
+    seen = air._seen_share(r, np.random.default_rng(9))
+    assert np.array_equal(seen, (u < air._overlap(r)).astype(np.float64))
+    assert 0.0 < seen[:200_000].mean() < 1.0  # the near field holds drops on both sides of the receiver's view
+
+
 @pytest.mark.parametrize("name", ["os1_128_2048", "vlp16", "hdl64e", "scala4"])
 @pytest.mark.validation
 def test_drops_see_the_overlap_function_itself_nearer_and_exactly_one_beyond_full_overlap(name):

@@ -49,7 +49,7 @@ fog droplet statistics: the fast model is checked against it (``benchmarks/valid
 
 from __future__ import annotations
 
-from functools import cache, partial
+from functools import cache, cached_property, partial
 
 
 import numba
@@ -68,6 +68,7 @@ DETECTABLE_FRACTION = 0.5  # drops reaching this share of the threshold alone ar
 VOLUME_FLOOR = 0.02  # the volume's waveform below this share of the threshold is left out
 DEFAULT_WAVELENGTH_NM = 905.0
 GRID_M = 0.02  # the range grid of the per-beam drop volumes (m)
+BOUND_POINTS = 17  # values of the overlap per grid cell that bound it there (drops in the receiver's view or not)
 MIN_EXIT_RADIUS_M = 1e-3  # a beam's exit radius at least (m): a profile of no aperture and no divergence has no
 # volume to hold drops (the shipped profiles' exits are 2-5 mm)
 #: the seed of the near field's realisations, the same for every weather state (common random numbers): a fog's
@@ -115,6 +116,7 @@ class PhysicalAir:
                                                     **overlap.keywords) if widening else np.inf)  # fmt: skip
         if self.precip is not None:
             self._cum, self._d_min = self._drop_tables(self.precip)
+            self._cum_index = bucket_index(self._cum)
         sampled = None if overlap is None else optics_overlap(o.overlap_model, self.r_max, **overlap.keywords)
         self._sampled = VolumeReturn(self.power, self.alpha, 1.0, sigma, start, o.overlap_full_m, sampled)
         self.air_volume = self._air_volume(float(self._grid[0]))
@@ -135,6 +137,21 @@ class PhysicalAir:
         d_min = np.sqrt(DETECTABLE_FRACTION * self.threshold / np.maximum(per_sigma, 1e-300) / per_d2)
         f = m.number_above(d_min) * s
         return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(r))]), d_min
+
+    @cached_property
+    def _overlap_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per cell [r_k, r_k + GRID_M) of the range grid: bounds (lower, upper) on O(r) over it and its two
+        neighbours, from :data:`BOUND_POINTS` values per cell, widened by the largest step between two of them
+        (a drop's cell is found by a division that may put it one off), so that a uniform draw below the lower
+        or at the upper decides u < O(r) as O(r) itself does."""
+        sub = self._grid[:, None] + GRID_M * np.linspace(0.0, 1.0, BOUND_POINTS)[None, :]
+        o = self._overlap(sub.ravel()).reshape(sub.shape)
+        step = np.abs(np.diff(o, axis=1)).max(axis=1)
+        lo, hi = o.min(axis=1) - step, o.max(axis=1) + step
+        lo = np.minimum(np.minimum(lo, np.roll(lo, 1)), np.roll(lo, -1))
+        hi = np.maximum(np.maximum(hi, np.roll(hi, 1)), np.roll(hi, -1))
+        lo[[0, -1]], hi[[0, -1]] = -1.0, 2.0  # the grid's ends: left open
+        return lo, hi
 
     def beta(self, range_m: np.ndarray) -> np.ndarray:
         """The volume's backscatter (1/(m sr)) at ``range_m`` (m) that the receiver sees: the fog's (times
@@ -200,7 +217,8 @@ class PhysicalAir:
         if not len(beam):
             return None
         # ranges by the inverse of the cumulative count, each in front of its beam's hit
-        rng_m = np.interp(rng.random(len(beam)) * expected[beam], self._cum, r)
+        x = rng.random(len(beam)) * expected[beam]
+        rng_m = _interp_sorted(x, self._cum, r, *self._cum_index, np.empty(len(beam)))
         share = self._seen_share(rng_m, rng)
         seen = share > 0
         beam, rng_m, share = beam[seen], rng_m[seen], share[seen]
@@ -220,7 +238,13 @@ class PhysicalAir:
         overlap: each drop at a uniform place on the beam's disc gives the share of its blur disc on the field stop
         (:func:`lidar_weather_sim.physics.overlap.point_share`); its mean over the disc is O(r)."""
         if self.overlap_model == "cone" or self._optics is None:
-            return (rng.random(len(range_m)) < self._overlap(range_m)).astype(np.float64)
+            u = rng.random(len(range_m))
+            lo, hi = self._overlap_bounds
+            seen = np.empty(len(range_m))
+            if _seen_by_bounds(u, range_m, float(self._grid[0]), GRID_M, lo, hi, seen):
+                left = np.flatnonzero(seen < 0.0)
+                seen[left] = u[left] < self._overlap(range_m[left])
+            return seen
         separation, fov, rx_radius = self._optics
         rho = (self.exit_radius + range_m * np.tan(0.5 * self.divergence)) * np.sqrt(rng.random(len(range_m)))
         phi = 2.0 * np.pi * rng.random(len(range_m))
@@ -265,14 +289,77 @@ def _interp_uniform(x, x0, h, xp, fp, out):
             j -= 1
         while j < n - 1 and xp[j + 1] <= v:
             j += 1
-        if j == n - 1 or xp[j] == v:
-            out[i] = fp[j]
-            continue
-        slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-        y = slope * (v - xp[j]) + fp[j]
-        if np.isnan(y):
-            y = slope * (v - xp[j + 1]) + fp[j + 1]
-            if np.isnan(y) and fp[j] == fp[j + 1]:
-                y = fp[j]
-        out[i] = y
+        out[i] = _numpy_interp_at(v, j, xp, fp)
     return out
+
+
+def bucket_index(xp: np.ndarray) -> tuple[np.ndarray, float]:
+    """For :func:`_interp_sorted` on the non-decreasing ``xp`` (>= 0): per bucket [b h, (b + 1) h) of len(xp)
+    equal buckets of [0, xp[-1]], the last index j with xp[j] <= b h (-1: none), and 1 / h."""
+    m = len(xp)
+    h = float(xp[-1]) / m if m and xp[-1] > 0 else 1.0
+    return np.searchsorted(xp, h * np.arange(m + 1), side="right").astype(np.int64) - 1, 1.0 / h
+
+
+@numba.njit(cache=True, nogil=True)
+def _interp_sorted(x, xp, fp, index, inv_h, out):
+    """``np.interp(x, xp, fp)`` into ``out`` for a non-decreasing ``xp``: the last j with xp[j] <= x by bisection
+    between the bounds of x's bucket (``index``, ``inv_h``: :func:`bucket_index`), then numpy's own arithmetic, so
+    the values are its values bit for bit."""
+    n, m = len(xp), len(index) - 1
+    for i in range(len(x)):
+        v = x[i]
+        if np.isnan(v):
+            out[i] = v
+        elif v < xp[0]:
+            out[i] = fp[0]
+        elif v > xp[n - 1]:
+            out[i] = fp[n - 1]
+        else:
+            b = min(max(int(v * inv_h), 0), m - 1)
+            lo, hi = max(index[b], 0), min(index[b + 1] + 1, n - 1)
+            if xp[lo] > v or (hi < n - 1 and xp[hi + 1] <= v):
+                lo, hi = 0, n - 1  # the bucket's bounds miss v (its division rounded the other way): all of xp
+            while lo < hi:  # the last index in [lo, hi] with xp <= v
+                mid = (lo + hi + 1) >> 1
+                if xp[mid] <= v:
+                    lo = mid
+                else:
+                    hi = mid - 1
+            out[i] = _numpy_interp_at(v, lo, xp, fp)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _numpy_interp_at(v, j, xp, fp):
+    """``np.interp``'s value at ``v`` in [xp[j], xp[j + 1]) (numpy/_core/src/multiarray/compiled_base.c,
+    arr_interp): fp[j] at the last point or on a point, else the line through j and j + 1, from the other end
+    where that is not a number."""
+    if j == len(xp) - 1 or xp[j] == v:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (v - xp[j]) + fp[j]
+    if np.isnan(y):
+        y = slope * (v - xp[j + 1]) + fp[j + 1]
+        if np.isnan(y) and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
+
+
+@numba.njit(cache=True, nogil=True)
+def _seen_by_bounds(u, range_m, x0, h, lo, hi, out):
+    """Where the bounds decide it, whether each drop (uniform draw ``u``, range ``range_m`` m) is seen (1.0) or not
+    (0.0), u < O(r), into ``out``; -1.0 where they do not. ``lo``, ``hi``: bounds on O over the cells
+    [x0 + k h, x0 + (k + 1) h) and their neighbours. Returns how many are left open."""
+    n = len(lo)
+    open_ = 0
+    for i in range(len(u)):
+        k = int(np.floor((range_m[i] - x0) / h))
+        if 0 <= k < n and u[i] < lo[k]:
+            out[i] = 1.0
+        elif 0 <= k < n and u[i] >= hi[k]:
+            out[i] = 0.0
+        else:
+            out[i] = -1.0
+            open_ += 1
+    return open_
