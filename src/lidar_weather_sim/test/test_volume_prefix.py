@@ -12,7 +12,8 @@ from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sensor import echo
 from lidar_weather_sim.sensor.echo import detect_echoes
 from lidar_weather_sim.sensor.profile import load_profile
-from lidar_weather_sim.sensor.radiometry import MIN_RANGE_M, Threshold
+from lidar_weather_sim.sensor.radiometry import FWHM_TO_SIGMA, MIN_RANGE_M, Threshold
+from lidar_weather_sim.sensor import volume_prefix
 from lidar_weather_sim.sensor.volume_prefix import build_prefix
 from lidar_weather_sim.sensor.volume_tables import build_table, stack_volume
 from lidar_weather_sim.sim.simulator import LidarSimulator
@@ -76,11 +77,61 @@ def test_shared_echoes_are_every_beams_own_on_seeded_draws(profile_name, seed):
     got = assert_same_echoes(candidates, threshold=threshold, fwhm_m=profile.pulse.fwhm_m, resolution_m=0.0,
                              max_echoes=profile.detection.max_echoes, volume=volume)  # fmt: skip
     detector = echo.Detector(thr, s, 0.0, profile.detection.max_echoes)
-    prefix = build_prefix(volume, thr, detector.max_echoes, lambda v: echo._group_echoes(v, detector))
+    prefix = build_prefix(volume, detector, lambda v: echo._group_echoes(v, detector))
     assert (prefix.group >= 0).mean() > 0.6  # the groups are used: the test compares the shared path
     assert len(prefix.over_first) >= 3  # ... with their near-field echoes
     fog_echoes = np.unique(got["beam"][(got["label"] == 3) & (got["range_m"] < 10.0)])
     assert len(fog_echoes) > 0.5 * n
+
+
+def fog_batch(tables, rng, n: int, scales) -> tuple[tuple, object]:
+    """Candidates and volume of ``n`` beams on ``tables`` (one fog layer, table 0-2, scale drawn from
+    ``scales``), a hard target on 70 % of them (amplitude 0.1-1000 thresholds at 0.5-60 m)."""
+    layers = rng.integers(0, len(tables), (n, 1))
+    scale = rng.choice(scales, (n, 1))
+    hit = np.where(rng.random(n) < 0.7, rng.uniform(0.5, 60.0, n), np.inf)
+    volume = stack_volume(tables, layers, scale, hit[:, None])
+    beams = np.flatnonzero(np.isfinite(hit))
+    candidates = (beams.astype(np.int64), hit[beams], 10 ** rng.uniform(-1, 3, len(beams)),
+                  np.ones(len(beams), np.uint8), np.arange(len(beams), dtype=np.uint32))  # fmt: skip
+    return candidates, volume
+
+
+def test_a_later_batch_of_the_same_tables_reads_the_groups_kept_and_finds_every_beams_own_echoes(monkeypatch):
+    """The groups' echoes are kept per stack of tables and receiver: a second batch of the same tables (a later
+    batch of the same weather) computes no group it met before, uses them even for a beam alone in its group,
+    and its echoes equal those of every beam sampled alone; when more groups come than are kept
+    (``GROUPS``), a batch's new ones serve that batch alone, the echoes still the same."""
+    profile = load_profile("os1_128_2048")
+    tables = [table(profile, "fog", vr) for vr in (40.0, 50.0, 60.0)]
+    threshold = Threshold.under_sun(profile.detection)
+    sigma = float(profile.pulse.fwhm_m) * FWHM_TO_SIGMA  # the receiver as detect_echoes keys its groups
+    detector = echo.Detector(float(threshold.level), sigma, 0.0, int(profile.detection.max_echoes))
+    kwargs = dict(threshold=threshold, fwhm_m=profile.pulse.fwhm_m, resolution_m=0.0,
+                  max_echoes=profile.detection.max_echoes)  # fmt: skip
+    made = []
+    group_prefixes = volume_prefix._group_prefixes
+    monkeypatch.setattr(volume_prefix, "_group_prefixes",
+                        lambda v, t, *a: made.append(len(t)) or group_prefixes(v, t, *a))  # fmt: skip
+    rng = np.random.default_rng(7)
+    candidates, volume = fog_batch(tables, rng, 300, [1.0, 0.8, 0.6])
+    assert_same_echoes(candidates, volume=volume, **kwargs)
+    assert sum(made) == 9  # three tables at three scales, each group found once for the batch
+    made.clear()
+    candidates, volume = fog_batch(tables, rng, 300, [1.0, 0.8, 0.6])
+    _, one_each = np.unique(np.concatenate([volume.table, volume.scale], axis=1), axis=0, return_index=True)
+    later = volume._replace(table=volume.table[one_each], scale=volume.scale[one_each], hit_m=volume.hit_m[one_each])
+    alone = build_prefix(later, detector, lambda v: echo._group_echoes(v, detector))  # each beam its own group
+    assert len(one_each) == 9 and (alone.group >= 0).all()
+    assert_same_echoes(candidates, volume=volume, **kwargs)
+    assert made == []  # nothing new: every group was kept
+    monkeypatch.setattr(volume_prefix._StackGroups, "GROUPS", 20)
+    for _ in range(3):  # 30 scales a batch, 3 tables: more groups than kept
+        candidates, volume = fog_batch(tables, rng, 400, rng.uniform(0.3, 1.0, 30))
+        assert_same_echoes(candidates, volume=volume, **kwargs)
+        assert (build_prefix(volume, detector, lambda v: echo._group_echoes(v, detector)).group >= 0).mean() > 0.5
+        kept = volume_prefix._StackGroups.of(volume, tuple(detector))
+        assert 9 <= len(kept.index) <= 20 and len(kept.usable) == len(kept.index)
 
 
 FOG_50 = {"fog": {"visual_range_m": 50.0}}

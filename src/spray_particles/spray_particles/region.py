@@ -184,8 +184,9 @@ class SprayRegion:
         dirs = batch.directions.reshape(-1, 3)
         # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
         # (one dot product per ray); only the rays inside one of these cones go further
-        ref = batch.origins.mean(axis=0)
-        spread = float(np.sqrt(np.max(np.sum((batch.origins - ref) ** 2, axis=1))))
+        ref = np.array([batch.origins[:, k].mean() for k in range(3)])  # (numpy reduces (N, 3) along N ~10x slower)
+        off = batch.origins - ref
+        spread = float(np.sqrt(np.max(np.einsum("ij,ij->i", off, off))))
         lo, hi, largest = group_bounds(centres, radii, p.group, p.n_groups)
         chosen = np.zeros(len(lo), bool)
         ray_mask = np.zeros(len(dirs), bool)

@@ -175,8 +175,7 @@ def detect_echoes(
     detector = Detector(float(threshold.level), sigma, float(resolution_m), int(max_echoes))
     prefix = None
     if volume is not None and shared_prefix:
-        prefix = build_prefix(volume, detector.threshold, detector.max_echoes,
-                              lambda group_volume: _group_echoes(group_volume, detector))  # fmt: skip
+        prefix = build_prefix(volume, detector, lambda group_volume: _group_echoes(group_volume, detector))
     out = _detect(candidates, detector, scratch, segments, volume, prefix)
     return Echoes(*out)
 
@@ -202,7 +201,8 @@ def _with_volume_beams(candidates: tuple, segments, volume: Volume, sigma: float
     if segments is not None:
         runs = [slice(int(a), int(a + c)) for a, c in zip(*segments)]
         candidates = tuple(np.concatenate([x[run] for run in runs]) for x in candidates)
-    carriers = np.flatnonzero(((volume.table >= 0) & (volume.scale > 0)).any(axis=1))
+    carriers = np.flatnonzero(np.logical_or.reduce([(volume.table[:, k] >= 0) & (volume.scale[:, k] > 0)
+                                                    for k in range(volume.table.shape[1])]))  # fmt: skip
     empty = (np.repeat(carriers, max_echoes), np.full(len(carriers) * max_echoes, np.nan),
              np.zeros(len(carriers) * max_echoes), np.zeros(len(carriers) * max_echoes, np.uint8),
              np.zeros(len(carriers) * max_echoes, np.uint32))  # fmt: skip

@@ -600,7 +600,8 @@ def _volume(rays: RayBatch | None, effect: RegionEffect | None) -> Volume | None
     scene_hit = np.where(np.isfinite(distance), distance + effect.range_offset_m[:, core], np.inf)
     one_way = effect.transmission
     two_way = one_way[:, core] ** 2  # exact where every sub-ray passes the same light
-    mixed = np.flatnonzero((one_way != one_way[:, :1]).any(axis=1))
+    # column by column: numpy's any(axis=1) over (N, 3) takes ~6x as long
+    mixed = np.flatnonzero(np.logical_or.reduce([one_way[:, k] != one_way[:, 0] for k in range(one_way.shape[1])]))
     if len(mixed):
         weights = np.asarray(rays.weights, dtype=np.float64)
         two_way[mixed] = one_way[mixed] ** 2 @ (weights / weights.sum())
