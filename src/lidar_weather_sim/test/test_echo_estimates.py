@@ -115,3 +115,56 @@ def test_the_range_of_overlapping_pulses_is_the_waveforms_maximum_between_the_sa
     assert len(errors) >= 30
     assert max(errors) <= 0.05 * s / 8.0 and np.median(errors) <= 0.005 * s / 8.0
     assert max(grid_errors) > 0.3 * s / 8.0  # the highest sample alone: up to half a step off
+
+
+@pytest.mark.parametrize("profile_name, seed", [("os1_128_2048", 11), ("vlp16", 12), ("hdl64e", 13)])
+def test_pulses_in_a_faint_volume_give_the_whole_windows_echo_from_their_deciding_samples(profile_name, seed):
+    """A hard target's pulses (1-3 within 0.25 m, 1.2-3000 thresholds) in a rain volume scaled to 0.05-0.9 of the
+    threshold and cut at the target, on seeded draws: the echo of ``_isolated_echo`` (the samples in the two
+    crossing bands and around the peak) equals, field for field and bit for bit, the one ``_open_echoes`` finds
+    over the whole window; it decides most draws, and leaves to the window those it cannot (pulses near the
+    threshold, or far apart)."""
+    from lidar_weather_sim.sensor.profile import load_profile
+    from lidar_weather_sim.sensor.volume_tables import INTERPOLATION_GAIN, build_table, stack_volume
+    from lidar_weather_sim.testing.lidar_integral import medium_return
+
+    profile = load_profile(profile_name)
+    dark = radiometry.Threshold.under_sun(profile.detection)
+    rain = medium_return(profile, "rain", 50.0)
+    tables = [build_table(rain.density, sigma_m=rain.sigma_m, r_max_m=float(profile.range.max_m), label=4,
+                          start_m=max(rain.overlap_start_m, radiometry.MIN_RANGE_M),
+                          tau_m=float(profile.detection.ac_coupling_tau_m), floor=0.02 * dark.level)]  # fmt: skip
+    thr = dark.level
+    s = float(profile.pulse.fwhm_m) * radiometry.FWHM_TO_SIGMA
+    dx = s / 8.0
+    detector = echo.Detector(thr, s, 0.0, 2)
+    rng = np.random.default_rng(seed)
+    decided = 0
+    draws = 300
+    for _ in range(draws):
+        k = int(rng.integers(1, 4))
+        r = np.sort(rng.uniform(0.5, 15.0) + rng.uniform(0.0, 0.25, k))
+        a = thr * 10 ** rng.uniform(np.log10(1.2), np.log10(3000.0), k) / k
+        scale = rng.uniform(0.05, 0.9) * thr / (INTERPOLATION_GAIN * tables[0].wave.max())
+        volume = stack_volume(tables, np.zeros((1, 1), np.int64), np.array([[scale]]), r[:1, None] + 0.05)
+        v_max = thr * 1e-9 + INTERPOLATION_GAIN * scale * volume.peak[0]
+        pulses = echo.Pulses(r, a, np.array([echo._reach(x, thr, s) for x in a]), np.full(k, 1, np.uint8),
+                             np.arange(1, k + 1, dtype=np.uint32))  # fmt: skip
+        outs = [echo.EchoBuffers(*(np.zeros(4, t) for t in (np.int64, np.uint8, np.float64, np.float64, np.float64,
+                                                             np.uint8, np.uint32))) for _ in range(2)]  # fmt: skip
+        scratch = echo.VolumeScratch(np.empty(0), np.empty(0, np.uint8), np.empty(0))
+        got, _ = echo._isolated_echo(pulses, (0, k), detector, volume, 0, v_max, outs[0], 0, scratch)
+        first = int(np.floor((r[0] - 12.0 * s) / dx))
+        n = int(np.ceil((r[-1] + 12.0 * s) / dx)) - first
+        whole, _ = echo._open_echoes(pulses, (0, k), detector, volume, (0, first, n), outs[1], 0, 2, np.empty(n + 2),
+                                     scratch)  # fmt: skip
+        if got < 0:
+            continue
+        decided += 1
+        assert got == whole == 1
+        for field in ("range_m", "amplitude", "epw_m", "label", "object_id"):
+            assert getattr(outs[0], field)[0] == getattr(outs[1], field)[0], field
+    assert decided > 0.6 * draws
+    far = echo.Pulses(np.array([5.0, 5.0 + 6.0 * s]), np.array([10.0 * thr, 10.0 * thr]), np.zeros(2),
+                      np.ones(2, np.uint8), np.ones(2, np.uint32))  # fmt: skip
+    assert echo._isolated_echo(far, (0, 2), detector, volume, 0, v_max, outs[0], 0, scratch)[0] == -1
