@@ -197,10 +197,10 @@ def _group_echoes(group_volume: Volume, detector: Detector) -> tuple:
 def _with_volume_beams(candidates: tuple, segments, volume: Volume, sigma: float, max_echoes: int,
                        threshold: float) -> tuple:  # fmt: skip
     """The candidates (of the runs ``segments``, if given) and ``max_echoes`` empty ones (zero amplitude) on every
-    beam carrying a volume layer that may give an echo: each such beam is detected, with room for its echoes. A
-    beam without candidates whose layers stay below ``threshold`` (noise units) together (the kernel's bound: 1.25
-    times the sum of their scales times their tables' peaks) gives none, and is left out (rain's and snow's sky
-    beams)."""
+    beam carrying a volume layer that may give an echo, grouped by beam (ascending, each beam's own candidates
+    first): each such beam is detected, with room for its echoes. A beam without candidates whose layers stay
+    below ``threshold`` (noise units) together (the kernel's bound: 1.25 times the sum of their scales times their
+    tables' peaks) gives none, and is left out (rain's and snow's sky beams)."""
     if volume.dx != sigma / 8.0:
         raise ValueError(f"volume tables on a grid of {volume.dx} m, the echo stage samples every {sigma / 8.0} m")
     if segments is not None:
@@ -215,11 +215,36 @@ def _with_volume_beams(candidates: tuple, segments, volume: Volume, sigma: float
     quiet = INTERPOLATION_GAIN * bound < threshold * (1.0 - 1e-9)
     if quiet.any():
         quiet[np.asarray(candidates[0])[np.asarray(candidates[0]) < n]] = False  # beams with candidates stay
-    carriers = np.flatnonzero(carrying & ~quiet)
-    empty = (np.repeat(carriers, max_echoes), np.full(len(carriers) * max_echoes, np.nan),
-             np.zeros(len(carriers) * max_echoes), np.zeros(len(carriers) * max_echoes, np.uint8),
-             np.zeros(len(carriers) * max_echoes, np.uint32))  # fmt: skip
-    return tuple(np.concatenate([np.asarray(x), e.astype(np.asarray(x).dtype)]) for x, e in zip(candidates, empty))
+    beam, range_m, amplitude, label, object_id = (np.ascontiguousarray(x, t) for x, t in zip(candidates, (
+        np.int64, np.float64, np.float64, np.uint8, np.uint32)))  # fmt: skip
+    if not _ascending(beam):
+        order = _beam_order(beam)
+        beam, range_m, amplitude, label, object_id = (x[order] for x in (beam, range_m, amplitude, label, object_id))
+    return _merged(beam, range_m, amplitude, label, object_id, np.flatnonzero(carrying & ~quiet), max_echoes)
+
+
+@numba.njit(cache=True, nogil=True)
+def _merged(beam, range_m, amplitude, label, object_id, carriers, k):
+    """The candidates (``beam`` ascending) with ``k`` empty ones (range nan, amplitude 0) after each beam of
+    ``carriers`` (ascending): grouped by beam, each beam's own candidates first (as a stable sort of both)."""
+    n, m = len(beam), len(carriers) * k
+    out = (np.empty(n + m, np.int64), np.empty(n + m), np.empty(n + m), np.empty(n + m, np.uint8),
+           np.empty(n + m, np.uint32))  # fmt: skip
+    ob, orr, oa, ol, oo = out
+    i = j = 0
+    for c in carriers:
+        while i < n and beam[i] <= c:
+            ob[j], orr[j], oa[j], ol[j], oo[j] = beam[i], range_m[i], amplitude[i], label[i], object_id[i]
+            i += 1
+            j += 1
+        for _ in range(k):
+            ob[j], orr[j], oa[j], ol[j], oo[j] = c, np.nan, 0.0, 0, 0
+            j += 1
+    while i < n:
+        ob[j], orr[j], oa[j], ol[j], oo[j] = beam[i], range_m[i], amplitude[i], label[i], object_id[i]
+        i += 1
+        j += 1
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
