@@ -18,6 +18,12 @@ the reference's time in its step + scene cast + detection; ratio in %.
     python benchmarks/validation/spray_compare.py --scenarios proving_ground_55 --water-film-mm 3 --seeds 0,1,2,3
     python benchmarks/validation/spray_compare.py --scenarios highway_spray --spray mist_packets_per_wheel_per_tick=32
     python benchmarks/validation/spray_compare.py --scenarios highway_spray --seeds 0,1 --frames 120 --water-along-x
+    python benchmarks/validation/spray_compare.py --scenarios highway_spray --seeds 0,1 --spray inertial_scale=0
+
+The reference has drops only; the model also has the thesis' inertial particles (Table III), solid spheres
+around the car that throws them, seen in frames where no drop is. ``--spray inertial_scale=0`` compares the
+model's drop packets alone with the reference, like for like (the same packets: each population draws from
+its own generator).
 
 ``--seeds`` runs each scenario once per spray seed (turbulence and emission) and pools the frames:
 a few seconds of proving-ground spray hold one or two turbulent episodes, so one seed's bird's-eye
@@ -219,6 +225,11 @@ def report(out: dict, on_packets: bool = False, water: bool = False) -> None:
           f"{out['reference_ms']:.0f} ms = {out['cost_pct']:.2f} %  ({out['model_particles']} particles, "
           f"{out['reference_drops']} drops); median x, y model {out['model_xy_median']} reference "
           f"{out['reference_xy_median']}", flush=True)  # fmt: skip
+    counts = {who: np.asarray(out[f"{who}_counts_all"]) for who in ("model", "reference")}
+    print(f"{'':18s} frames without a spray detection: model {np.mean(counts['model'] == 0):.0%}, reference "
+          f"{np.mean(counts['reference'] == 0):.0%}; median / 90th percentile per frame: model "
+          f"{np.median(counts['model']):g} / {np.percentile(counts['model'], 90):.0f}, reference "
+          f"{np.median(counts['reference']):g} / {np.percentile(counts['reference'], 90):.0f}", flush=True)  # fmt: skip
     if "reference_split_half_pearson" in out:
         print(f"{'':18s} {out['seeds']} seeds pooled; the reference's even seeds against its odd ones: pearson "
               f"{out['reference_split_half_pearson']:.3f}, hist overlap {out['reference_split_half_overlap']:.2f}",

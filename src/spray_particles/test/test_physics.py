@@ -279,6 +279,17 @@ def test_more_speed_more_particles_emitted():
     assert _run(speed=7.0, mist_packets_per_wheel_per_tick=0.0).emitted == 0
 
 
+def test_inertial_scale_zero_leaves_the_same_drop_packets_alone():
+    """``inertial_scale`` 0 (the droplet reference's like, which has no inertial particles): no population 0,
+    and the drop packets those of the full system bit for bit (each population draws from its own generator)."""
+    full, packets = _run(seed=3), _run(seed=3, inertial_scale=0.0)
+    keep = full.particles.population == 1
+    assert (full.particles.population == 0).sum() > 50
+    assert (packets.particles.population == 1).all() and keep.sum() > 50
+    assert np.array_equal(full.particles.pos[keep], packets.particles.pos)
+    assert np.array_equal(full.particles.airborne[keep], packets.particles.airborne)
+
+
 def test_particles_die_on_the_ground_the_body_and_at_their_lifetime():
     s = _run(duration=3.0, lifetime_s=0.3, mist_lifetime_s=0.3)
     assert np.all(s.particles.age < 0.3 + 1e-9)

@@ -126,6 +126,64 @@ def test_a_drop_is_seen_only_if_its_nearest_sub_ray_reaches_it():
     assert len(_frame_with_drops(1000, 50.0, wall_m=5.0, subrays_v=3).range_m) == 0
 
 
+def _beam_amplitudes_by_quadrature(profile, pattern, drop, weight, diameter, sigma):
+    """The reference's blob model from first principles, beam by beam: the Gaussian blob (std ``sigma`` m, cut
+    at 3 sigma from the footprint) integrated over each beam's footprint on a 32 x 32 grid, its drops'
+    cross-section share of the footprint, the peak amplitude of the LIDAR equation. {(column, channel): peak}."""
+    r = float(np.linalg.norm(drop))
+    az, el = np.arctan2(drop[1], drop[0]), np.arcsin(drop[2] / r)
+    div_h, div_v = profile.optics.divergence_h_mrad * 1e-3, profile.optics.divergence_v_mrad * 1e-3
+    w, h = div_h * r, div_v * r
+    grid = (np.arange(32) + 0.5) / 32 - 0.5
+    out = {}
+    for col, beam_az in enumerate(pattern.column_azimuth):
+        for ch in pattern.active_channels(0):
+            d_az = (beam_az - az + np.pi) % (2 * np.pi) - np.pi
+            cx, cy = d_az * np.cos(el) * r, (pattern.elevation[ch] - el) * r  # footprint centre (m)
+            gap = np.hypot(max(abs(cx) - w / 2, 0.0), max(abs(cy) - h / 2, 0.0))
+            if gap >= 3.0 * sigma:
+                continue
+            x, y = np.meshgrid(cx + grid * w, cy + grid * h)
+            inside = np.exp(-0.5 * (x**2 + y**2) / sigma**2).mean() * w * h / (2 * np.pi * sigma**2)
+            share = weight * np.pi / 4 * diameter**2 * inside / (w * h)
+            reflectance = C.particles.single_scattering_albedo * C.particles.backscatter_phase * -np.expm1(-share)
+            out[(col, int(ch))] = profile.detection.power_constant * reflectance / r**2
+    return out
+
+
+@pytest.mark.parametrize("drop, all_round", [((1.0, 0.02, 0.01), False), ((0.4, -0.03, 0.02), False),
+                                             ((3.0, 0.1, -0.05), False), ((-1.0, 0.004, 0.01), True)])
+def test_a_near_blob_feeds_every_beam_within_its_reach(drop, all_round):
+    """A drop blob next to the sensor spans many beams (at 1 m its 3 sigma, 0.3 m, reach 17 deg): every beam
+    whose footprint it reaches gets its share, as the blob integrated over each footprint gives it (the
+    reference once took at most 8 columns and 1 channel either side: at 1 m a sixth of the beams above the
+    threshold). ``all_round``: a sensor that looks all round, the drop behind it (its beams on both sides of
+    +-180 deg)."""
+    scan = {"scan__azimuth_min_deg": -180.0, "scan__azimuth_max_deg": 180.0, "scan__columns": 1440} if all_round else {}
+    profile = simple_profile(beams=[{"elevation_deg": e} for e in (-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0)],
+                             optics__divergence_h_mrad=1.75, optics__divergence_v_mrad=2.0, **scan)  # fmt: skip
+    pattern = ScanPattern(profile)
+    ref = _reference()
+    weight, diameter = 2e4, 2e-4
+    pos = np.array([drop])
+    ref.particles = Particles(pos, np.zeros((1, 3)), np.zeros(1), np.full(1, 9.0), np.zeros(1), np.zeros(1),
+                              np.zeros(1, np.int64), np.ones(1), np.full(1, 2, np.uint8), np.zeros(1, np.int64),
+                              np.full(1, diameter), np.full(1, weight), np.zeros(1), np.ones(1))  # fmt: skip
+    ref.tick_index = 0
+
+    def poses(times):
+        return np.zeros((len(times), 3)), np.tile(np.eye(3), (len(times), 1, 1))
+
+    got = detect_frame(ref, pattern, 0, 0.0, poses, None, threshold=4.0)
+    found = {(int(c), int(ch)): a for c, ch, a in zip(got.column, got.channel, got.amplitude)}
+    expected = _beam_amplitudes_by_quadrature(profile, pattern, pos[0], weight, diameter, C.reference.kernel_radius_m)
+    clear = {k for k, a in expected.items() if abs(a / 4.0 - 1.0) > 0.02}  # away from the threshold (quadrature)
+    assert {k for k in clear if expected[k] > 4.0} == {k for k in found if k in clear}
+    assert len(found) > 30
+    for k, a in found.items():
+        assert a == pytest.approx(expected[k], rel=0.02)
+
+
 def test_metrics():
     a = bev_histogram(np.array([[10.2, 0.1], [10.3, 0.2], [20.0, -3.0]]))
     assert a.sum() == 3 and a.shape == (80, 40)

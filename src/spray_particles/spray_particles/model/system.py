@@ -73,6 +73,8 @@ class SprayTunables(ConfigModel):
 
     seed: int = Field(0, description="Seed of emission and turbulence")
     emission_scale: float = Field(1.0, ge=0, description="Multiplies the calibrated emission rate")
+    inertial_scale: float = Field(1.0, ge=0, description="Multiplies the inertial particles' emission alone (0: drop "
+                                  "packets only, the same packets: each population draws from its own generator)")
     film_cv: float = Field(0.0, ge=0, description="Variation of the film seen per tick (coefficient of variation)")
     wind_over_speed: float = Field(0.4, ge=0, le=1.5, description="Air speed past the car in its wake / car speed "
                                                                   "(Table III: 0.4, IV: 1)")
@@ -411,7 +413,8 @@ class SpraySystem:
         """Mean inertial particles per wheel per sensor frame: eq. 2's linear dependence on film x speed
         above a threshold speed, calibrated to Table III (config/spray.yaml emission)."""
         e = self.constants.emission
-        return self.params.emission_scale * e.gain_per_mm_m_s * film_mm * max(0.0, speed_m_s - e.threshold_speed_m_s)
+        return self.params.emission_scale * self.params.inertial_scale * e.gain_per_mm_m_s * film_mm * \
+            max(0.0, speed_m_s - e.threshold_speed_m_s)  # fmt: skip
 
     def _emit(self, rng, tick: int, present, vel, rot, org) -> None:
         """Append the tick's emission (:meth:`_emission`) to ``self.particles``."""

@@ -138,37 +138,27 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     # it feeds every beam within 3 sigma (kernel) with the share of the blob inside that beam's
     # footprint (a point-like super-drop next to the sensor would fill a whole beam on its own).
     sigma = ref.kernel_radius_m
-    spacing = float(np.abs(az_cols[1] - az_cols[0])) if len(az_cols) > 1 else 1.0
+    # every beam within the blob's reach: 3 sigma around it, however many columns and channels that spans
     reach = 3.0 * sigma / np.maximum(rng_m, 1e-3)  # angular reach of the blob (rad)
-    n_off = int(min(8, np.ceil(np.max(reach + 0.5 * div_h) / spacing))) if len(rng_m) else 0
-    ch_near = np.argmin(np.abs(el[:, None] - elev[None, :]), axis=1)
-    offs_c = np.arange(-n_off, n_off + 1)
-    offs_e = np.arange(-1, 2)
-    cols = column[:, None, None] + offs_c[None, :, None] + 0 * offs_e[None, None, :]
-    chs = ch_near[:, None, None] + offs_e[None, None, :] + 0 * offs_c[None, :, None]
-    valid = (cols >= 0) & (cols < len(az_cols)) & (chs >= 0) & (chs < len(channels))
-    cols, chs = np.clip(cols, 0, len(az_cols) - 1), np.clip(chs, 0, len(channels) - 1)
-    # the drop's offset from each beam's axis (rad), its distance from the footprint (m), the blob's share in it
-    da = (az[:, None, None] - az_cols[cols]) * np.cos(el)[:, None, None]
-    de = el[:, None, None] - elev[chs]
-    r3 = rng_m[:, None, None]
+    drop, cols, chs, da = _beams_in_reach(az, el, reach, az_cols, elev, div_h, div_v)
+    de = el[drop] - elev[chs]
+    r3 = rng_m[drop]
     dist = np.hypot(np.maximum(np.abs(da) - 0.5 * div_h, 0.0), np.maximum(np.abs(de) - 0.5 * div_v, 0.0)) * r3
     footprint = div_h * div_v * rng_m * rng_m
     frac = blob_share(da * r3, de * r3, div_h * r3, div_v * r3, sigma)
-    valid &= dist < 3.0 * sigma
+    valid = dist < 3.0 * sigma
     hit_distance = scene_distance
     if scene_distance is not None and np.ndim(scene_distance) == 3:
         # per sub-ray scene hits: the drop is seen by the sub-ray nearest to it in angle, so a drop behind
         # a tyre is not seen by a beam whose upper sub-rays pass over the bonnet
-        sub = np.argmin((da[..., None] - pattern.subray_dh) ** 2 + (de[..., None] - pattern.subray_dv) ** 2, axis=-1)
+        sub = np.argmin((da[:, None] - pattern.subray_dh) ** 2 + (de[:, None] - pattern.subray_dv) ** 2, axis=-1)
         valid &= r3 < scene_distance[cols, chs, sub]
         hit_distance = scene_distance[:, :, pattern.n_subrays // 2]  # the central sub-ray's hit: echo merging
     elif scene_distance is not None:
         valid &= r3 < scene_distance[cols, chs]
     if not valid.any():
         return empty
-    drop, _, _ = np.nonzero(valid)
-    column, ch_pos, frac = cols[valid], chs[valid], frac[valid]
+    drop, column, ch_pos, frac = drop[valid], cols[valid], chs[valid], frac[valid]
     rng_m, local = rng_m[drop], local[drop]
     share = w[drop] * (np.pi / 4.0 * d[drop] ** 2) * frac / footprint[drop]  # cross-section share of the footprint
     cell = np.floor(rng_m / ref.range_cell_m).astype(np.int64)
@@ -204,6 +194,34 @@ def detect_frame(reference: DropletReference, pattern, frame_index: int, frame_s
     det &= rank < max_echoes
     b = cell_beam[det]
     return ReferenceDetections(b // len(channels), channels[b % len(channels)], cell_range[det], cell_xyz[det], amp[det])
+
+
+def _beams_in_reach(az, el, reach, az_cols, elev, div_h: float, div_v: float):
+    """Every (drop, beam) pair whose footprint may lie within ``reach`` (rad, per drop) of the drop at azimuth
+    ``az`` and elevation ``el`` (rad): the columns of ``az_cols`` (monotone, rad) within reach + div_h / 2 of
+    it in arc (azimuth difference times cos(el); across +-pi too), the channels of ``elev`` (rad) within reach +
+    div_v / 2. Returns (drop index, column, channel position, azimuth offset times cos(el) (rad)) per pair."""
+    arc = np.maximum(np.cos(el), 1e-6)
+    w_az = (reach + 0.5 * div_h) / arc
+    w_el = reach + 0.5 * div_v
+    order = np.argsort(elev, kind="stable")
+    e_lo = np.searchsorted(elev[order], el - w_el, side="left")
+    e_hi = np.searchsorted(elev[order], el + w_el, side="right")
+    ascending = len(az_cols) < 2 or az_cols[-1] > az_cols[0]
+    key = az_cols if ascending else -az_cols
+    parts = []
+    for shift in (0.0, -2.0 * np.pi, 2.0 * np.pi):  # a window across +-pi on a sensor that looks all round
+        a = az + shift
+        lo, hi = (a - w_az, a + w_az) if ascending else (-(a + w_az), -(a - w_az))
+        c_lo = np.searchsorted(key, lo, side="left")
+        c_hi = np.searchsorted(key, hi, side="right")
+        n_c, n_e = np.maximum(c_hi - c_lo, 0), np.maximum(e_hi - e_lo, 0)
+        count = n_c * n_e
+        drop = np.repeat(np.arange(len(az)), count)
+        k = np.arange(len(drop)) - np.repeat(np.cumsum(count) - count, count)
+        col = c_lo[drop] + k // n_e[drop]
+        parts.append((drop, col, order[e_lo[drop] + k % n_e[drop]], (a[drop] - az_cols[col]) * arc[drop]))
+    return tuple(np.concatenate(x) for x in zip(*parts))
 
 
 def blob_share(dx, dy, width, height, sigma: float):
