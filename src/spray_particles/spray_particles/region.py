@@ -40,7 +40,7 @@ from spray_particles.model.constants import load_constants
 from spray_particles.model.emitter import vehicle_emitter
 from spray_particles.kernels.fused import packet_radii
 from spray_particles.sensing.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
-from spray_particles.sensing.raycast import candidates, group_bounds, sphere_hits
+from spray_particles.sensing.raycast import candidates, group_bounds, origin_spread, rays_in_cone, sphere_hits
 from spray_particles.model.system import EmittingVehicle, SprayParams, SpraySystem, SprayTunables
 from spray_particles.model.water import tyre_dimensions
 
@@ -184,9 +184,7 @@ class SprayRegion:
         dirs = batch.directions.reshape(-1, 3)
         # broad phase per vehicle: the bounding sphere of its particles against the batch's rays
         # (one dot product per ray); only the rays inside one of these cones go further
-        ref = np.array([batch.origins[:, k].mean() for k in range(3)])  # (numpy reduces (N, 3) along N ~10x slower)
-        off = batch.origins - ref
-        spread = float(np.sqrt(np.max(np.einsum("ij,ij->i", off, off))))
+        ref, spread = origin_spread(np.ascontiguousarray(batch.origins, np.float64))  # mean origin, farthest from it
         lo, hi, largest = group_bounds(centres, radii, p.group, p.n_groups)
         chosen = np.zeros(len(lo), bool)
         ray_mask = np.zeros(len(dirs), bool)
@@ -198,10 +196,8 @@ class SprayRegion:
                 chosen[k] = True
                 ray_mask[:] = True
                 continue
-            inside = dirs @ (q / dist) >= np.cos(min(np.pi, np.arcsin(min(1.0, rad / dist)) * 1.001 + 1e-6))
-            if inside.any():
-                chosen[k] = True
-                ray_mask |= inside
+            cos_half = float(np.cos(min(np.pi, np.arcsin(min(1.0, rad / dist)) * 1.001 + 1e-6)))
+            chosen[k] = rays_in_cone(dirs, q / dist, cos_half, ray_mask)
         rays, idx, origins, directions, max_range = candidates(ray_mask, chosen, p.group, batch.origins, dirs,
                                                                batch.distance.reshape(-1), n_sub)  # fmt: skip
         if not len(rays) or not len(idx):

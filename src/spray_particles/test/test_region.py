@@ -12,7 +12,7 @@ from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.sim.simulator import LidarSimulator
 from lidar_weather_sim.testing.fixtures import one_frame, scene_of, simple_profile, wall
 from spray_particles.sensing.particle_cloud import TOPIC_FIELDS, TOPIC_PARTICLES, particle_cloud
-from spray_particles.sensing.raycast import sphere_hits
+from spray_particles.sensing.raycast import origin_spread, rays_in_cone, sphere_hits
 from spray_particles.region import SprayRegion
 from spray_particles.model.system import Particles
 
@@ -44,6 +44,29 @@ def test_sphere_hits_equal_brute_force_for_cm_spheres_at_50_m_including_the_azim
     assert len(brute) > 500
     assert {tuple(x) for x in got} == {tuple(x) for x in brute}
     assert hits.range_m == pytest.approx(entry[hits.ray, hits.sphere], abs=1e-9)
+
+
+def test_the_broad_phase_marks_the_rays_in_a_cone_and_the_origins_spread_as_numpy_computes_them():
+    """The region's broad phase (per emitting vehicle, the rays within a cone around its particles' bounds): the
+    kernels against the numpy expressions they replaced, on seeded rays (none within 1e-9 of the cone's edge)."""
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(20000, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    axis = np.array([0.6, 0.0, 0.8])
+    cos_half = float(np.cos(0.3))
+    d = d[np.abs(d @ axis - cos_half) > 1e-9]
+    mask = np.zeros(len(d), bool)
+    mask[:5] = True  # marks already set stay set (the mask gathers every vehicle's cone)
+    assert rays_in_cone(d, axis, cos_half, mask)
+    expected = d @ axis >= cos_half
+    expected[:5] = True
+    assert np.array_equal(mask, expected) and 200 < expected.sum() < len(d) // 2
+    empty = np.zeros(len(d), bool)
+    assert not rays_in_cone(d, axis, 1.5, empty) and not empty.any()  # a cone no ray lies in
+    origins = rng.normal(0.0, 0.05, (700, 3)) + np.array([10.0, -3.0, 1.5])
+    ref, spread = origin_spread(origins)
+    assert ref == pytest.approx(origins.mean(axis=0), abs=1e-12)
+    assert spread == pytest.approx(np.linalg.norm(origins - origins.mean(axis=0), axis=1).max(), abs=1e-12)
 
 
 @pytest.mark.parametrize("slice_rad", [0.6, 2 * np.pi])

@@ -129,7 +129,9 @@ class CoverRegion:
         if batch.column is None:
             u, v = self.uv(batch.sensor_directions)
             return [t.sample(u, v) for t in self.textures]
-        return [table[batch.column, batch.channel] for table in self._pattern_samples()]
+        tables = self._pattern_samples()
+        rows = batch.column * tables[0].shape[1] + batch.channel  # (np.take of rows: ~3x faster than [col, ch])
+        return [np.take(table.reshape(-1, table.shape[-1]), rows, axis=0) for table in tables]
 
     def _pattern_samples(self) -> list[np.ndarray]:
         """Each texture sampled at every sub-ray direction of the profile's scan pattern, (columns,

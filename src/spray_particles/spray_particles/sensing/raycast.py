@@ -95,7 +95,7 @@ def sphere_hits(origins: np.ndarray, directions: np.ndarray, max_range: np.ndarr
     centres = np.asarray(centres, dtype=np.float64)
     radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(centres),))
     z_scale = radius / np.asarray(vertical, dtype=np.float64) if vertical is not None else np.ones(len(centres))
-    ref, spread = _origin_spread(origins)
+    ref, spread = origin_spread(origins)
     q = centres - ref
     dist = np.sqrt(np.einsum("nk,nk->n", q, q))
     idx, q, dist, near, rad, span_sine, el_sine = _near_spheres(q, dist, radius, spread, float(np.max(max_range)))
@@ -117,7 +117,7 @@ Z_BINS = 64  # of the sine of the elevation over [-1, 1]: 1.8 deg at the horizon
 
 
 @numba.njit(cache=True, nogil=True)
-def _origin_spread(origins):
+def origin_spread(origins):
     """Mean of the ray origins (3,) and the largest distance of an origin from it (m)."""
     ref = np.zeros(3)
     for i in range(origins.shape[0]):
@@ -375,6 +375,20 @@ def _narrow_phase(windows, table, spheres, centres, z_scale, rays, out):
                 out[0][n], out[1][n], out[2][n], out[3][n] = j, i, entry, half_chord
                 n += 1
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def rays_in_cone(directions, axis, cos_half, mask):
+    """Marks in ``mask`` (R,) bool the rays of ``directions`` (R, 3) unit that lie within the cone of unit ``axis``
+    (3,) whose half-angle has the cosine ``cos_half``; returns whether any does. (A broad phase: the caller widens
+    the cone beyond what its spheres need, so a ray on its edge decides nothing.)"""
+    found = False
+    a0, a1, a2 = axis[0], axis[1], axis[2]
+    for i in range(directions.shape[0]):
+        if directions[i, 0] * a0 + directions[i, 1] * a1 + directions[i, 2] * a2 >= cos_half:
+            mask[i] = True
+            found = True
+    return found
 
 
 @numba.njit(cache=True, nogil=True)
