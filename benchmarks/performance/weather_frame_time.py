@@ -18,7 +18,11 @@ their sum exceeds the frame and ``other`` comes out negative. Per profile, a lea
 frame (all weather rows): how each grows with what is in the air.
 
     python benchmarks/performance/weather_frame_time.py [--profiles scala4,vlp16,hdl64e,os1_128_2048] [--frames N]
-        [--backend B] [--rows clear,target,...] [--step-s S] [--warmup-s S]
+        [--backend B] [--rows clear,target,...] [--step-s S] [--warmup-s S] [--hard-echoes-only]
+
+``--hard-echoes-only`` is a floor, not the product: in the rows with an atmosphere (a volume) the echo stage gets
+the scene's hard returns alone (no scatterers, no volume), so such a row costs its regions, casts, candidates and
+occlusion but no more echo work than a clear frame: what the echo stage's weather work could save at most.
 """
 
 from __future__ import annotations
@@ -31,9 +35,11 @@ import numpy as np
 from sim_frame_time import PROFILES, ten_vehicles, versions
 
 from lidar_weather_sim.core import workers
+from lidar_weather_sim.core.points import Label
 from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.scene.raycast import available_backends
+from lidar_weather_sim.sim import simulator
 from lidar_weather_sim.sim.simulator import LidarSimulator
 
 STAGES = ("step", "apply", "cast", "candidates", "occlusion", "echoes", "points")
@@ -179,6 +185,26 @@ def bench_profile(profile: str, rows: list[str], specs: dict, backend: str, fram
         print(f"{profile}: ms per 1000 scatterers per frame (least squares over the weather rows): {', '.join(slopes)}")
 
 
+def _hard_echoes_only(detect):
+    """``detect`` (:func:`~lidar_weather_sim.sensor.echo.detect_echoes`) on the candidates labelled static or
+    vehicle alone and without the volume, for the batches that carry a volume (the atmosphere's rows, ``target``):
+    what a frame costs when the weather adds nothing to the echo stage. Other batches (clear, cover, spray) as
+    they are."""
+
+    def hard(beam, range_m, amplitude, label, object_id, **kwargs):
+        if kwargs.pop("volume", None) is None:
+            return detect(beam, range_m, amplitude, label, object_id, **kwargs)
+        segments = kwargs.pop("segments", None)
+        arrays = (beam, range_m, amplitude, label, object_id)
+        if segments is not None:
+            take = np.concatenate([np.arange(a, a + c) for a, c in zip(*segments)] + [np.zeros(0, np.int64)])
+            arrays = tuple(np.asarray(x)[take] for x in arrays)
+        keep = (arrays[3] == Label.STATIC) | (arrays[3] == Label.VEHICLE)
+        return detect(*(x[keep] for x in arrays), **kwargs)
+
+    return hard
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--profiles", default=",".join(PROFILES))
@@ -188,7 +214,12 @@ def main() -> None:
     ap.add_argument("--backend", help="raycast backend (default: the first available, the fastest)")
     ap.add_argument("--dirt", default="3l", help="cover sample of the dirty cover (config/cover/samples.yaml)")
     ap.add_argument("--rows", help="comma-separated rows (default: all)")
+    ap.add_argument("--hard-echoes-only", action="store_true",
+                    help="a floor, not the product: in rows with an atmosphere the echo stage gets the scene's hard "
+                         "returns alone, without scatterers or volume; the regions drawn as usual")  # fmt: skip
     args = ap.parse_args()
+    if args.hard_echoes_only:
+        simulator.detect_echoes = _hard_echoes_only(simulator.detect_echoes)
     specs = row_specs(args.dirt)
     rows = args.rows.split(",") if args.rows else list(specs)
     unknown = sorted(set(rows) - set(specs))
@@ -196,6 +227,8 @@ def main() -> None:
         ap.error(f"--rows: unknown {unknown}; choose from {list(specs)}")
     backend = args.backend or available_backends()[0]
     print(versions())
+    if args.hard_echoes_only:
+        print("--hard-echoes-only: the echo stage sees the hard returns alone (a floor, not the product's clouds)")
     for profile in args.profiles.split(","):
         bench_profile(profile, rows, specs, backend, args.frames, args.warmup_s, args.step_s)
 
