@@ -40,6 +40,7 @@ from lidar_weather_sim.scenario.schema import load_scenario
 from lidar_weather_sim.scenario.world import World
 from lidar_weather_sim.scene.raycast import available_backends
 from lidar_weather_sim.sim import simulator
+from lidar_weather_sim.sim.kernels import compact_candidates
 from lidar_weather_sim.sim.simulator import LidarSimulator
 
 STAGES = ("step", "apply", "cast", "candidates", "occlusion", "echoes", "points")
@@ -197,8 +198,7 @@ def _hard_echoes_only(detect):
         segments = kwargs.pop("segments", None)
         arrays = (beam, range_m, amplitude, label, object_id)
         if segments is not None:
-            take = np.concatenate([np.arange(a, a + c) for a, c in zip(*segments)] + [np.zeros(0, np.int64)])
-            arrays = tuple(np.asarray(x)[take] for x in arrays)
+            arrays = compact_candidates(arrays, segments)
         keep = (arrays[3] == Label.STATIC) | (arrays[3] == Label.VEHICLE)
         return detect(*(x[keep] for x in arrays), **kwargs)
 
