@@ -13,6 +13,7 @@ import subprocess
 import pytest
 import yaml
 
+from lidar_weather_sim.core.engine import Engine
 from lidar_weather_sim.core.names import RETURN_MODES
 from lidar_weather_sim.core.paths import config_dir
 from lidar_weather_sim.gap.command import SearchLog, run_gap
@@ -136,6 +137,23 @@ def test_gap_prints_one_line_per_step_where_stderr_is_not_a_terminal(monkeypatch
                    "gap: 812 frames cast: atmosphere.snow:intensity=0.267109: held-out gap 0.1538"], err
 
 
+def test_gap_evaluates_in_forked_copies_by_default_and_in_this_process_with_workers_0(monkeypatch, tmp_path):
+    import lidar_weather_sim.gap.command as command
+    from lidar_weather_sim.cli import main as cli_main
+
+    asked = []
+
+    def fake_run_gap(measured, scenario, out, **kwargs):
+        asked.append((kwargs["workers"], kwargs["scheduler"]))
+        return {"gap_before": 0.3, "gap_after": 0.1, "effects": [], "found": "no effect", "split": {}}
+
+    monkeypatch.setattr(command, "run_gap", fake_run_gap)
+    for extra in ([], ["--workers", "0"], ["--workers", "3"], ["--scheduler", "tcp://h:8786"]):
+        assert cli_main(["gap", str(tmp_path / "bag"), "--scenario", "highway_clear", "--out", str(tmp_path / "g"),
+                         *extra]) == 0  # fmt: skip
+    assert asked == [(None, None), (0, None), (3, None), (None, "tcp://h:8786")]
+
+
 def test_measured_bag_looks_like_a_real_recording(highway, tmp_path, cli):
     out = tmp_path / "m"
     done = subprocess.run([*cli, "make-measured", "highway_clear", "--hide", "atmosphere.rain:intensity=5",
@@ -229,15 +247,19 @@ def test_compare_writes_metrics_report_and_plots(highway, tmp_path, cli):
 
 
 @pytest.mark.validation
-def test_gap_search_on_two_dask_workers_is_the_serial_diagnosis(highway, tmp_path):
+def test_gap_search_in_forked_copies_and_on_dask_workers_is_the_serial_diagnosis(highway, tmp_path):
     hidden = ["atmosphere.fog:visual_range=80"]
     scenario = case_scenario(highway, hidden)
     make_measured(scenario, [parse_effect(h) for h in hidden], tmp_path / "measured", frames=12)
     budgets = {"fit_frames": 4, "heldout_frames": 4, "screen_frames": 1}
     serial = run_gap(tmp_path / "measured", scenario, tmp_path / "serial", **budgets)
-    parallel = run_gap(tmp_path / "measured", scenario, tmp_path / "parallel", workers=2, **budgets)
     assert [e["name"] for e in serial["effects"]] == ["atmosphere.fog"]
-    assert json.dumps(parallel, sort_keys=True) == json.dumps(serial, sort_keys=True)
+    forked = run_gap(tmp_path / "measured", scenario, tmp_path / "forked", workers=2, **budgets)
+    assert json.dumps(forked, sort_keys=True) == json.dumps(serial, sort_keys=True)
+    with Engine(workers=2) as cluster:
+        dask = run_gap(tmp_path / "measured", scenario, tmp_path / "dask", scheduler=cluster.client.scheduler.address,
+                       **budgets)  # fmt: skip
+    assert json.dumps(dask, sort_keys=True) == json.dumps(serial, sort_keys=True)
 
 
 @pytest.mark.parametrize("hidden", ["sensor.intensity_gamma:gamma=0.55", "sensor.range_bias:bias=-0.05",

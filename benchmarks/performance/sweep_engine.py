@@ -96,7 +96,7 @@ def bench_gap(args: argparse.Namespace) -> None:
     print(f"gap on {args.frames} scala4 frames of highway_clear with {' + '.join(hidden)} hidden (default budgets), "
           f"load {_load()}")  # fmt: skip
     found = {}
-    for label, workers in (("before: in this process (today's gap)", 0), ("after: --workers 2", 2)):
+    for label, workers in (("in this process (--workers 0)", 0), ("2 forked copies (the default here)", 2)):
         start = time.perf_counter()
         result = run_gap(tmp / "measured", scenario, tmp / f"gap{workers}", workers=workers)
         wall = time.perf_counter() - start

@@ -521,8 +521,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "intensity response, range bias and noise, ray drop: for real recordings) or both")  # fmt: skip
     _removed(gap, "--atmosphere-model")
     gap_engine = gap.add_mutually_exclusive_group()
-    gap_engine.add_argument("--workers", type=workers_int, default=0, help="run the search's evaluations on N local "
-                            "Dask worker processes (default 0: in this process; the result is the same)")  # fmt: skip
+    gap_engine.add_argument("--workers", type=workers_int, default=None, help="run the search's evaluations on N "
+                            "forked copies of this process (default: one per CPU; 0: in this process; the result is "
+                            "the same)")  # fmt: skip
     gap_engine.add_argument("--scheduler", metavar="ADDRESS", help="run them on the Dask cluster at ADDRESS (its "
                             "workers must read MEASURED at the same path)")  # fmt: skip
     gap.set_defaults(func=_cmd_gap)

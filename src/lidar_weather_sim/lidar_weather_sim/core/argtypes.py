@@ -33,5 +33,5 @@ count_int = number_in(int, 0, reason="be 0 (no limit) or more")
 seed_int = number_in(int, 0, reason="be 0 or more")  # numpy's seed sequences take no negatives
 non_negative_float = number_in(float, 0.0, reason="be a finite number of 0 or more")  # times, timeouts
 positive_float = number_in(float, 0.0, open_low=True, reason="be a finite number above 0")  # rates, durations
-workers_int = number_in(int, 0, reason="be 0 (no Dask: in this process) or more")  # the Dask engine's workers
+workers_int = number_in(int, 0, reason="be 0 (in this process) or more")  # worker processes (sweep: Dask; gap: forked)
 port_int = number_in(int, 0, 65535, reason="be a TCP port, 0 (any free port) to 65535")

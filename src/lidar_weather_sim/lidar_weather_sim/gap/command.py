@@ -13,8 +13,9 @@ from typing import Callable
 import yaml
 
 from lidar_weather_sim.core.engine import Engine
+from lidar_weather_sim.core.workers import usable_cpus
 from lidar_weather_sim.gap.compare import bev_metrics, build_comparison
-from lidar_weather_sim.gap.parallel import SearchSource, Workers
+from lidar_weather_sim.gap.parallel import ForkedWorkers, SearchSource, Workers
 from lidar_weather_sim.gap.report import write_compare, write_gap
 from lidar_weather_sim.gap.signatures import GapResimulator, measured_signature
 from lidar_weather_sim.gap.search import GapSearch
@@ -69,7 +70,7 @@ class SearchLog:
 
 def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Path, *, profile: str | None = None,
             topic: str | None = None, progress: Callable[[str, int], None] | None = None,
-            scheduler: str | None = None, workers: int = 0, split: DataSplit | None = None, **budgets) -> dict:  # fmt: skip
+            scheduler: str | None = None, workers: int | None = 0, split: DataSplit | None = None, **budgets) -> dict:  # fmt: skip
     """Diagnose ``measured`` against ``scenario`` and write the gap files to ``out``; returns gap.json's content.
 
     ``scenario``: a scenario, or its name or YAML path; given by name or path and without ``split``, a twin
@@ -81,18 +82,23 @@ def run_gap(measured: str | Path, scenario: Scenario | str | Path, out: str | Pa
     :class:`~lidar_weather_sim.gap.search.GapSearch` keywords (fit_frames, heldout_frames, families, ...);
     ``split`` (a twin's split.yaml) decides the calibration and held-out parts, and gap.json then also holds
     the bird's-eye metrics of the held-out part before and after the effects (``heldout_bev``).
-    ``workers`` / ``scheduler``: the search's evaluations on N local Dask worker processes or on the
-    cluster at ``scheduler`` (:mod:`lidar_weather_sim.gap.parallel`; the result is the same)."""
+    ``workers``: the search's evaluations on N forked copies of this process (None: one per CPU; 0 or 1: in this
+    process); ``scheduler``: on the Dask cluster at that address instead (:mod:`lidar_weather_sim.gap.parallel`;
+    the result is the same either way)."""
     scenario, split, split_file = scenario_and_split(scenario, split)
     recording = Recording.load(measured, topic)
     resim = GapResimulator(recording, scenario, profile)
-    with SearchLog(out, progress) as logged, Engine(scheduler, workers) as engine:
+    with SearchLog(out, progress) as logged, Engine(scheduler) as engine:
         remote = None
-        if not engine.serial:  # each worker builds the search again from this
+        if scheduler:  # each worker builds the search again from this
             source = SearchSource(str(Path(measured).resolve()), scenario.model_dump_json(), profile, topic,
                                   tuple(sorted(budgets.items())), json.dumps(split.to_dict()) if split else None)  # fmt: skip
             remote = Workers(engine, source)
+        elif workers is None or workers > 1:
+            remote = ForkedWorkers(usable_cpus() if workers is None else workers)
         search = GapSearch(resim, progress=logged, workers=remote, split=split, **budgets)
+        if isinstance(remote, ForkedWorkers):
+            remote.search = search
         diagnosis = search.run()
         judgement = search.judge(diagnosis)
     patched = apply_effects(scenario, diagnosis.effects)

@@ -94,8 +94,9 @@ def smoothed_minimum(points: dict[float, float], min_points: int = 5) -> tuple[f
 
 
 class EvaluationWorkers(Protocol):
-    """Where a search's batches of evaluations run outside this process
-    (:class:`lidar_weather_sim.gap.parallel.Workers`): each returns the results in job order and the frames cast."""
+    """Where a search's batches of evaluations run (:class:`lidar_weather_sim.gap.parallel.Workers` on Dask,
+    :class:`lidar_weather_sim.gap.parallel.ForkedWorkers` in forked copies of this process): each returns the results
+    in job order and the frames cast that this process has not counted."""
 
     def gaps(self, jobs: list[tuple]) -> tuple[list[float], int]: ...
 
@@ -136,6 +137,16 @@ class GapEvaluator:
         self._measured = {name: measured_signature(rec, idx, resim.contexts, resim.channels, self.point_mask(name))
                           for name, idx in self._splits().items()}  # fmt: skip
         self._known: dict[tuple, float] = {}  # the gaps computed so far (_gap_key): a search asks some again
+
+    @property
+    def known_gaps(self) -> dict[tuple, float]:
+        """The gaps computed so far, by key (not to be changed but through :meth:`learn`)."""
+        return self._known
+
+    def learn(self, gaps: dict[tuple, float]) -> None:
+        """Remember ``gaps`` (key: value) computed by copies of this search elsewhere: they are not simulated
+        again here."""
+        self._known.update(gaps)
 
     def progress(self, text: str) -> None:
         """Tell the caller's ``progress`` (if any) ``text`` and the frames cast so far."""

@@ -504,32 +504,37 @@ class GapSearch(GapEvaluator):
         round at 0.267 mm/h by 0.0007 over a rain and the sun beside that snow by 8 % over a dirt; refitted together
         they are 1.133 mm/h and 339 W/m^2 at 0.0003, and in their places the rain and the dirt do not come near. Kept
         in ``diag`` per effect set: :meth:`give_way_round` and :meth:`conflict_rivals` ask for the same."""
-        effects, out = diag.effects, []
+        effects = diag.effects
         key = effects_key(effects)
         if key in diag.in_place:
             return diag.in_place[key]
         close = rivals(diag, self.gap_to_beat)
+        options = []  # per accepted effect, its rivals (one batch of each step for all effects)
         for i, effect in enumerate(effects):
             others = effects[:i] + effects[i + 1 :]
             if effect.spec.family != "weather" or effect.spec.categorical or self.proven_by_data(effect):
-                out.append([])
+                options.append([])
                 continue
-            options = [c for c in candidate_effects(self.resim, self.families) if c.name != effect.name
-                       and replaces(effect, c) and conflicts(others + [c]) is None]  # fmt: skip
-            options += [c.effect for c in close[i] if not any(same_variant(c.effect, o) for o in options)]
-            if not options:
-                out.append([])
-                continue
-            grids = [self.grid_of(c) for c in options]
-            gaps = iter(self.gaps([(others + [self.at_value(c, x)], "screen")
-                                   for c, xs in zip(options, grids) for x in xs]))  # fmt: skip
-            jobs = [(others, c, xs, int(np.argmin([next(gaps) for _ in xs]))) for c, xs in zip(options, grids)]
-            fitted = [(others, *fit) for fit in self.fits(jobs)]
-            if effect.name in GENERAL_RIVALS:
-                fitted = self.refit_with_others(fitted)
-            heldout = self.gaps([(beside + [f], "heldout") for beside, f, _, _ in fitted])
-            found = [(beside + [f], Candidate(f, gap, held, n, None if beside is others else tuple(beside)))
-                     for (beside, f, gap, n), held in zip(fitted, heldout)]  # fmt: skip
+            found = [c for c in candidate_effects(self.resim, self.families) if c.name != effect.name
+                     and replaces(effect, c) and conflicts(others + [c]) is None]  # fmt: skip
+            options.append(found + [c.effect for c in close[i] if not any(same_variant(c.effect, o) for o in found)])
+        beside = [effects[:i] + effects[i + 1 :] for i in range(len(effects))]
+        grids = [[self.grid_of(c) for c in opts] for opts in options]
+        gaps = iter(self.gaps([(beside[i] + [self.at_value(c, x)], "screen") for i, opts in enumerate(options)
+                               for c, xs in zip(opts, grids[i]) for x in xs]))  # fmt: skip
+        jobs = [(beside[i], c, xs, int(np.argmin([next(gaps) for _ in xs])))
+                for i, opts in enumerate(options) for c, xs in zip(opts, grids[i])]  # fmt: skip
+        fits = iter(self.fits(jobs))
+        fitted = [[(beside[i], *next(fits)) for _ in opts] for i, opts in enumerate(options)]
+        for i, effect in enumerate(effects):
+            if effect.name in GENERAL_RIVALS and fitted[i]:
+                fitted[i] = self.refit_with_others(fitted[i])
+        held = iter(self.gaps([(companions + [f], "heldout") for rows in fitted for companions, f, _, _ in rows]))
+        out = []
+        for i, effect in enumerate(effects):
+            found = [(companions + [f], Candidate(f, gap, next(held), n, None if companions is beside[i] else
+                                                  tuple(companions)))
+                     for companions, f, gap, n in fitted[i]]  # fmt: skip
             for _, c in found:
                 refitted = f" with {', '.join(e.label() for e in c.companions)} refitted" if c.companions else ""
                 self.progress(f"{c.effect.label()} in place of {effect.label()}{refitted}: held-out gap "
